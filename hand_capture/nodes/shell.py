@@ -1,0 +1,64 @@
+"""The standard ``main()`` of every node: init, spin, clean shutdown.
+
+``run_node(MyNode)`` does what ros2/demos do by hand in each file: ``rclpy.init`` with the
+process arguments, build the node, spin it, and shut down cleanly on Ctrl-C, SIGTERM or an
+external shutdown. A node that raises while starting or spinning has its traceback printed with
+its name and the process exits non-zero, which the graph runner reports.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import traceback
+from collections.abc import Callable, Sequence
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+
+
+def _sigterm_to_keyboardinterrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def run_node(
+    factory: Callable[[], Node],
+    args: Sequence[str] | None = None,
+    executor_factory: Callable[[], object] = SingleThreadedExecutor,
+) -> int:
+    """Run one node until shutdown; returns the process exit code (0 on a clean stop).
+
+    The node may define ``on_shutdown()``: it is called on every exit path (normal,
+    Ctrl-C, SIGTERM, exception) before the node is destroyed, e.g. to switch torque off.
+    """
+    signal.signal(signal.SIGTERM, _sigterm_to_keyboardinterrupt)
+    argv = list(sys.argv if args is None else args)
+    code = 0
+    node: Node | None = None
+    rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        node = factory()
+        executor = executor_factory()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:  # report any failure with the node name, exit 1
+        name = node.get_name() if node is not None else getattr(factory, "__name__", "node")
+        sys.stderr.write(f"[{name}] failed:\n{traceback.format_exc()}")
+        code = 1
+    finally:
+        if node is not None:
+            hook = getattr(node, "on_shutdown", None)
+            if callable(hook):
+                try:
+                    hook()
+                except Exception:  # shutdown must go on
+                    sys.stderr.write(f"[{node.get_name()}] on_shutdown failed:\n"
+                                     f"{traceback.format_exc()}")
+                    code = 1
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code

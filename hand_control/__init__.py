@@ -1,0 +1,1 @@
+"""hand_control: everything that turns hand poses into forces, motion and servo commands."""
