@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.task import Future
 
 
 def _sigterm_to_keyboardinterrupt(signum: int, frame: object) -> None:
@@ -29,8 +30,10 @@ def run_node(
 ) -> int:
     """Run one node until shutdown; returns the process exit code (0 on a clean stop).
 
-    The node may define ``on_shutdown()``: it is called on every exit path (normal,
-    Ctrl-C, SIGTERM, exception) before the node is destroyed, e.g. to switch torque off.
+    A node with a ``done`` attribute (an rclpy Future) is spun until it completes, and the
+    Future's integer result becomes the exit code. The node may define ``on_shutdown()``:
+    it is called on every exit path (normal, Ctrl-C, SIGTERM, exception) before the node is
+    destroyed, e.g. to switch torque off.
     """
     signal.signal(signal.SIGTERM, _sigterm_to_keyboardinterrupt)
     argv = list(sys.argv if args is None else args)
@@ -41,7 +44,14 @@ def run_node(
         node = factory()
         executor = executor_factory()
         executor.add_node(node)
-        executor.spin()
+        done = getattr(node, "done", None)
+        if isinstance(done, Future):
+            # A node that finishes by itself (e.g. a bag player) sets done to its exit code.
+            executor.spin_until_future_complete(done)
+            result = done.result() if done.done() else 0
+            code = result if isinstance(result, int) else 0
+        else:
+            executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:  # report any failure with the node name, exit 1

@@ -1,0 +1,182 @@
+"""bag_player: replay a rosbag2 bag with its recorded timing, publishing /clock.
+
+Messages are published in receive-time order at the recorded pace scaled by ``rate``; every
+payload is checked (deserialised) before it is published, so a corrupt record stops playback
+with an error naming the file and is never sent. ``/clock`` carries the bag time at
+``clock_rate`` Hz so nodes with ``use_sim_time`` follow the recording. When the bag ends the node
+exits 0 (or starts over with ``loop``).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+from rclpy.duration import Duration
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.task import Future
+from rosgraph_msgs.msg import Clock
+
+from hand_capture.bag import BagReader
+from hand_capture.config import param, validate
+from hand_capture.errors import BagError, ConfigError
+from hand_capture.nodes.msgtypes import message_class
+from hand_capture.nodes.params import declare_config
+from hand_capture.nodes.shell import run_node
+
+_SPIN_WAIT = 0.002  # below this remaining time [s], busy-wait for precise timing
+
+
+@dataclass(frozen=True)
+class PlayerConfig:
+    """Parameters of bag_player."""
+
+    bag: str = param("", "bag directory to play")
+    rate: float = param(1.0, "playback speed factor (1.0 = recorded pace)", lo=0.01, hi=1000.0)
+    loop: bool = param(False, "start over when the bag ends")
+    start: float = param(0.0, "seconds into the bag to start from [s]", lo=0.0)
+    clock_rate: float = param(100.0, "rate of /clock messages [Hz]; 0 = no /clock",
+                              lo=0.0, hi=1000.0)
+    topics: tuple[str, ...] = param((), "topics to play; empty = all")
+    wait_for_subscribers: bool = param(
+        False, "wait until every played topic has a subscriber before starting")
+    wait_timeout: float = param(10.0, "longest wait for subscribers [s]", lo=0.0, hi=600.0)
+    start_delay: float = param(0.0, "pause after start-up before the first message [s]",
+                               lo=0.0, hi=60.0)
+
+    def __post_init__(self) -> None:
+        validate(self)
+        if not self.bag:
+            raise ConfigError("PlayerConfig.bag: a bag directory is required")
+
+
+class PlayerNode(Node):
+    """Replays a bag; see the module docstring."""
+
+    def __init__(self, **kwargs: object) -> None:
+        super().__init__("bag_player", **kwargs)
+        self.cfg = declare_config(self, PlayerConfig)
+        self.reader = BagReader(self.cfg.bag)
+        wanted = {self.resolve_topic_name(t) for t in self.cfg.topics}
+        self.pubs = {}
+        for topic, msgtype in self.reader.topics.items():
+            if wanted and topic not in wanted:
+                continue
+            qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.VOLATILE)
+            self.pubs[topic] = self.create_publisher(message_class(msgtype), topic, qos)
+        self.clock_pub = (self.create_publisher(Clock, "/clock", 10)
+                          if self.cfg.clock_rate > 0 else None)
+        self._warm_up()
+        self.done: Future = Future()
+        self.published = 0
+        self._stop = threading.Event()
+        self._bag_now_ns: int | None = None
+        self._t0: tuple[float, int] | None = None  # (wall monotonic [s], bag time [ns])
+        if self.clock_pub is not None:
+            self.create_timer(1.0 / self.cfg.clock_rate, self._publish_clock)
+        self._thread = threading.Thread(target=self._run, name="bag_player", daemon=True)
+        self._thread.start()
+        self.get_logger().info(
+            f"playing {self.cfg.bag}: {self.reader.message_count} messages on "
+            f"{len(self.pubs)} topics, {self.reader.duration_s:.2f} s at rate {self.cfg.rate}")
+
+    def _warm_up(self) -> None:
+        """Check the first message of every topic before playing.
+
+        The first deserialisation of a type generates its decoder (tens of ms); doing it here
+        keeps that out of the timed playback, and a bag whose first records are corrupt is
+        refused before anything is published.
+        """
+        pending = set(self.pubs)
+        for msg in self.reader.messages():
+            if msg.topic in pending:
+                self.reader.check(msg)
+                pending.discard(msg.topic)
+                if not pending:
+                    break
+
+    def _wait_subscribers(self) -> None:
+        deadline = time.monotonic() + self.cfg.wait_timeout
+        while not self._stop.is_set() and time.monotonic() < deadline:
+            if all(p.get_subscription_count() > 0 for p in self.pubs.values()):
+                return
+            self._stop.wait(0.02)
+        missing = [t for t, p in self.pubs.items() if p.get_subscription_count() == 0]
+        if missing:
+            self.get_logger().warning(f"starting without subscribers on {missing}")
+
+    def _sleep_until(self, wall: float) -> bool:
+        """Wait until monotonic time ``wall`` [s]; False if asked to stop."""
+        while True:
+            remaining = wall - time.monotonic()
+            if self._stop.is_set():
+                return False
+            if remaining <= 0:
+                return True
+            if remaining > _SPIN_WAIT:
+                self._stop.wait(remaining - _SPIN_WAIT)
+
+    def _play_once(self) -> None:
+        start_ns = self.reader.start_ns + int(self.cfg.start * 1e9)
+        t0: tuple[float, int] | None = None
+        for msg in self.reader.messages(start_ns=start_ns if self.cfg.start > 0 else None):
+            pub = self.pubs.get(msg.topic)
+            if pub is None:
+                continue
+            if t0 is None:
+                t0 = (time.monotonic(), msg.timestamp_ns)
+                self._t0 = t0
+            target = t0[0] + (msg.timestamp_ns - t0[1]) * 1e-9 / self.cfg.rate
+            if not self._sleep_until(target):
+                return
+            self.reader.check(msg)  # raises BagError on a corrupt payload: never published
+            pub.publish(msg.data)
+            self.published += 1
+
+    def _run(self) -> None:
+        code = 0
+        try:
+            if self.cfg.wait_for_subscribers:
+                self._wait_subscribers()
+            if self.cfg.start_delay > 0:
+                self._stop.wait(self.cfg.start_delay)
+            while not self._stop.is_set():
+                self._play_once()
+                if not self.cfg.loop:
+                    break
+        except BagError as e:
+            self.get_logger().error(str(e))
+            code = 1
+        for pub in self.pubs.values():  # let reliable subscribers receive the last messages
+            pub.wait_for_all_acked(Duration(seconds=2.0))
+        self.get_logger().info(f"published {self.published} messages")
+        if not self.done.done():
+            self.done.set_result(code)
+
+    def _publish_clock(self) -> None:
+        if self._t0 is None:
+            return
+        wall0, bag0 = self._t0
+        now_ns = bag0 + int((time.monotonic() - wall0) * self.cfg.rate * 1e9)
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(now_ns, 1_000_000_000)
+        self.clock_pub.publish(msg)
+
+    def on_shutdown(self) -> None:
+        """Stop the playback thread and close the bag."""
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self.reader.close()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of the bag_player console script."""
+    return run_node(PlayerNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

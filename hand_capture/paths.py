@@ -1,0 +1,26 @@
+"""Where the suite's data files live: the source tree, or the ament share folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+PACKAGE = "hand_suite"
+_SOURCE_ROOT = Path(__file__).resolve().parents[1]
+
+
+def share_dir() -> Path:
+    """The folder holding ``config/`` and ``launch/``.
+
+    The source checkout when running from it (editable install, tests), else the installed
+    ament share folder ``share/hand_suite`` (colcon install on a ROS 2 workstation).
+    """
+    if (_SOURCE_ROOT / "config").is_dir() and (_SOURCE_ROOT / "launch").is_dir():
+        return _SOURCE_ROOT
+    from ament_index_python.packages import get_package_share_directory
+
+    return Path(get_package_share_directory(PACKAGE))
+
+
+def config_dir() -> Path:
+    """``config/``: parameter files, graph descriptions, servo maps."""
+    return share_dir() / "config"

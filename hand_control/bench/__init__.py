@@ -1,0 +1,1 @@
+"""Benchmarks of hand_control (contact, sim, servo, pipeline)."""

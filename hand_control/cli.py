@@ -1,0 +1,226 @@
+"""The ``hand-suite`` command: run graphs, record and play bags, benchmarks, the main job.
+
+    hand-suite run GRAPH [--params FILE] [-p node.param:=value ...] | run --list
+    hand-suite record -o DIR [--storage mcap|sqlite3] [--all] TOPIC ...
+    hand-suite play DIR [--rate R] [--loop] [--start S]
+    hand-suite bag info DIR | bag recover DIR [-o OUT]
+    hand-suite bench NAME [--quick] | bench --list
+    hand-suite demo [--out DIR]          the README's main job
+    hand-suite test [PYTEST ARGS]        lint + the test suite (what CI runs)
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import pkgutil
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from hand_capture.errors import HandSuiteError
+
+BENCH_PACKAGES = ("hand_capture.bench", "hand_control.bench")
+
+
+def _setup_environment() -> None:
+    """Defaults for headless machines and a loopback-only ROS graph (overridable)."""
+    if not os.environ.get("DISPLAY"):
+        os.environ.setdefault("MUJOCO_GL", "osmesa")
+        os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+
+def _parse_value(text: str) -> Any:
+    import yaml
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+
+
+def parse_overrides(items: list[str]) -> dict[str, dict[str, Any]]:
+    """``["node.param:=value", ...]`` -> ``{node: {param: value}}``.
+
+    Raises:
+        HandSuiteError: an item is not of the form node.param:=value.
+    """
+    out: dict[str, dict[str, Any]] = {}
+    for item in items:
+        key, sep, value = item.partition(":=")
+        node, dot, name = key.partition(".")
+        if not sep or not dot or not node or not name:
+            raise HandSuiteError(f"bad override {item!r}; expected node.param:=value")
+        out.setdefault(node, {})[name] = _parse_value(value)
+    return out
+
+
+def cmd_run(a: argparse.Namespace) -> int:
+    from hand_control.graph import available_graphs, load_graph
+    from hand_control.runner import run_graph
+
+    if a.list or not a.graph:
+        for name in available_graphs():
+            print(f"{name:12s} {load_graph(name).description}")
+        return 0
+    graph = load_graph(a.graph)
+    extra = [Path(p) for p in a.params]
+    return run_graph(graph, extra, parse_overrides(a.p)).code
+
+
+def _node_args(params: dict[str, Any]) -> list[str]:
+    from hand_control.graph import format_value
+
+    args = ["--ros-args"]
+    for k, v in params.items():
+        args += ["-p", f"{k}:={format_value(v)}"]
+    return args
+
+
+def cmd_record(a: argparse.Namespace) -> int:
+    from hand_capture.nodes import recorder
+
+    if not a.topics and not a.all:
+        raise HandSuiteError("name the topics to record, or --all")
+    params = {"output": a.output, "storage": a.storage, "all_topics": a.all}
+    if a.topics:
+        params["topics"] = list(a.topics)
+    return recorder.main(["hand-suite-record", *_node_args(params)])
+
+
+def cmd_play(a: argparse.Namespace) -> int:
+    from hand_capture.nodes import player
+
+    params = {"bag": a.bag, "rate": float(a.rate), "loop": a.loop, "start": float(a.start),
+              "wait_for_subscribers": a.wait_for_subscribers}
+    return player.main(["hand-suite-play", *_node_args(params)])
+
+
+def cmd_bag(a: argparse.Namespace) -> int:
+    from hand_capture.bag import BagReader, recover_bag
+
+    if a.action == "recover":
+        res = recover_bag(a.bag, a.output)
+        print(f"recovered {res.messages} messages on {len(res.topics)} topics into {res.output}")
+        return 0
+    with BagReader(a.bag) as r:
+        counts: dict[str, int] = {}
+        for m in r.messages():
+            counts[m.topic] = counts.get(m.topic, 0) + 1
+        print(f"bag:      {a.bag}\nduration: {r.duration_s:.3f} s\nmessages: {r.message_count}")
+        for topic, msgtype in sorted(r.topics.items()):
+            print(f"  {topic:40s} {msgtype:36s} {counts.get(topic, 0)}")
+    return 0
+
+
+def available_benches() -> dict[str, str]:
+    """Benchmark name -> module (every module with a ``run`` in the bench packages)."""
+    found = {}
+    for pkg_name in BENCH_PACKAGES:
+        pkg = importlib.import_module(pkg_name)
+        for info in pkgutil.iter_modules(pkg.__path__):
+            if not info.name.startswith("_"):
+                found[info.name] = f"{pkg_name}.{info.name}"
+    return found
+
+
+def cmd_bench(a: argparse.Namespace) -> int:
+    from hand_capture.bench import json_line
+
+    benches = available_benches()
+    if a.list or not a.name:
+        print("\n".join(sorted(benches)))
+        return 0
+    if a.name not in benches:
+        raise HandSuiteError(f"unknown benchmark {a.name!r}; available: {sorted(benches)}")
+    module = importlib.import_module(benches[a.name])
+    figures = module.run(quick=a.quick)
+    print(json_line({"bench": a.name, "quick": bool(a.quick), **figures}))
+    return 0
+
+
+def cmd_demo(a: argparse.Namespace) -> int:
+    from hand_control.demo import replay_demo
+
+    return replay_demo(Path(a.out))
+
+
+def cmd_test(a: argparse.Namespace) -> int:
+    root = Path(__file__).resolve().parents[1]
+    venv_bin = Path(sys.executable).parent
+    ruff = shutil.which("ruff", path=str(venv_bin)) or "ruff"
+    print("[test] ruff check", flush=True)
+    if subprocess.call([ruff, "check", str(root)], cwd=root) != 0:
+        return 1
+    print("[test] pytest", flush=True)
+    code = subprocess.call([sys.executable, "-m", "pytest", "-q", *a.pytest_args], cwd=root)
+    return 1 if code == 5 else code  # 5 = no test collected: never a silent pass
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="hand-suite", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("run", help="start a node graph")
+    r.add_argument("graph", nargs="?")
+    r.add_argument("--list", action="store_true", help="list the graphs")
+    r.add_argument("--params", action="append", default=[], metavar="FILE",
+                   help="extra ROS parameter file (after the graph's own)")
+    r.add_argument("-p", action="append", default=[], metavar="NODE.PARAM:=VALUE")
+    r.set_defaults(func=cmd_run)
+
+    rec = sub.add_parser("record", help="record topics into a bag")
+    rec.add_argument("-o", "--output", required=True)
+    rec.add_argument("--storage", default="mcap", choices=["mcap", "sqlite3"])
+    rec.add_argument("--all", action="store_true", help="record every topic")
+    rec.add_argument("topics", nargs="*")
+    rec.set_defaults(func=cmd_record)
+
+    pl = sub.add_parser("play", help="replay a bag")
+    pl.add_argument("bag")
+    pl.add_argument("--rate", type=float, default=1.0)
+    pl.add_argument("--loop", action="store_true")
+    pl.add_argument("--start", type=float, default=0.0, help="seconds into the bag")
+    pl.add_argument("--wait-for-subscribers", action="store_true")
+    pl.set_defaults(func=cmd_play)
+
+    b = sub.add_parser("bag", help="inspect or recover a bag")
+    b.add_argument("action", choices=["info", "recover"])
+    b.add_argument("bag")
+    b.add_argument("-o", "--output", default=None, help="recover: output bag")
+    b.set_defaults(func=cmd_bag)
+
+    be = sub.add_parser("bench", help="run a benchmark")
+    be.add_argument("name", nargs="?")
+    be.add_argument("--quick", action="store_true")
+    be.add_argument("--list", action="store_true")
+    be.set_defaults(func=cmd_bench)
+
+    d = sub.add_parser("demo", help="the main job (README)")
+    d.add_argument("--out", default="out/demo")
+    d.set_defaults(func=cmd_demo)
+
+    t = sub.add_parser("test", help="lint and run the tests")
+    t.add_argument("pytest_args", nargs=argparse.REMAINDER)
+    t.set_defaults(func=cmd_test)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``hand-suite`` console script."""
+    _setup_environment()
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except HandSuiteError as e:
+        print(f"hand-suite {args.command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,199 @@
+"""``hand-suite run``: start a node graph as one process per node, like ``ros2 launch``.
+
+Every node runs as its console script with ``--ros-args`` (name, parameter files, overrides,
+remappings). Output lines are prefixed with the node name. The runner stops the whole graph
+and exits
+
+* 0 after SIGINT/SIGTERM (forwarded to every node as SIGINT; SIGTERM after 3 s, SIGKILL
+  after 4.5 s, so the graph is down within 5 s), or when a ``required`` node exits with 0;
+* non-zero when any node exits with an error; its traceback (printed by the node's main)
+  appears under its name, followed by a line naming the node and its exit code.
+
+Children get SIGTERM if the runner itself dies (PR_SET_PDEATHSIG), so no node is orphaned.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Any, TextIO
+
+from hand_capture.errors import GraphError
+from hand_control.graph import GraphSpec, NodeSpec, ros_args
+
+_STOP_GRACE = (3.0, 1.5)  # seconds after SIGINT before SIGTERM, then before SIGKILL
+_PR_SET_PDEATHSIG = 1
+
+
+def console_scripts() -> dict[str, str]:
+    """Console scripts of the installed hand_suite distribution: name -> ``module:function``."""
+    return {ep.name: ep.value for ep in entry_points(group="console_scripts")
+            if ep.dist is not None and ep.dist.name.replace("-", "_") == "hand_suite"}
+
+
+def node_command(node: NodeSpec, params_files: list[Path],
+                 overrides: dict[str, Any] | None = None) -> list[str]:
+    """The command line that runs ``node`` with this interpreter.
+
+    Raises:
+        GraphError: the node's executable is not a console script of hand_suite.
+    """
+    scripts = console_scripts()
+    target = scripts.get(node.executable)
+    if target is None:
+        raise GraphError(f"node {node.name}: no console script {node.executable!r}; "
+                         f"available: {sorted(scripts)}")
+    module, func = target.split(":")
+    code = f"import sys; from {module} import {func} as m; sys.exit(m())"
+    return [sys.executable, "-c", code, *ros_args(node, params_files, overrides)]
+
+
+def _die_with_parent() -> None:
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+@dataclass
+class _Child:
+    spec: NodeSpec
+    proc: subprocess.Popen
+    reader: threading.Thread
+    code: int | None = None
+
+
+@dataclass
+class GraphRun:
+    """Outcome of :func:`run_graph`: exit code and the nodes that failed."""
+
+    code: int
+    failed: list[str] = field(default_factory=list)
+    stopped_by_signal: bool = False
+
+
+def _pump(name: str, stream: TextIO, out: TextIO, lock: threading.Lock) -> None:
+    for line in stream:
+        with lock:
+            out.write(f"[{name}] {line}")
+            out.flush()
+
+
+def run_graph(
+    graph: GraphSpec,
+    extra_params: list[Path] | None = None,
+    overrides: dict[str, dict[str, Any]] | None = None,
+    out: TextIO | None = None,
+    install_signal_handlers: bool = True,
+    should_stop: Callable[[], bool] | None = None,
+) -> GraphRun:
+    """Run ``graph`` until it ends, fails or is interrupted; see the module docstring.
+
+    Args:
+        graph: the graph description.
+        extra_params: parameter files applied after the graph's own.
+        overrides: node name -> {parameter: value} given on the command line.
+        out: where node output goes (stdout by default).
+        install_signal_handlers: handle SIGINT/SIGTERM (main thread only).
+        should_stop: polled every 50 ms; True stops the graph like SIGINT.
+    """
+    out = out or sys.stdout
+    overrides = overrides or {}
+    unknown = set(overrides) - {n.name for n in graph.nodes}
+    if unknown:
+        raise GraphError(f"overrides for unknown node(s) {sorted(unknown)}; graph "
+                         f"{graph.name} has {[n.name for n in graph.nodes]}")
+    files = ([graph.params_file] if graph.params_file else []) + list(extra_params or [])
+    for f in files:
+        if not Path(f).is_file():
+            raise GraphError(f"parameter file not found: {f}")
+    commands = {n.name: node_command(n, files, overrides.get(n.name)) for n in graph.nodes}
+
+    stop = threading.Event()
+    previous: dict[int, Any] = {}
+    if install_signal_handlers:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+    lock = threading.Lock()
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    children: list[_Child] = []
+    result = GraphRun(code=0)
+    try:
+        for spec in graph.nodes:
+            proc = subprocess.Popen(commands[spec.name], stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True, env=env,
+                                    start_new_session=True, preexec_fn=_die_with_parent)
+            reader = threading.Thread(target=_pump, args=(spec.name, proc.stdout, out, lock),
+                                      daemon=True)
+            reader.start()
+            children.append(_Child(spec, proc, reader))
+        with lock:
+            out.write(f"[runner] graph {graph.name}: started "
+                      f"{', '.join(c.spec.name for c in children)}\n")
+        result = _supervise(children, stop, should_stop, out, lock)
+    finally:
+        _stop_all(children)
+        for c in children:
+            c.reader.join(timeout=1.0)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    with lock:
+        out.write(f"[runner] graph {graph.name} stopped, exit code {result.code}\n")
+        out.flush()
+    return result
+
+
+def _supervise(children: list[_Child], stop: threading.Event,
+               should_stop: Callable[[], bool] | None, out: TextIO,
+               lock: threading.Lock) -> GraphRun:
+    while True:
+        if stop.is_set() or (should_stop is not None and should_stop()):
+            return GraphRun(code=0, stopped_by_signal=True)
+        running = 0
+        for c in children:
+            if c.code is not None:
+                continue
+            code = c.proc.poll()
+            if code is None:
+                running += 1
+                continue
+            c.code = code
+            if code != 0:
+                with lock:
+                    out.write(f"[runner] node {c.spec.name} failed with exit code {code}\n")
+                return GraphRun(code=1, failed=[c.spec.name])
+            if c.spec.required:
+                with lock:
+                    out.write(f"[runner] required node {c.spec.name} finished\n")
+                return GraphRun(code=0)
+        if running == 0:
+            return GraphRun(code=0)
+        time.sleep(0.05)
+
+
+def _stop_all(children: list[_Child]) -> None:
+    """SIGINT every running node, then SIGTERM, then SIGKILL (within 5 s in all)."""
+    alive = [c for c in children if c.proc.poll() is None]
+    for sig, grace in ((signal.SIGINT, _STOP_GRACE[0]), (signal.SIGTERM, _STOP_GRACE[1]),
+                       (signal.SIGKILL, 0.5)):
+        for c in alive:
+            try:
+                c.proc.send_signal(sig)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + grace
+        while alive and time.monotonic() < deadline:
+            alive = [c for c in alive if c.proc.poll() is None]
+            time.sleep(0.02)
+        if not alive:
+            return

@@ -1,0 +1,41 @@
+"""ament_python package hand_suite: Python packages hand_capture and hand_control."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "hand_suite"
+
+# Console scripts: one per node (names used by launch files and graph descriptions) plus the
+# `hand-suite` command. Keep this table in step with config/graphs/*.yaml (a test checks it).
+NODES = {
+    "bag_recorder": "hand_capture.nodes.recorder:main",
+    "bag_player": "hand_capture.nodes.player:main",
+}
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=["hand_capture", "hand_capture.*", "hand_control",
+                                    "hand_control.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/config/graphs", glob("config/graphs/*.yaml")),
+        (f"share/{PACKAGE}/config/servo_maps", glob("config/servo_maps/*.yaml")),
+    ],
+    package_data={"": ["*.msg"]},
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="hand_suite maintainers",
+    maintainer_email="maintainers@hand-suite.dev",
+    description="Hand motion capture and dexterous-hand control for ROS 2",
+    license="Apache-2.0",
+    python_requires=">=3.10",
+    entry_points={
+        "console_scripts": [f"{name} = {target}" for name, target in NODES.items()]
+        + ["hand-suite = hand_control.cli:main"],
+    },
+)
