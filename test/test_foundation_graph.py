@@ -1,0 +1,137 @@
+"""Graph descriptions, the runner (start, clean stop, failing node) and launch files."""
+
+from __future__ import annotations
+
+import ast
+import re
+import signal
+import sys
+import time
+import types
+from pathlib import Path
+
+import pytest
+from ros_helpers import ROOT, hand_suite, wait_for
+
+from hand_capture.bag.compare import compare_bags
+from hand_capture.bag.sample import write_sample_bag
+from hand_capture.errors import GraphError
+from hand_control.cli import parse_overrides
+from hand_control.graph import available_graphs, format_value, load_graph, ros_args
+
+
+def _setup_py_scripts() -> dict[str, str]:
+    tree = ast.parse((ROOT / "setup.py").read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") == "NODES":
+            return ast.literal_eval(node.value)
+    raise AssertionError("setup.py has no NODES table")
+
+
+def test_every_graph_names_existing_scripts_and_parameter_files() -> None:
+    scripts = _setup_py_scripts()
+    assert available_graphs(), "no graph described"
+    for name in available_graphs():
+        g = load_graph(name)
+        assert g.params_file is None or g.params_file.is_file()
+        for n in g.nodes:
+            assert n.executable in scripts, f"{name}: {n.executable} not in setup.py"
+            module = scripts[n.executable].split(":")[0]
+            assert (ROOT / (module.replace(".", "/") + ".py")).is_file(), module
+
+
+def test_every_launch_file_names_a_described_graph() -> None:
+    launch_files = sorted((ROOT / "launch").glob("*.launch.py"))
+    assert launch_files
+    for f in launch_files:
+        graphs = re.findall(r'launch_description\("([a-z_]+)"\)', f.read_text())
+        assert graphs == [f.name.removesuffix(".launch.py")], f
+        load_graph(graphs[0])
+
+
+def test_launch_description_builds_the_same_graph(monkeypatch: pytest.MonkeyPatch) -> None:
+    """launch/launch_ros are not on PyPI: stand-ins record what the launch file asks for."""
+    created: list[dict] = []
+
+    class Rec:
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            self.args, self.kwargs = args, kwargs
+            created.append({"type": type(self).__name__, **kwargs})
+
+    mods = {
+        "launch": {"LaunchDescription": lambda actions: actions},
+        "launch.actions": {"DeclareLaunchArgument": type("DeclareLaunchArgument", (Rec,), {}),
+                           "EmitEvent": Rec, "RegisterEventHandler": Rec},
+        "launch.event_handlers": {"OnProcessExit": Rec},
+        "launch.events": {"Shutdown": Rec},
+        "launch.substitutions": {"LaunchConfiguration": lambda name: f"$({name})"},
+        "launch_ros.actions": {"Node": type("Node", (Rec,), {})},
+        "launch_ros": {},
+    }
+    for name, attrs in mods.items():
+        monkeypatch.setitem(sys.modules, name, types.SimpleNamespace(**attrs))
+    from hand_control.graph import launch_description
+
+    launch_description("replay")
+    nodes = [c for c in created if c["type"] == "Node"]
+    graph = load_graph("replay")
+    assert [(n["name"], n["executable"]) for n in nodes] == [
+        (n.name, n.executable) for n in graph.nodes]
+    assert all(n["parameters"][0] == str(graph.params_file) for n in nodes)
+
+
+def test_unknown_graph_lists_the_valid_ones() -> None:
+    with pytest.raises(GraphError, match="available: \\[.*'replay'"):
+        load_graph("nope")
+
+
+def test_ros_args_and_overrides() -> None:
+    g = load_graph("replay")
+    args = ros_args(g.node("bag_player"), [Path("/p.yaml")], {"rate": 2, "loop": True})
+    assert args == ["--ros-args", "-r", "__node:=bag_player", "--params-file", "/p.yaml",
+                    "-p", "rate:=2", "-p", "loop:=true"]
+    assert format_value(["/a", "/b"]) == "[/a,/b]"
+    assert parse_overrides(["bag_player.rate:=0.5"]) == {"bag_player": {"rate": 0.5}}
+    with pytest.raises(Exception, match="node.param:=value"):
+        parse_overrides(["rate:=1"])
+
+
+def test_replay_graph_runs_to_completion_and_round_trips(tmp_path: Path) -> None:
+    src, dst = tmp_path / "src", tmp_path / "dst"
+    write_sample_bag(src, duration=1.0)
+    p = hand_suite("run", "replay", "-p", f"bag_player.bag:={src}",
+                   "-p", f"bag_recorder.output:={dst}")
+    out, _ = p.communicate(timeout=60)
+    assert p.returncode == 0, out
+    assert "required node bag_player finished" in out
+    cmp = compare_bags(src, dst)
+    assert cmp.same_messages, cmp.mismatches
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_stops_every_node_and_exits_zero(tmp_path: Path, sig: int) -> None:
+    src = tmp_path / "src"
+    write_sample_bag(src, duration=1.0)
+    p = hand_suite("run", "replay", "-p", f"bag_player.bag:={src}",
+                   "-p", "bag_player.loop:=true", "-p", f"bag_recorder.output:={tmp_path}/o")
+    lines: list[str] = []
+    import threading
+
+    threading.Thread(target=lambda: lines.extend(p.stdout), daemon=True).start()
+    assert wait_for(lambda: any("subscribed to" in ln for ln in lines), 30.0), lines
+    t0 = time.monotonic()
+    p.send_signal(sig)
+    code = p.wait(timeout=10)
+    assert time.monotonic() - t0 < 5.0
+    assert code == 0, "".join(lines)
+    assert (tmp_path / "o" / "metadata.yaml").is_file(), "recorder did not finish its bag"
+
+
+def test_failing_node_is_named_with_traceback_and_graph_exits_nonzero(tmp_path: Path) -> None:
+    p = hand_suite("run", "replay", "-p", f"bag_player.bag:={tmp_path}/missing",
+                   "-p", f"bag_recorder.output:={tmp_path}/o")
+    out, _ = p.communicate(timeout=30)
+    assert p.returncode != 0
+    assert "[bag_player] Traceback" in out or "[bag_player] [bag_player] failed" in out, out
+    assert "bag not found" in out
+    assert "node bag_player failed with exit code 1" in out
