@@ -26,7 +26,6 @@ setup(
         (f"share/{PACKAGE}/config/graphs", glob("config/graphs/*.yaml")),
         (f"share/{PACKAGE}/config/servo_maps", glob("config/servo_maps/*.yaml")),
     ],
-    package_data={"": ["*.msg"]},
     install_requires=["setuptools"],
     zip_safe=False,
     maintainer="hand_suite maintainers",
