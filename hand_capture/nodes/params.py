@@ -18,7 +18,9 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     ParameterType,
 )
+from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from hand_capture.config import _base_type, field_meta, from_mapping
 
@@ -100,12 +102,15 @@ def declare_config(node: Node, cls: type[T], prefix: str = "") -> T:
         if isinstance(default, tuple):
             default = list(default)
         name = prefix + f.name
-        if default is None:
-            # Optional values without a default are declared by type only.
-            node.declare_parameter(name, descriptor=descriptor_for(f, tp))
-            p = node.get_parameter(name)
-            if p.type_ != p.Type.NOT_SET:
-                values[f.name] = p.value
+        if default is None or default == []:
+            # No default, or an empty array (whose element type rclpy cannot infer): declare
+            # by type only and keep the dataclass default when nothing was given.
+            desc = descriptor_for(f, tp)
+            node.declare_parameter(name, Parameter.Type(desc.type), desc)
+            try:
+                values[f.name] = node.get_parameter(name).value
+            except ParameterUninitializedException:
+                pass
             continue
         node.declare_parameter(name, default, descriptor_for(f, tp))
         values[f.name] = node.get_parameter(name).value
