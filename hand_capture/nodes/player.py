@@ -78,6 +78,9 @@ class PlayerNode(Node):
         self._t0: tuple[float, int] | None = None  # (wall monotonic [s], bag time [ns])
         if self.clock_pub is not None:
             self.create_timer(1.0 / self.cfg.clock_rate, self._publish_clock)
+        # The playback thread shares the GIL with the executor; a short switch interval
+        # (default 5 ms) keeps it from waiting behind the executor at a message's due time.
+        sys.setswitchinterval(min(sys.getswitchinterval(), 0.0005))
         self._thread = threading.Thread(target=self._run, name="bag_player", daemon=True)
         self._thread.start()
         self.get_logger().info(

@@ -2,12 +2,14 @@
 
 Subscribes to each requested topic as soon as it is discovered, with a QoS compatible with its
 publishers (reliable only if every publisher is reliable), receives the serialised messages
-without deserialising them and writes them with their receive time. The bag is made durable
+without deserialising them and writes them with the middleware's receive time (the node clock
+under use_sim_time). The bag is made durable
 every ``flush_period`` seconds and finished (index, metadata.yaml) on every exit path.
 """
 
 from __future__ import annotations
 
+import functools
 import sys
 from dataclasses import dataclass
 from datetime import datetime
@@ -20,6 +22,7 @@ from rclpy.qos import (
     QoSProfile,
     ReliabilityPolicy,
 )
+from rclpy.subscription import MessageInfo
 
 from hand_capture.bag import STORAGES, BagWriter, make_qos
 from hand_capture.config import param, validate
@@ -73,6 +76,7 @@ class RecorderNode(Node):
         self.wanted = {self.resolve_topic_name(t) for t in self.cfg.topics}
         self.subs: dict[str, object] = {}
         self.rejected = 0
+        self._sim_time = bool(self.get_parameter("use_sim_time").value)
         self.diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_timer(self.cfg.discovery_period, self._discover)
         self.create_timer(self.cfg.flush_period or 1.0, self._flush)
@@ -98,12 +102,17 @@ class RecorderNode(Node):
                 self.subs[topic] = None
                 continue
             self.subs[topic] = self.create_subscription(
-                cls, topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+                cls, topic, functools.partial(self._on_message, topic), qos, raw=True)
             self.get_logger().info(f"subscribed to {topic} [{msgtype}]")
 
-    def _on_message(self, topic: str, data: bytes) -> None:
+    def _on_message(self, topic: str, data: bytes, info: MessageInfo) -> None:
+        # The middleware's receive time is free of executor scheduling delays; under
+        # use_sim_time the node clock (the simulation's /clock) is the time base instead.
+        stamp = info.get("received_timestamp", 0) if not self._sim_time else 0
+        if stamp <= 0:
+            stamp = self.get_clock().now().nanoseconds
         try:
-            self.writer.write(topic, self.get_clock().now().nanoseconds, data)
+            self.writer.write(topic, stamp, data)
         except BagError as e:
             self.rejected += 1
             self.get_logger().error(f"dropped a message on {topic}: {e}",
