@@ -5,6 +5,7 @@
     hand-suite play DIR [--rate R] [--loop] [--start S]
     hand-suite bag info DIR | bag recover DIR [-o OUT]
     hand-suite bench NAME [--quick] | bench --list
+    hand-suite report BAG [-o DIR]       HTML report of a recorded bag
     hand-suite demo [--out DIR]          the README's main job
     hand-suite test [PYTEST ARGS]        lint + the test suite (what CI runs)
 """
@@ -143,6 +144,17 @@ def cmd_bench(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_report(a: argparse.Namespace) -> int:
+    from hand_control.report import build_report
+
+    out = Path(a.output) if a.output else Path(a.bag).with_name(Path(a.bag).name + "_report")
+    res = build_report(a.bag, out)
+    print(f"report: {res.html} ({len(res.figures)} figures)")
+    for key, value in sorted(res.numbers.items()):
+        print(f"  {key:32s} {value:.4g}")
+    return 0
+
+
 def cmd_demo(a: argparse.Namespace) -> int:
     from hand_control.demo import replay_demo
 
@@ -200,6 +212,11 @@ def build_parser() -> argparse.ArgumentParser:
     be.add_argument("--quick", action="store_true")
     be.add_argument("--list", action="store_true")
     be.set_defaults(func=cmd_bench)
+
+    rp = sub.add_parser("report", help="HTML report of a recorded bag")
+    rp.add_argument("bag")
+    rp.add_argument("-o", "--output", default=None, help="report folder (BAG_report)")
+    rp.set_defaults(func=cmd_report)
 
     d = sub.add_parser("demo", help="the main job (README)")
     d.add_argument("--out", default="out/demo")
