@@ -1,0 +1,1 @@
+"""Teleoperation: the performance interface that turns a tracked hand into grasp phases."""
