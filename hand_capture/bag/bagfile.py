@@ -21,7 +21,13 @@ from pathlib import Path
 
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability
 from rosbags.interfaces import QosTime as _QosTime
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import (
+    CompressionFormat,
+    CompressionMode,
+    Reader,
+    StoragePlugin,
+    Writer,
+)
 from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.typesys.store import Typestore
 
@@ -66,6 +72,7 @@ class BagWriter:
         storage: ``"mcap"`` or ``"sqlite3"``.
         flush_period: seconds between durable flushes (0 = after every message).
         typestore: message definitions; defaults to Kilted + hand_msgs.
+        compress: zstd-compress MCAP chunks (storage-side compression; MCAP only).
     """
 
     def __init__(
@@ -74,6 +81,7 @@ class BagWriter:
         storage: str = "mcap",
         flush_period: float = 1.0,
         typestore: Typestore | None = None,
+        compress: bool = False,
     ) -> None:
         if storage not in STORAGES:
             raise BagError(f"unknown storage {storage!r}; valid: {list(STORAGES)}")
@@ -84,6 +92,10 @@ class BagWriter:
         self.flush_period = flush_period
         self._store = typestore or default_typestore()
         self._writer = Writer(self.path, version=9, storage_plugin=_PLUGINS[storage])
+        if compress:
+            if storage != "mcap":
+                raise BagError("compression is supported for MCAP storage only")
+            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         try:
             self._writer.open()
         except WriterError as e:

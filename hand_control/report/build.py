@@ -66,17 +66,10 @@ def _plt():
 
 
 def _pose_vectors(msgs: list[object]) -> np.ndarray:
-    """(T, 27) model poses from HandPose messages (joints by name, wrist from wrist_pose)."""
-    from hand_capture.model import ARTICULATED_JOINTS, JOINT_NAMES, root_angles_from_quat
+    """(T, 27) model poses from HandPose messages."""
+    from hand_capture.posemsg import pose_from_msg
 
-    q = np.zeros((len(msgs), len(JOINT_NAMES)))
-    art = joint_series(msgs, "joint_names", "positions", list(ARTICULATED_JOINTS))
-    q[:, 6:] = np.nan_to_num(art)
-    for t, m in enumerate(msgs):
-        p, o = m.wrist_pose.position, m.wrist_pose.orientation
-        q[t, :3] = (p.x, p.y, p.z)
-        q[t, 3:6] = root_angles_from_quat(np.array([o.w, o.x, o.y, o.z]))
-    return q
+    return np.array([pose_from_msg(m) for m in msgs])
 
 
 def _tracking(data: BagData, res: ReportResult, plt, out: Path) -> str:
