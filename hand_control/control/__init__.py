@@ -1,1 +1,29 @@
-"""hand_control .control package."""
+"""Composite motion control: PD servos + virtual object wrench realised by grasp torques
+(seed 000 eq. 8-13, dissertation eq. III.19-III.23)."""
+
+from hand_control.control.composite import (
+    CompositeController,
+    ControlOutput,
+    ObjectState,
+    ObjectTarget,
+    grasp_torques,
+    object_virtual_wrench,
+    pd_torques,
+    quaternion_error,
+)
+from hand_control.control.gains import GAIN_ROWS, CompositeControlConfig, gain_row, joint_gains
+
+__all__ = [
+    "GAIN_ROWS",
+    "CompositeControlConfig",
+    "CompositeController",
+    "ControlOutput",
+    "ObjectState",
+    "ObjectTarget",
+    "gain_row",
+    "grasp_torques",
+    "joint_gains",
+    "object_virtual_wrench",
+    "pd_torques",
+    "quaternion_error",
+]

@@ -1,0 +1,278 @@
+"""Composite motion control: PD servos + grasp torques that realise a virtual object wrench.
+
+Per control step (seed 000 sec. 5, dissertation 003 sec. III.5):
+
+1. PD servos on every hand DoF, ``tau_pd = kp (q_target - q) - kd qd`` (eq. 8 / III.20).
+2. Virtual PD force and torque on the object toward its target pose (eq. 9 / III.22); the
+   contacts must supply ``f_v - m g`` (the weight compensated, eq. 9) and ``tau_v``.
+3. Contact forces and torsional torques that realise that wrench, inside friction pyramids
+   (QP of eq. III.23, or eq. 10 + 11 of seed 000) -- :mod:`hand_control.contact.qp`.
+4. Jacobian transpose: ``tau_grasp = sum_k Jp_k^T f_k + Jr_k^T (l_k n_k)`` (eq. 12 / III.21).
+5. ``tau = tau_pd + tau_gravity + tau_grasp`` (eq. 13 / III.19).
+
+When the QP finds no solution the step falls back to PD (+ gravity compensation) alone and the
+fallback is counted. Everything is arrays in, arrays out: no ROS, no simulator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hand_capture.model.joints import JOINT_NAMES
+from hand_control.contact.friction import cross
+from hand_control.contact.qp import ContactForceQP, ContactForceResult, ContactQPConfig
+from hand_control.contact.types import ContactSet, as_finite_array
+from hand_control.control.gains import CompositeControlConfig, joint_gains
+from hand_control.errors import InputError
+
+__all__ = [
+    "CompositeController",
+    "ControlOutput",
+    "ObjectState",
+    "ObjectTarget",
+    "grasp_torques",
+    "object_virtual_wrench",
+    "pd_torques",
+    "quaternion_error",
+]
+
+
+def _unit_quaternion(name: str, value: Any) -> np.ndarray:
+    q = as_finite_array(name, value, (4,))
+    norm = float(np.sqrt(q @ q))
+    if norm < 1e-9:
+        raise InputError(f"{name} must be a non-zero quaternion (w, x, y, z)")
+    return q / norm
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectState:
+    """State of the grasped object, world frame.
+
+    Attributes:
+        position: (3,) centre of mass [m].
+        quaternion: (4,) orientation (w, x, y, z); normalised on construction.
+        linear_velocity: (3,) velocity of the centre of mass [m/s].
+        angular_velocity: (3,) angular velocity, world frame [rad/s].
+        mass: [kg], > 0.
+    """
+
+    position: np.ndarray
+    quaternion: np.ndarray
+    linear_velocity: np.ndarray
+    angular_velocity: np.ndarray
+    mass: float
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "position", as_finite_array("object position", self.position, (3,)))
+        set_(self, "quaternion", _unit_quaternion("object quaternion", self.quaternion))
+        set_(self, "linear_velocity",
+             as_finite_array("object linear velocity", self.linear_velocity, (3,)))
+        set_(self, "angular_velocity",
+             as_finite_array("object angular velocity", self.angular_velocity, (3,)))
+        mass = float(as_finite_array("object mass", self.mass, ()))
+        if mass <= 0.0:
+            raise InputError(f"object mass must be > 0, got {mass}")
+        set_(self, "mass", mass)
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectTarget:
+    """Target pose of the object's centre of mass, world frame (quaternion w, x, y, z)."""
+
+    position: np.ndarray
+    quaternion: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "position", as_finite_array("object target position", self.position, (3,)))
+        object.__setattr__(
+            self, "quaternion", _unit_quaternion("object target quaternion", self.quaternion))
+
+
+def quaternion_error(q_target: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Rotation vector (world frame) that turns unit quaternion ``q`` into ``q_target``.
+
+    This is the orientation difference ``o_r_target - o_r`` of eq. (III.22): the rotation
+    ``R_target R^T`` as axis * angle, with the angle in [0, pi].
+    """
+    w1, v1 = q_target[0], q_target[1:]
+    w0, v0 = q[0], -q[1:]  # conjugate of q
+    w = w1 * w0 - v1 @ v0
+    v = w1 * v0 + w0 * v1 + cross(v1, v0)
+    if w < 0.0:  # the shorter way round
+        w, v = -w, -v
+    s = float(np.sqrt(v @ v))
+    if s < 1e-12:
+        return 2.0 * v  # small-angle limit
+    return (2.0 * np.arctan2(s, w) / s) * v
+
+
+def pd_torques(
+    kp: np.ndarray, kd: np.ndarray, q: np.ndarray, qd: np.ndarray, q_target: np.ndarray
+) -> np.ndarray:
+    """PD servos, ``tau_pd = kp (q_target - q) - kd qd`` (seed 000 eq. 8, eq. III.20)."""
+    return kp * (q_target - q) - kd * qd
+
+
+def object_virtual_wrench(
+    config: CompositeControlConfig, state: ObjectState, target: ObjectTarget
+) -> tuple[np.ndarray, np.ndarray]:
+    """Virtual PD force and torque on the object toward its target pose (eq. 9, eq. III.22).
+
+    Returns ``(f_v, tau_v)`` without the weight: the contacts must apply ``f_v - m g``.
+    """
+    f_v = (config.object_kp_translate * (target.position - state.position)
+           - config.object_kd_translate * state.linear_velocity)
+    tau_v = (config.object_kp_rotate * quaternion_error(target.quaternion, state.quaternion)
+             - config.object_kd_rotate * state.angular_velocity)
+    return f_v, tau_v
+
+
+def grasp_torques(
+    contacts: ContactSet, forces: np.ndarray, torsion: np.ndarray
+) -> np.ndarray:
+    """Joint torques that make the hand apply ``forces`` and torsional torques on the object.
+
+    ``tau = sum_k Jp_k^T f_k + Jr_k^T (l_k n_k)`` (seed 000 eq. 12, dissertation eq. III.21),
+    with ``Jp_k``/``Jr_k`` the translational/rotational Jacobians of the hand at contact k.
+
+    Raises:
+        InputError: when the contacts carry no Jacobians or the shapes disagree.
+    """
+    if contacts.jacp is None or contacts.jacr is None:
+        raise InputError("grasp torques need both contact Jacobians (jacp and jacr)")
+    k = len(contacts)
+    forces = as_finite_array("contact forces", forces, (k, 3))
+    torsion = as_finite_array("torsional torques", torsion, (k,))
+    torques = torsion[:, None] * contacts.normals
+    return (np.einsum("kin,ki->n", contacts.jacp, forces)
+            + np.einsum("kin,ki->n", contacts.jacr, torques))
+
+
+@dataclass(frozen=True, eq=False)
+class ControlOutput:
+    """Torques of one control step and what produced them.
+
+    Attributes:
+        tau: (nv,) total joint torques, ``tau_pd + tau_gravity + tau_grasp``.
+        tau_pd, tau_gravity, tau_grasp: (nv,) the three terms of eq. (III.19).
+        force_target, torque_target: (3,) net wrench asked of the contacts (``f_v - m g``,
+            ``tau_v``); zeros when no grasp was attempted.
+        qp: the contact-force solution, ``None`` when no grasp was attempted.
+        grasp_active: grasp torques were applied this step.
+        fallback: a grasp was attempted but the QP found no solution (PD-only step).
+    """
+
+    tau: np.ndarray
+    tau_pd: np.ndarray
+    tau_gravity: np.ndarray
+    tau_grasp: np.ndarray
+    force_target: np.ndarray
+    torque_target: np.ndarray
+    qp: ContactForceResult | None
+    grasp_active: bool
+    fallback: bool
+
+
+class CompositeController:
+    """Composite motion control of the hand (seed 000 eq. 8-13, dissertation eq. III.19-III.23).
+
+    Args:
+        config: gains and switches; defaults are the papers' values.
+        qp_config: contact-force QP settings (method, weights, friction pyramid).
+        joint_names: the hand DoFs, in the order of every joint array (the model's
+            vocabulary, ``hand_capture.model.joints``); the object's DoFs are not included.
+
+    Attributes:
+        steps: number of :meth:`compute` calls.
+        grasp_steps: steps that applied grasp torques.
+        fallbacks: steps whose QP failed and fell back to PD only.
+    """
+
+    def __init__(
+        self,
+        config: CompositeControlConfig | None = None,
+        qp_config: ContactQPConfig | None = None,
+        joint_names: Sequence[str] = JOINT_NAMES,
+    ) -> None:
+        self.config = config or CompositeControlConfig()
+        self.qp = ContactForceQP(qp_config)
+        self.joint_names = tuple(joint_names)
+        self.kp, self.kd = joint_gains(self.config, self.joint_names)
+        self._gravity = np.asarray(self.config.gravity, dtype=np.float64)
+        self.steps = 0
+        self.grasp_steps = 0
+        self.fallbacks = 0
+
+    @property
+    def nv(self) -> int:
+        return len(self.joint_names)
+
+    def compute(
+        self,
+        q: Any,
+        qd: Any,
+        q_target: Any,
+        obj: ObjectState | None = None,
+        target: ObjectTarget | None = None,
+        contacts: ContactSet | None = None,
+        gravity_torques: Any = None,
+        grasp: bool = True,
+    ) -> ControlOutput:
+        """Joint torques for one step.
+
+        Args:
+            q, qd, q_target: (nv,) joint positions, velocities and PD targets.
+            obj, target: the object's state and target pose; without them (or without
+                contacts) the step is PD only.
+            contacts: hand-object contacts with their Jacobians (K may be 0).
+            gravity_torques: (nv,) torques that cancel gravity on the hand, ``h(q)`` of
+                eq. (III.18); used when ``config.gravity_compensation``.
+            grasp: ``False`` drops ``tau_grasp`` (the dissertation does so while closing).
+
+        Raises:
+            InputError: NaN/Inf, wrong lengths, or contacts without matching Jacobians.
+        """
+        nv = self.nv
+        q = as_finite_array("q", q, (nv,))
+        qd = as_finite_array("qd", qd, (nv,))
+        q_target = as_finite_array("q_target", q_target, (nv,))
+        tau_pd = pd_torques(self.kp, self.kd, q, qd, q_target)
+        tau_gravity = np.zeros(nv)
+        if self.config.gravity_compensation and gravity_torques is not None:
+            tau_gravity = as_finite_array("gravity torques", gravity_torques, (nv,))
+        attempt = (
+            grasp and self.config.mode == "composite" and obj is not None
+            and target is not None and contacts is not None and len(contacts) > 0
+        )
+        tau_grasp = np.zeros(nv)
+        force_target = torque_target = np.zeros(3)
+        qp_result = None
+        if attempt:
+            if contacts.jacp is None or contacts.jacr is None or contacts.nv != nv:
+                raise InputError(
+                    f"contacts need both Jacobians (jacp, jacr) over the {nv} hand DoFs; got "
+                    f"jacp={'absent' if contacts.jacp is None else contacts.jacp.shape}, "
+                    f"jacr={'absent' if contacts.jacr is None else contacts.jacr.shape}"
+                )
+            f_v, torque_target = object_virtual_wrench(self.config, obj, target)
+            force_target = f_v - obj.mass * self._gravity  # weight compensated, eq. (9)
+            qp_result = self.qp.solve(contacts, obj.position, force_target, torque_target)
+            if qp_result.found:
+                tau_grasp = grasp_torques(contacts, qp_result.forces, qp_result.torsion)
+        self.steps += 1
+        fallback = attempt and not qp_result.found
+        self.fallbacks += int(fallback)
+        self.grasp_steps += int(attempt and not fallback)
+        return ControlOutput(
+            tau=tau_pd + tau_gravity + tau_grasp,  # eq. (13) / (III.19)
+            tau_pd=tau_pd, tau_gravity=tau_gravity, tau_grasp=tau_grasp,
+            force_target=force_target, torque_target=torque_target, qp=qp_result,
+            grasp_active=attempt and not fallback, fallback=fallback,
+        )

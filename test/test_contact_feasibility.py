@@ -1,0 +1,102 @@
+"""Dynamic feasibility LP of dissertation eq. (III.10)-(III.16)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hand_control.contact import ContactSet, dynamic_feasibility
+from hand_control.errors import InputError
+
+G = np.array([0.0, 0.0, -9.81])
+MASS = 0.2
+
+
+def assert_balanced(contacts, res, com=(0.0, 0.0, 0.0), acc=(0.0, 0.0, 0.0)):
+    """The returned forces satisfy (III.11), (III.12) and lie in the friction cones."""
+    com, acc = np.asarray(com), np.asarray(acc)
+    np.testing.assert_allclose(res.forces.sum(0), MASS * (acc - G), atol=1e-7)
+    torque = np.cross(contacts.points - com, res.forces).sum(0)
+    np.testing.assert_allclose(torque, 0.0, atol=1e-7)
+    fn = np.einsum("kj,kj->k", res.forces, contacts.normals)
+    np.testing.assert_allclose(fn, res.normal_forces, atol=1e-12)
+    ft = np.linalg.norm(res.forces - fn[:, None] * contacts.normals, axis=1)
+    assert np.all(fn >= -1e-9) and np.all(ft <= contacts.mu * fn + 1e-7)
+
+
+@pytest.mark.parametrize("mu", [0.3, 0.5, 1.0])
+def test_antipodal_pinch_is_feasible_with_margin_mu(mu):
+    contacts = ContactSet([[-0.03, 0, 0], [0.03, 0, 0]], [[1, 0, 0], [-1, 0, 0]], mu)
+    res = dynamic_feasibility(contacts, MASS, np.zeros(3))
+    assert res.feasible and res.status == "optimal"
+    assert_balanced(contacts, res)
+    # each finger carries half the weight by friction: total squeeze W / mu
+    assert res.normal_forces.sum() == pytest.approx(MASS * 9.81 / mu, rel=1e-7)
+    assert res.margin == pytest.approx(mu, rel=1e-7)
+
+
+def test_three_finger_grasp_with_offset_com_is_feasible():
+    pts = np.array([[-0.03, 0, 0], [0.03, 0.02, 0], [0.03, -0.02, 0]])
+    contacts = ContactSet(pts, [[1, 0, 0], [-1, 0, 0], [-1, 0, 0]], 0.8)
+    com = np.array([0.0, 0.005, 0.0])
+    res = dynamic_feasibility(contacts, MASS, com)
+    assert res.feasible
+    assert_balanced(contacts, res, com)
+
+
+def test_support_from_below_carries_the_load_by_normal_force():
+    contacts = ContactSet([[0, 0, -0.03]], [[0, 0, 1]], 0.5)
+    res = dynamic_feasibility(contacts, MASS, np.zeros(3))
+    assert res.feasible and res.margin == pytest.approx(1.0)
+    np.testing.assert_allclose(res.forces, [[0, 0, MASS * 9.81]], atol=1e-9)
+
+
+def test_desired_acceleration_is_part_of_the_load():
+    contacts = ContactSet([[0, 0, -0.03]], [[0, 0, 1]], 0.5)
+    acc = np.array([0.0, 0.0, 2.0])
+    res = dynamic_feasibility(contacts, MASS, np.zeros(3), acceleration=acc)
+    assert res.feasible
+    assert_balanced(contacts, res, acc=acc)
+    # sideways acceleration beyond the friction of a single support is infeasible
+    assert not dynamic_feasibility(contacts, MASS, np.zeros(3), acceleration=[9.0, 0, 0]).feasible
+
+
+@pytest.mark.parametrize("points,normals,mu", [
+    ([[-0.03, 0, 0]], [[1, 0, 0]], 0.5),  # a single contact from the side
+    ([[0.01, 0, -0.03]], [[0, 0, 1]], 0.5),  # a single support beside the COM: it tips over
+    ([[-0.03, 0.01, 0], [-0.03, -0.01, 0]], [[1, 0, 0], [1, 0, 0]], 0.1),  # one side only
+    ([[-0.03, 0.01, 0], [-0.03, -0.01, 0]], [[1, 0, 0], [1, 0, 0]], 2.0),  # even with friction
+    ([[-0.03, 0, 0], [0.03, 0, 0]], [[1, 0, 0], [-1, 0, 0]], 0.0),  # frictionless pinch
+])
+def test_bad_grasps_are_infeasible(points, normals, mu):
+    res = dynamic_feasibility(ContactSet(points, normals, mu), MASS, np.zeros(3))
+    assert not res.feasible and res.status == "infeasible"
+    assert res.margin == 0.0
+    np.testing.assert_array_equal(res.forces, 0.0)
+
+
+def test_more_friction_edges_never_lose_feasibility():
+    contacts = ContactSet([[-0.03, 0, 0], [0.03, 0, 0]], [[1, 0, 0], [-1, 0, 0]], 0.5)
+    for edges in (4, 8, 16):
+        assert dynamic_feasibility(contacts, MASS, np.zeros(3), friction_edges=edges).feasible
+
+
+def test_no_contacts_and_no_load():
+    empty = ContactSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    assert dynamic_feasibility(empty, MASS, np.zeros(3)).status == "no_contacts"
+    free_fall = dynamic_feasibility(empty, MASS, np.zeros(3), acceleration=G)
+    assert free_fall.feasible and free_fall.status == "no_load" and math.isinf(free_fall.margin)
+
+
+@pytest.mark.parametrize("kwargs", [
+    dict(mass=0.0), dict(mass=-1.0), dict(mass=math.nan), dict(com=[0, 0]),
+    dict(com=[0, 0, math.inf]), dict(gravity=[0, -9.81]), dict(acceleration=[0, 0, math.nan]),
+    dict(friction_edges=3),
+])
+def test_bad_input_raises_input_error(kwargs):
+    contacts = ContactSet([[0, 0, -0.03]], [[0, 0, 1]], 0.5)
+    args = dict(mass=MASS, com=np.zeros(3)) | kwargs
+    with pytest.raises(InputError):
+        dynamic_feasibility(contacts, **args)

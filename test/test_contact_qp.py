@@ -1,0 +1,267 @@
+"""Contact-force QP (dissertation eq. III.23, seed 000 eq. 10-11): fast path vs cvxpy reference,
+friction cones, a closed-form gravity-compensation case, bad input and failure statuses."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hand_capture.errors import ConfigError
+from hand_control.bench.contact import random_problems
+from hand_control.contact import (
+    ContactForceQP,
+    ContactQPConfig,
+    ContactSet,
+    ReferenceContactQP,
+    contact_frames,
+    pyramid_edges,
+)
+from hand_control.errors import InputError
+
+G = 9.81
+
+CONFIGS = {
+    "dissertation": ContactQPConfig(),
+    "torsion_bound": ContactQPConfig(torsion_bound=True, torsional_friction=0.01),
+    "8_edges": ContactQPConfig(friction_edges=8),
+    "seed000": ContactQPConfig(method="seed000"),
+}
+
+
+def cone_violation(contacts: ContactSet, forces: np.ndarray) -> float:
+    """max_k |f_t| - mu f_n (<= 0 inside the Coulomb cone)."""
+    fn = np.einsum("kj,kj->k", forces, contacts.normals)
+    ft = np.linalg.norm(forces - fn[:, None] * contacts.normals, axis=1)
+    return float(np.max(ft - contacts.mu * fn))
+
+
+def objective_iii23(cfg, contacts, com, tf, tt, forces, torsion) -> float:
+    r = contacts.points - com
+    ef = forces.sum(0) - tf
+    et = (np.cross(r, forces) + torsion[:, None] * contacts.normals).sum(0) - tt
+    return (cfg.alpha1 * ef @ ef + cfg.alpha2 * et @ et
+            + cfg.alpha3 * np.sum(forces**2) + cfg.alpha4 * torsion @ torsion)
+
+
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_fast_path_matches_cvxpy_on_random_problems(name):
+    cfg = CONFIGS[name]
+    fast, ref = ContactForceQP(cfg), ReferenceContactQP(cfg)
+    for contacts, com, tf, tt in random_problems(seed=11, n=24):
+        a, b = fast.solve(contacts, com, tf, tt), ref.solve(contacts, com, tf, tt)
+        assert a.found and b.found, (a.status, b.status)
+        assert a.status == "optimal"
+        np.testing.assert_allclose(a.forces, b.forces, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(a.torsion, b.torsion, rtol=0, atol=1e-6)
+        assert a.objective <= b.objective + 1e-9
+        if cfg.method == "dissertation":
+            assert cone_violation(contacts, a.forces) <= 1e-9
+            assert a.objective == pytest.approx(
+                objective_iii23(cfg, contacts, com, tf, tt, a.forces, a.torsion), rel=1e-9)
+        if cfg.torsion_bound:
+            fn = np.einsum("kj,kj->k", a.forces, contacts.normals)
+            assert np.all(np.abs(a.torsion) <= cfg.torsional_friction * fn + 1e-9)
+        # the reported wrench error is the net wrench of the solution minus the target
+        r = contacts.points - com
+        net_t = (np.cross(r, a.forces) + a.torsion[:, None] * contacts.normals).sum(0)
+        np.testing.assert_allclose(a.wrench_error, np.r_[a.forces.sum(0) - tf, net_t - tt],
+                                   atol=1e-12)
+        assert a.residual == pytest.approx(np.linalg.norm(a.wrench_error))
+        assert a.solve_time_s > 0
+
+
+def test_seed000_scales_the_simulator_forces():
+    """eq. (10): f_aug,i = w_i f_c,i with w_i >= 0, so every force keeps its direction."""
+    fast = ContactForceQP(CONFIGS["seed000"])
+    for contacts, com, tf, tt in random_problems(seed=3, n=12):
+        res = fast.solve(contacts, com, tf, tt)
+        w = np.einsum("kj,kj->k", res.forces, contacts.forces) / np.einsum(
+            "kj,kj->k", contacts.forces, contacts.forces)
+        assert np.all(w >= 0)
+        np.testing.assert_allclose(res.forces, w[:, None] * contacts.forces, atol=1e-12)
+
+
+def pinch(mu: float = 0.5, half_width: float = 0.03) -> ContactSet:
+    """Two fingertips on opposite faces of an object, at the height of its centre of mass."""
+    return ContactSet([[-half_width, 0, 0], [half_width, 0, 0]], [[1, 0, 0], [-1, 0, 0]], mu)
+
+
+def test_gravity_compensation_with_two_opposing_contacts():
+    """Pure weight compensation: target force m g upwards, no torque.
+
+    By symmetry each finger carries V upwards by friction with the smallest squeeze F = V/mu
+    (the 4-edge pyramid has an edge in the vertical plane), so eq. (III.23) reduces to
+    min a1 (2V - W)^2 + 2 a3 V^2 (1 + 1/mu^2), i.e. V = a1 W / (2 a1 + a3 (1 + 1/mu^2)).
+    With the paper's a3 = 0.1 the regularisation leaves part of the weight uncompensated;
+    with a small a3 the forces balance the weight.
+    """
+    mu, mass = 0.5, 0.2
+    weight = mass * G
+    contacts = pinch(mu)
+    # the pyramid of each contact has an edge exactly along +z
+    edges = pyramid_edges(contacts.normals, contacts.mu, 4)
+    assert np.any(np.abs(edges[:, :, 2] - mu / math.sqrt(1 + mu * mu)) < 1e-12, axis=1).all()
+    for a3 in (0.1, 1e-6):
+        cfg = ContactQPConfig(alpha3=a3, alpha4=0.1)
+        for solver in (ContactForceQP(cfg), ReferenceContactQP(cfg)):
+            res = solver.solve(contacts, np.zeros(3), [0, 0, weight], np.zeros(3))
+            assert res.found
+            v = weight / (2 + a3 * (1 + 1 / mu**2))
+            np.testing.assert_allclose(res.forces, [[v / mu, 0, v], [-v / mu, 0, v]],
+                                       atol=1e-6)
+            np.testing.assert_allclose(res.torsion, 0, atol=1e-9)
+            np.testing.assert_allclose(res.wrench_error[3:], 0, atol=1e-9)
+            assert cone_violation(contacts, res.forces) <= 1e-9
+        if a3 == 1e-6:
+            assert abs(res.forces[:, 2].sum() - weight) < 1e-5 * weight
+
+
+def test_contact_frames_are_rotations_with_the_normal_last():
+    rng = np.random.default_rng(0)
+    n = rng.standard_normal((200, 3))
+    n[:4] = [[0, 0, 1], [0, 0, -1], [1, 0, 0], [0, -1, 0]]
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    frames = contact_frames(n)
+    np.testing.assert_allclose(np.einsum("kij,kil->kjl", frames, frames),
+                               np.broadcast_to(np.eye(3), frames.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(frames), 1.0, atol=1e-12)
+    np.testing.assert_array_equal(frames[:, :, 2], n)
+
+
+@pytest.mark.parametrize("edges", [4, 6, 9])
+def test_pyramid_edges_lie_on_the_cone(edges):
+    rng = np.random.default_rng(1)
+    n = rng.standard_normal((5, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    mu = rng.uniform(0.1, 1.5, 5)
+    b = pyramid_edges(n, mu, edges)
+    assert b.shape == (5, edges, 3)
+    np.testing.assert_allclose(np.linalg.norm(b, axis=2), 1.0, atol=1e-12)
+    fn = np.einsum("kej,kj->ke", b, n)
+    ft = np.linalg.norm(b - fn[:, :, None] * n[:, None, :], axis=2)
+    np.testing.assert_allclose(ft, mu[:, None] * fn, atol=1e-12)
+
+
+def test_zero_friction_pushes_along_the_normal_only():
+    contacts = ContactSet([[-0.03, 0, 0], [0.03, 0, 0]], [[1, 0, 0], [-1, 0, 0]], 0.0)
+    res = ContactForceQP().solve(contacts, np.zeros(3), [0.0, 0.0, 2.0], np.zeros(3))
+    assert res.found
+    np.testing.assert_allclose(res.forces, 0.0, atol=1e-12)  # nothing can lift it
+    np.testing.assert_allclose(res.wrench_error[:3], [0, 0, -2.0], atol=1e-12)
+
+
+# -- bad input -----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("bad", [
+    dict(points=[[0, 0, np.nan]], normals=[[1, 0, 0]], mu=0.5),
+    dict(points=[[0, 0, 0]], normals=[[np.inf, 0, 0]], mu=0.5),
+    dict(points=[[0, 0, 0]], normals=[[0, 0, 0]], mu=0.5),
+    dict(points=[[0, 0, 0], [1, 0, 0]], normals=[[1, 0, 0]], mu=0.5),
+    dict(points=[[0, 0]], normals=[[1, 0, 0]], mu=0.5),
+    dict(points=[[0, 0, 0]], normals=[[1, 0, 0]], mu=[0.5, 0.5]),
+    dict(points=[[0, 0, 0]], normals=[[1, 0, 0]], mu=-0.1),
+    dict(points=[[0, 0, 0]], normals=[[1, 0, 0]], mu="x"),
+    dict(points=[[0, 0, 0]], normals=[[1, 0, 0]], mu=0.5, forces=[[1, 0]]),
+    dict(points=[[0, 0, 0]], normals=[[1, 0, 0]], mu=0.5, jacp=np.zeros((1, 3, 4)),
+         jacr=np.zeros((1, 3, 5))),
+])
+def test_bad_contacts_raise_input_error(bad):
+    with pytest.raises(InputError):
+        ContactSet(**bad)
+
+
+@pytest.mark.parametrize("name", ["dissertation", "seed000"])
+@pytest.mark.parametrize("args", [
+    (np.zeros(3), [0, 0, np.nan], np.zeros(3)),
+    (np.zeros(3), [0, 0, 1.0], [np.inf, 0, 0]),
+    ([0, 0], [0, 0, 1.0], np.zeros(3)),
+    (np.zeros(3), [0, 0, 1.0, 0], np.zeros(3)),
+    (np.zeros(3), "up", np.zeros(3)),
+])
+def test_bad_targets_raise_input_error(name, args):
+    contacts = ContactSet(pinch().points, pinch().normals, 0.5, forces=np.ones((2, 3)))
+    for solver in (ContactForceQP(CONFIGS[name]), ReferenceContactQP(CONFIGS[name])):
+        with pytest.raises(InputError):
+            solver.solve(contacts, *args)
+
+
+def test_seed000_without_simulator_forces_is_an_input_error():
+    with pytest.raises(InputError, match="seed000"):
+        ContactForceQP(CONFIGS["seed000"]).solve(pinch(), np.zeros(3), [0, 0, 1], np.zeros(3))
+
+
+def test_not_a_contact_set_is_an_input_error():
+    with pytest.raises(InputError):
+        ContactForceQP().solve([[0, 0, 0]], np.zeros(3), [0, 0, 1], np.zeros(3))
+
+
+@pytest.mark.parametrize("field,value", [
+    ("method", "lcp"), ("friction_edges", 3), ("alpha3", 0.0), ("alpha1", -1.0),
+    ("lambda1", 0.0), ("torsional_friction", -0.1), ("max_iter", -1), ("alpha2", math.nan),
+])
+def test_bad_config_raises_config_error(field, value):
+    with pytest.raises(ConfigError, match=field):
+        ContactQPConfig(**{field: value})
+
+
+# -- statuses: never NaN, found=False --------------------------------------------------------
+
+def test_no_contacts_is_not_found():
+    empty = ContactSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    res = ContactForceQP().solve(empty, np.zeros(3), [0, 0, 1.0], np.zeros(3))
+    assert not res.found and res.status == "no_contacts"
+    assert res.forces.shape == (0, 3)
+    np.testing.assert_allclose(res.wrench_error, [0, 0, -1.0, 0, 0, 0])
+
+
+@pytest.mark.parametrize("name", ["dissertation", "seed000"])
+def test_iteration_cap_gives_not_found_without_nan(name):
+    cfg = ContactQPConfig(method=name, max_iter=1)
+    contacts, com, tf, tt = random_problems(seed=2, n=4)[3]  # 5 contacts
+    res = ContactForceQP(cfg).solve(contacts, com, tf, tt)
+    assert not res.found and res.status == "max_iter"
+    assert np.isfinite(res.forces).all() and np.isfinite(res.torsion).all()
+    np.testing.assert_array_equal(res.forces, 0.0)
+    assert np.isfinite(res.residual)
+
+
+def test_overflowing_problem_is_not_found_without_nan():
+    """Finite but absurd inputs overflow while the problem is built: found False, no NaN."""
+    contacts = ContactSet([[-1e300, 0, 0], [1e300, 0, 0]], [[1, 0, 0], [-1, 0, 0]], 0.5)
+    with np.errstate(all="ignore"):
+        res = ContactForceQP().solve(contacts, np.zeros(3), [0, 0, 1e300], [1e300, 0, 0])
+    assert not res.found and res.status in ("non_finite", "inaccurate")
+    assert np.isfinite(res.forces).all() and np.isfinite(res.torsion).all()
+
+
+def test_seed000_overflow_is_not_found_without_nan():
+    contacts = ContactSet([[-1e300, 0, 0], [1e300, 0, 0]], [[1, 0, 0], [-1, 0, 0]], 0.5,
+                          forces=[[1e300, 0, 1e300], [-1e300, 0, 1e300]])
+    with np.errstate(all="ignore"):
+        res = ContactForceQP(CONFIGS["seed000"]).solve(
+            contacts, np.zeros(3), [0, 0, 1e300], [1e300, 0, 0])
+    assert not res.found and res.status in ("non_finite", "inaccurate")
+    assert np.isfinite(res.forces).all() and np.isfinite(res.torsion).all()
+
+
+@pytest.mark.filterwarnings("ignore:Solution may be inaccurate")
+def test_reference_solver_that_stops_early_is_not_found():
+    ref = ReferenceContactQP(solver="OSQP", solver_options={"max_iter": 2, "polishing": False})
+    contacts, com, tf, tt = random_problems(seed=4, n=2)[1]
+    res = ref.solve(contacts, com, tf, tt)
+    assert not res.found and res.status != "optimal"
+    np.testing.assert_array_equal(res.forces, 0.0)
+
+
+def test_control_path_loads_no_cvxpy():
+    """cvxpy (the reference) is imported lazily: the control loop never pays for it."""
+    code = ("import sys, hand_control.contact, hand_control.control, hand_control.bench.contact;"
+            "print('cvxpy' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=Path(__file__).resolve().parents[1])
+    assert out.stdout.strip() == "False"
