@@ -11,6 +11,9 @@ PACKAGE = "hand_suite"
 NODES = {
     "bag_recorder": "hand_capture.nodes.recorder:main",
     "bag_player": "hand_capture.nodes.player:main",
+    "camera": "hand_capture.nodes.camera:main",
+    "synthetic_camera": "hand_capture.nodes.synthetic_camera:main",
+    "grasp_phase": "hand_control.nodes.grasp_phase:main",
 }
 
 setup(
@@ -27,6 +30,7 @@ setup(
         (f"share/{PACKAGE}/config/servo_maps", glob("config/servo_maps/*.yaml")),
     ],
     install_requires=["setuptools"],
+    extras_require={"realsense": ["pyrealsense2"]},
     zip_safe=False,
     maintainer="hand_suite maintainers",
     maintainer_email="maintainers@hand-suite.dev",

@@ -16,23 +16,16 @@ import numpy as np
 
 from hand_capture.config import param, validate
 from hand_capture.model.joints import FINGERS
+from hand_capture.model.mjcf import GAIN_TABLE
 from hand_control.errors import ConfigError
 
 __all__ = ["GAIN_ROWS", "CompositeControlConfig", "gain_row", "joint_gains"]
 
-#: Rows of Table 1 / Table III.1, in the order of ``joint_kp`` and ``joint_kd``.
-GAIN_ROWS: tuple[str, ...] = (
-    "root_translate", "root_rotate",
-    "thumb1", "thumb2", "thumb3",
-    "index1", "index2", "index3",
-    "middle1", "middle2", "middle3",
-    "ring1", "ring2", "ring3",
-    "pinky1", "pinky2", "pinky3",
-)
-_TABLE_KP = (400.0, 600.0, 10.0, 8.0, 4.0, 4.0, 3.0, 2.0, 4.0, 4.0, 2.0, 4.0, 3.0, 2.0,
-             4.0, 3.0, 2.0)
-_TABLE_KD = (50.0, 50.0, 0.3, 0.2, 0.4, 0.2, 0.1, 0.1, 0.4, 0.1, 0.1, 0.4, 0.1, 0.1,
-             0.4, 0.1, 0.1)
+#: Rows of Table 1 / Table III.1, in the order of ``joint_kp`` and ``joint_kd``; the values come
+#: from the one copy of the table, ``hand_capture.model.mjcf.GAIN_TABLE``.
+GAIN_ROWS: tuple[str, ...] = tuple(GAIN_TABLE)
+_TABLE_KP = tuple(GAIN_TABLE[r][0] for r in GAIN_ROWS)
+_TABLE_KD = tuple(GAIN_TABLE[r][1] for r in GAIN_ROWS)
 
 # joint of the model -> its number in the tables (root to tip)
 _THUMB_JOINT = {"tm": 1, "mcp": 2, "ip": 3}

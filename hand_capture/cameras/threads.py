@@ -1,0 +1,96 @@
+"""Limit the BLAS thread pool of the running process (no threadpoolctl needed).
+
+numpy's bundled OpenBLAS starts one thread per core. On a small shared machine a real-time
+loop of many small matrix products (the hand model's skinning, eq. II.8) then waits for
+descheduled BLAS threads: measured on the 2-core project machine under load, one
+``HandModel.vertices`` call took 12 ms with the default pool and 0.4 ms with one thread.
+Camera nodes and benchmarks therefore call :func:`limit_blas_threads` once at start-up.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+__all__ = ["blas_threads", "get_blas_threads", "limit_blas_threads"]
+
+_GET_SYMBOLS = (
+    "scipy_openblas_get_num_threads64_",
+    "scipy_openblas_get_num_threads_64_",
+    "scipy_openblas_get_num_threads",
+    "openblas_get_num_threads64_",
+    "openblas_get_num_threads",
+)
+_SYMBOLS = (
+    "scipy_openblas_set_num_threads64_",
+    "scipy_openblas_set_num_threads_64_",
+    "scipy_openblas_set_num_threads",
+    "openblas_set_num_threads64_",
+    "openblas_set_num_threads",
+)
+
+
+def _openblas_libs() -> list[ctypes.CDLL]:
+    import numpy  # noqa: F401  (make sure numpy's BLAS is loaded)
+
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = sorted({line.split()[-1] for line in fh
+                            if "openblas" in line.lower() and line.split()[-1].startswith("/")})
+    except OSError:
+        return []
+    libs = []
+    for path in paths:
+        try:
+            libs.append(ctypes.CDLL(path))
+        except OSError:
+            continue
+    return libs
+
+
+def get_blas_threads() -> int | None:
+    """Threads of the first loaded OpenBLAS (None when it cannot be queried)."""
+    for lib in _openblas_libs():
+        for sym in _GET_SYMBOLS:
+            fn = getattr(lib, sym, None)
+            if fn is not None:
+                fn.restype = ctypes.c_int
+                return int(fn())
+    return None
+
+
+@contextmanager
+def blas_threads(n: int = 1) -> Iterator[None]:
+    """Run a block with ``n`` BLAS threads, then restore the previous count."""
+    before = get_blas_threads()
+    limit_blas_threads(n, set_env=False)
+    try:
+        yield
+    finally:
+        if before is not None:
+            limit_blas_threads(before, set_env=False)
+
+
+def limit_blas_threads(n: int = 1, set_env: bool = True) -> list[str]:
+    """Set every loaded OpenBLAS library to ``n`` threads; returns the libraries changed.
+
+    Works on Linux (reads ``/proc/self/maps``); elsewhere it only sets the environment
+    variables that child processes inherit and returns an empty list.
+    """
+    n = max(int(n), 1)
+    if set_env:
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+            os.environ.setdefault(var, str(n))
+    changed = []
+    for lib in _openblas_libs():
+        for sym in _SYMBOLS:
+            fn = getattr(lib, sym, None)
+            if fn is not None:
+                fn.argtypes = [ctypes.c_int]
+                fn.restype = None
+                fn(n)
+                changed.append(lib._name)
+                break
+    return changed

@@ -1,0 +1,579 @@
+"""MJCF export of the hand model and of table-top scenes (MuJoCo Menagerie style).
+
+The exported hand has the numpy model's skeleton exactly (same bones, offsets, rest rotations,
+joint axes, limits and DoF order), so MuJoCo's ``mj_kinematics`` body positions equal
+``HandModel.forward(q).joint_frames`` to round-off for the same 27 values in ``qpos``.
+
+* Bodies: ``palm`` (root) and ``{finger}_{segment}`` (BONE_NAMES), each with its origin at the
+  proximal joint centre. Sites ``{finger}_tip`` at the fingertips and ``palm_center``.
+* Joints: JOINT_NAMES, in that order, so the hand's ``qpos[:27]`` / ``qvel[:27]`` are the model's
+  pose / velocity vector. The root is three slides (world x, y, z) and three hinges about the
+  moving x, y, z axes (joints.py); slides have ``ref`` = the body position so that
+  ``qpos = root position``, and the default ``qpos0`` holds the hand above the table.
+* Actuators, named like their joints and in the same order (``ctrl[i]`` drives DoF i):
+  the root by ``position`` servos with the root gains of seed 000 Table 1 (``kp``, ``kv``);
+  every finger DoF by a ``motor`` (torque) because the composite controller computes its PD
+  torque itself (eq. 8 / III.19). :class:`PDGains` carries the tables' finger gains.
+* Geoms: one capsule per collision capsule of the model (``HandModel.capsules``), density of
+  soft tissue (1100 kg/m^3), ``condim=4`` (torsional friction, as the papers' contact model
+  uses torsional torques). The hand does not collide with itself (contype 2 / conaffinity 1);
+  objects and the table collide with everything.
+* Stability: finger joints carry ``armature`` so that an explicit PD torque with the tables'
+  gains integrates stably at the 1 ms step (``kd * dt / armature < 2``; here at most 0.4).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from hand_capture.config import param, validate
+from hand_capture.errors import ConfigError, InputError
+from hand_capture.model.hand import HandModel
+from hand_capture.model.joints import (
+    FINGERS,
+    JOINT_LIMITS,
+    JOINT_NAMES,
+    N_DOF,
+    matrix_to_quat,
+)
+from hand_capture.model.shape import HandShape
+from hand_capture.model.skeleton import (
+    BONE_ABD_DOF,
+    BONE_FLEX_DOF,
+    BONE_NAMES,
+    BONE_PARENT,
+    LEVELS,
+    N_BONES,
+)
+
+#: simulation step of the papers' controllers (dissertation ch. III.7: 1 ms)
+TIMESTEP: float = 0.001
+#: soft-tissue density for the finger masses [kg/m^3]
+TISSUE_DENSITY: float = 1100.0
+#: mass of the palm body (carpus + metacarpals + soft tissue) [kg]; with the fingers the hand
+#: weighs about 0.4 kg, ~0.6 % of a 70 kg body (de Leva 1996 segment mass fraction 0.61 %)
+PALM_MASS: float = 0.30
+#: finger joint armature [kg m^2] (module docstring)
+FINGER_ARMATURE: float = 1e-3
+ROOT_ROT_ARMATURE: float = 2e-3
+#: default height of the wrist above the table top at qpos0 [m]
+DEFAULT_ROOT_POS: tuple[float, float, float] = (0.0, 0.0, 0.12)
+
+# --- Table 1 of seed 000 (= Table III.1 of 003): (kp, kd) per table row, root to tip ---------
+#: The gain table, one row per joint of the hand numbered from the root (``index1`` = MCP,
+#: ``thumb1`` = TM), plus the wrist translation [N/m, N s/m] and rotation [N m/rad, N m s/rad].
+#: The single copy of the table: the controller's rows (hand_control.control.gains) come from it.
+GAIN_TABLE: dict[str, tuple[float, float]] = {
+    "root_translate": (400.0, 50.0), "root_rotate": (600.0, 50.0),
+    "thumb1": (10.0, 0.3), "thumb2": (8.0, 0.2), "thumb3": (4.0, 0.4),
+    "index1": (4.0, 0.2), "index2": (3.0, 0.1), "index3": (2.0, 0.1),
+    "middle1": (4.0, 0.4), "middle2": (4.0, 0.1), "middle3": (2.0, 0.1),
+    "ring1": (4.0, 0.4), "ring2": (3.0, 0.1), "ring3": (2.0, 0.1),
+    "pinky1": (4.0, 0.4), "pinky2": (3.0, 0.1), "pinky3": (2.0, 0.1),
+}
+_TABLE_FINGER = {"little": "pinky"}  # the tables call the little finger "pinky"
+
+
+def _table_gains() -> tuple[tuple[float, ...], tuple[float, ...]]:
+    kp = np.zeros(N_DOF)
+    kd = np.zeros(N_DOF)
+    kp[0:3], kd[0:3] = GAIN_TABLE["root_translate"]
+    kp[3:6], kd[3:6] = GAIN_TABLE["root_rotate"]
+    for fi, f in enumerate(FINGERS):
+        for lvl in range(3):  # joint number 1..3 from the root = the bone level
+            b = LEVELS[lvl, fi]
+            for d in (BONE_ABD_DOF[b], BONE_FLEX_DOF[b]):
+                if d >= 0:
+                    kp[d], kd[d] = GAIN_TABLE[f"{_TABLE_FINGER.get(f, f)}{lvl + 1}"]
+    return tuple(kp.tolist()), tuple(kd.tolist())
+
+
+_KP, _KD = _table_gains()
+
+
+@dataclass(frozen=True)
+class PDGains:
+    """PD servo gains per DoF (eq. 8 of seed 000), defaults from its Table 1 = Table III.1.
+
+    A joint's DoFs share its table row (``index_mcp_abd`` and ``index_mcp_flex`` both use
+    ``index1``; the thumb's ``thumb1`` is the TM joint, ``thumb3`` the IP joint). Root
+    translation gains are in N/m and N s/m, rotations and fingers in N m/rad and N m s/rad.
+    """
+
+    kp: tuple[float, ...] = param(_KP, "PD stiffness per DoF in JOINT_NAMES order", lo=0.0)
+    kd: tuple[float, ...] = param(_KD, "PD damping per DoF in JOINT_NAMES order", lo=0.0)
+    object_kp_translate: float = param(5.0, "virtual object servo, Table III.1 [N/m]", lo=0.0)
+    object_kd_translate: float = param(0.5, "virtual object servo, Table III.1 [N s/m]", lo=0.0)
+    object_kp_rotate: float = param(5.0, "virtual object servo, Table III.1 [N m/rad]", lo=0.0)
+    object_kd_rotate: float = param(0.5, "virtual object servo, Table III.1 [N m s/rad]",
+                                    lo=0.0)
+
+    def __post_init__(self) -> None:
+        validate(self)
+        for name in ("kp", "kd"):
+            if len(getattr(self, name)) != N_DOF:
+                raise ConfigError(f"PDGains.{name} needs {N_DOF} values (JOINT_NAMES order), "
+                                  f"got {len(getattr(self, name))}")
+
+    def by_name(self) -> dict[str, tuple[float, float]]:
+        """``{joint_name: (kp, kd)}``."""
+        return {n: (self.kp[i], self.kd[i]) for i, n in enumerate(JOINT_NAMES)}
+
+    def torque(self, target: object, q: object, qdot: object) -> np.ndarray:
+        """``tau = kp (target - q) - kd qdot`` (eq. 8 of seed 000), arrays (27,) or (B, 27)."""
+        t, q, v = (np.asarray(a, dtype=float) for a in (target, q, qdot))
+        if not (t.shape[-1:] == q.shape[-1:] == v.shape[-1:] == (N_DOF,)):
+            raise InputError("target, q and qdot must have 27 entries (JOINT_NAMES order)")
+        return np.asarray(self.kp) * (t - q) - np.asarray(self.kd) * v
+
+    def effort_limits(self) -> np.ndarray:
+        """Finger motor torque limits [N m]: kp x 0.6 rad, at least 1 N m (root: 0)."""
+        lim = np.maximum(np.asarray(self.kp) * 0.6, 1.0)
+        lim[:6] = 0.0
+        return lim
+
+
+def default_pd_gains() -> PDGains:
+    return PDGains()
+
+
+# ---------------------------------------------------------------------------------------------
+# Scene objects
+# ---------------------------------------------------------------------------------------------
+_KINDS = ("box", "ball", "stick", "cup")
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """A free rigid object on the table.
+
+    size per kind: box ``(hx, hy, hz)`` half extents; ball ``(r,)``; stick ``(r, half_length)``
+    (a cylinder lying along x); cup ``(outer_r, half_height, wall)`` with a handle on +y.
+    ``pos`` is the object centre in the world; ``None`` puts it on the table in front of the
+    hand. ``friction`` is the sliding coefficient (it wins over the hand's and the table's).
+    """
+
+    kind: str
+    name: str = ""
+    size: tuple[float, ...] = ()
+    mass: float = 0.0
+    friction: float = 0.0
+    pos: tuple[float, float, float] | None = None
+    euler: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rgba: tuple[float, float, float, float] = (0.3, 0.5, 0.8, 1.0)
+
+    def __post_init__(self) -> None:
+        if self.kind not in _KINDS:
+            raise InputError(f"object kind must be one of {_KINDS}, got {self.kind!r}")
+        d = _OBJECT_DEFAULTS[self.kind]
+        size = tuple(float(s) for s in (self.size or d["size"]))
+        if len(size) != len(d["size"]) or not all(math.isfinite(s) and s > 0 for s in size):
+            raise InputError(f"{self.kind} size must be {len(d['size'])} positive values, "
+                             f"got {size}")
+        mass = float(self.mass or d["mass"])
+        friction = float(self.friction or d["friction"])
+        if not (math.isfinite(mass) and 0 < mass <= 50):
+            raise InputError(f"object mass must be in (0, 50] kg, got {mass}")
+        if not (math.isfinite(friction) and 0 < friction <= 5):
+            raise InputError(f"object friction must be in (0, 5], got {friction}")
+        if self.kind == "cup" and size[2] >= size[0]:
+            raise InputError("cup wall must be thinner than its radius")
+        object.__setattr__(self, "size", size)
+        object.__setattr__(self, "mass", mass)
+        object.__setattr__(self, "friction", friction)
+        object.__setattr__(self, "name", self.name or self.kind)
+
+    @property
+    def half_height(self) -> float:
+        """Half of the object's vertical extent when resting in its default orientation."""
+        s = self.size
+        return s[2] if self.kind == "box" else s[1] if self.kind == "cup" else s[0]
+
+
+# Objects of the papers (seed 000: cup, solid ball, long round stick, magic cube); sizes and
+# masses of ordinary household items: 57 mm cube ~0.1 kg, 70 mm ball, 30 mm x 30 cm stick,
+# 80 mm x 10 cm mug ~0.3 kg. Friction: wood / plastic / rubber / glazed ceramic on skin.
+_OBJECT_DEFAULTS: dict[str, dict[str, object]] = {
+    "box": {"size": (0.0285, 0.0285, 0.0285), "mass": 0.10, "friction": 0.6},
+    "ball": {"size": (0.035,), "mass": 0.15, "friction": 0.8},
+    "stick": {"size": (0.015, 0.15), "mass": 0.10, "friction": 0.6},
+    "cup": {"size": (0.04, 0.05, 0.004), "mass": 0.30, "friction": 0.5},
+}
+# default places on the table, in front of / beside the hand so that nothing touches at "home"
+_DEFAULT_XY = {"box": (0.26, -0.12), "ball": (0.27, 0.02), "stick": (0.15, 0.17),
+               "cup": (0.38, -0.02)}
+
+
+# ---------------------------------------------------------------------------------------------
+# XML helpers
+# ---------------------------------------------------------------------------------------------
+def _f(x: float) -> str:
+    s = f"{float(x):.9g}"
+    return "0" if s == "-0" else s
+
+
+def _v(vals: Iterable[float]) -> str:
+    return " ".join(_f(x) for x in vals)
+
+
+def _wxyz(rot: np.ndarray) -> np.ndarray:
+    q = matrix_to_quat(rot)  # x y z w
+    return np.array([q[3], q[0], q[1], q[2]])
+
+
+def _attrs(**kw: object) -> str:
+    return " ".join(f"{k.rstrip('_')}={quoteattr(str(v))}" for k, v in kw.items()
+                    if v is not None)
+
+
+# ---------------------------------------------------------------------------------------------
+# Hand
+# ---------------------------------------------------------------------------------------------
+def _hand_defaults(gains: PDGains) -> str:
+    kp_t, kd_t = gains.kp[0], gains.kd[0]
+    kp_r, kd_r = gains.kp[3], gains.kd[3]
+    return f"""  <default>
+    <default class="hand">
+      <joint type="hinge" armature="{_f(FINGER_ARMATURE)}" damping="0" limited="true"/>
+      <geom type="capsule" contype="2" conaffinity="1" condim="4" friction="1 0.005 0.0001"
+            density="{_f(TISSUE_DENSITY)}" rgba="0.87 0.68 0.58 1" group="2"/>
+      <site type="sphere" size="0.004" rgba="0.9 0.1 0.1 1" group="4"/>
+      <motor ctrllimited="true"/>
+      <default class="root_slide">
+        <joint type="slide" armature="0" limited="false"/>
+        <position kp="{_f(kp_t)}" kv="{_f(kd_t)}" ctrllimited="true" forcelimited="true"
+                  forcerange="-150 150"/>
+      </default>
+      <default class="root_hinge">
+        <joint type="hinge" armature="{_f(ROOT_ROT_ARMATURE)}" limited="false"/>
+        <position kp="{_f(kp_r)}" kv="{_f(kd_r)}" ctrllimited="true" forcelimited="true"
+                  forcerange="-20 20"/>
+      </default>
+    </default>
+    <default class="object">
+      <geom contype="1" conaffinity="3" condim="4" priority="1" group="1"/>
+    </default>
+  </default>
+"""
+
+
+def _hand_body(model: HandModel, root_pos: Sequence[float], indent: str = "    ",
+               gravcomp: bool = False) -> str:
+    sk = model.skeleton
+    off = model.bone_offsets
+    caps_by_bone: dict[int, list] = {}
+    for c in model.capsules:
+        caps_by_bone.setdefault(c.bone, []).append(c)
+    tip_local = model.bone_tips
+    gc = ' gravcomp="1"' if gravcomp else ""
+    lines: list[str] = []
+
+    def joint_xml(dof: int, axis: Sequence[float], pad: str) -> str:
+        lo, hi = JOINT_LIMITS[dof]
+        return (f'{pad}<joint name="{JOINT_NAMES[dof]}" axis="{_v(axis)}" '
+                f'range="{_f(lo)} {_f(hi)}"/>')
+
+    def geoms(b: int, pad: str) -> None:
+        for c in caps_by_bone.get(b, []):
+            lines.append(f'{pad}<geom name="{c.name}" fromto="{_v(c.p0)} {_v(c.p1)}" '
+                         f'size="{_f(c.radius)}"/>')
+
+    def body(b: int, pad: str) -> None:
+        quat = _wxyz(sk.rest_rot[b])
+        lines.append(f'{pad}<body name="{BONE_NAMES[b]}" pos="{_v(off[b])}" '
+                     f'quat="{_v(quat)}"{gc}>')
+        p2 = pad + "  "
+        sign = sk.abd_axis_sign
+        if BONE_ABD_DOF[b] >= 0:
+            lines.append(joint_xml(BONE_ABD_DOF[b], (0, 0, sign), p2))
+        lines.append(joint_xml(BONE_FLEX_DOF[b], (0, 1, 0), p2))
+        geoms(b, p2)
+        children = [c for c in range(N_BONES) if BONE_PARENT[c] == b]
+        if not children:
+            finger = BONE_NAMES[b].split("_")[0]
+            lines.append(f'{p2}<site name="{finger}_tip" pos="{_v(tip_local[b])}"/>')
+        for c in children:
+            body(c, p2)
+        lines.append(f"{pad}</body>")
+
+    rp = [float(x) for x in root_pos]
+    lines.append(f'{indent}<body name="palm" pos="{_v(rp)}" childclass="hand"{gc}>')
+    p1 = indent + "  "
+    com = model.palm_box()[0]
+    lines.append(f'{p1}<inertial pos="{_v(com)}" mass="{_f(PALM_MASS)}" '
+                 f'diaginertia="{_v(model.palm_inertia(PALM_MASS))}"/>')
+    for k, ax in enumerate(("1 0 0", "0 1 0", "0 0 1")):
+        lines.append(f'{p1}<joint name="{JOINT_NAMES[k]}" class="root_slide" axis="{ax}" '
+                     f'ref="{_f(rp[k])}"/>')
+    for k, ax in enumerate(("1 0 0", "0 1 0", "0 0 1")):
+        lines.append(f'{p1}<joint name="{JOINT_NAMES[3 + k]}" class="root_hinge" axis="{ax}"/>')
+    geoms(0, p1)
+    lines.append(f'{p1}<site name="palm_center" pos="{_v(com)}"/>')
+    for c in range(1, N_BONES):
+        if BONE_PARENT[c] == 0:
+            body(c, p1)
+    lines.append(f"{indent}</body>")
+    return "\n".join(lines)
+
+
+def _actuators(gains: PDGains, root_pos: Sequence[float]) -> str:
+    eff = gains.effort_limits()
+    out = ["  <actuator>"]
+    for k in range(3):
+        r = float(root_pos[k])
+        out.append(f'    <position name="{JOINT_NAMES[k]}" joint="{JOINT_NAMES[k]}" '
+                   f'class="root_slide" ctrlrange="{_f(r - 0.5)} {_f(r + 0.5)}"/>')
+    for k in range(3, 6):
+        out.append(f'    <position name="{JOINT_NAMES[k]}" joint="{JOINT_NAMES[k]}" '
+                   f'class="root_hinge" ctrlrange="{_f(-math.pi)} {_f(math.pi)}"/>')
+    for k in range(6, N_DOF):
+        out.append(f'    <motor name="{JOINT_NAMES[k]}" joint="{JOINT_NAMES[k]}" class="hand" '
+                   f'ctrlrange="{_f(-eff[k])} {_f(eff[k])}"/>')
+    out.append("  </actuator>")
+    return "\n".join(out)
+
+
+def _sensors() -> str:
+    out = ["  <sensor>"]
+    for f in FINGERS:
+        out.append(f'    <framepos name="{f}_tip_pos" objtype="site" objname="{f}_tip"/>')
+    out.append("  </sensor>")
+    return "\n".join(out)
+
+
+def _home_qpos_hand(root_pos: Sequence[float]) -> np.ndarray:
+    """A relaxed, slightly flexed hand above the table."""
+    q = np.zeros(N_DOF)
+    q[0:3] = root_pos
+    for f in FINGERS[1:]:
+        q[JOINT_NAMES.index(f"{f}_mcp_flex")] = 0.25
+        q[JOINT_NAMES.index(f"{f}_pip_flex")] = 0.35
+        q[JOINT_NAMES.index(f"{f}_dip_flex")] = 0.2
+    q[JOINT_NAMES.index("thumb_tm_abd")] = 0.2
+    q[JOINT_NAMES.index("thumb_mcp_flex")] = 0.15
+    q[JOINT_NAMES.index("thumb_ip_flex")] = 0.15
+    return np.clip(q, JOINT_LIMITS[:, 0], JOINT_LIMITS[:, 1])
+
+
+def home_pose(root_pos: Sequence[float] = DEFAULT_ROOT_POS) -> np.ndarray:
+    """The ``home`` keyframe's hand pose (27,) in JOINT_NAMES order."""
+    return _home_qpos_hand(root_pos)
+
+
+def _check_side(hand: str) -> None:
+    if hand not in ("right", "left"):
+        raise InputError(f"hand must be 'right' or 'left', got {hand!r}")
+
+
+def build_hand(shape: HandShape | None = None, hand: str = "right",
+               root_pos: Sequence[float] = DEFAULT_ROOT_POS, gains: PDGains | None = None,
+               model: HandModel | None = None) -> str:
+    """MJCF of the hand alone (``hand.xml``): defaults, the hand, actuators, a ``home`` key."""
+    _check_side(hand)
+    model = model or HandModel(shape, side=hand)
+    gains = gains or PDGains()
+    home = _home_qpos_hand(root_pos)
+    return f"""<mujoco model="hand_suite {hand} hand">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{_f(TIMESTEP)}" integrator="implicitfast" cone="elliptic" impratio="10"/>
+{_hand_defaults(gains)}
+  <worldbody>
+{_hand_body(model, root_pos)}
+  </worldbody>
+{_actuators(gains, root_pos)}
+{_sensors()}
+  <keyframe>
+    <key name="home" qpos="{_v(home)}" ctrl="{_v(np.r_[home[:6], np.zeros(N_DOF - 6)])}"/>
+  </keyframe>
+</mujoco>
+"""
+
+
+# ---------------------------------------------------------------------------------------------
+# Scenes
+# ---------------------------------------------------------------------------------------------
+def _object_xml(obj: ObjectSpec, pos: Sequence[float]) -> tuple[str, np.ndarray]:
+    """Body XML of a free object and its initial qpos (7,)."""
+    s = obj.size
+    rgba = _v(obj.rgba)
+    fr = f"{_f(obj.friction)} 0.005 0.0001"
+    geoms: list[tuple[str, float]] = []  # (geom xml without mass, volume)
+    if obj.kind == "box":
+        geoms.append((f'type="box" size="{_v(s)}"', 8 * s[0] * s[1] * s[2]))
+    elif obj.kind == "ball":
+        geoms.append((f'type="sphere" size="{_f(s[0])}"', 4 / 3 * math.pi * s[0] ** 3))
+    elif obj.kind == "stick":
+        geoms.append((f'type="cylinder" size="{_f(s[0])} {_f(s[1])}" '
+                       'quat="0.7071068 0 0.7071068 0"', math.pi * s[0] ** 2 * 2 * s[1]))
+    else:  # cup: bottom disc, ring of wall boxes, handle of three capsules
+        r, hh, wall = s
+        geoms.append((f'type="cylinder" size="{_f(r)} {_f(wall / 2)}" '
+                       f'pos="0 0 {_f(-hh + wall / 2)}"', math.pi * r * r * wall))
+        n = 16
+        rm = r - wall / 2
+        half_w = rm * math.tan(math.pi / n) + 1e-4
+        for i in range(n):
+            a = 2 * math.pi * i / n
+            q = (math.cos(a / 2), 0.0, 0.0, math.sin(a / 2))
+            # the wall stands on the bottom disc, so only the disc touches the table
+            geoms.append((f'type="box" size="{_f(wall / 2)} {_f(half_w)} {_f(hh - wall / 2)}" '
+                          f'pos="{_f(rm * math.cos(a))} {_f(rm * math.sin(a))} {_f(wall / 2)}" '
+                          f'quat="{_v(q)}"', wall * 2 * half_w * (2 * hh - wall)))
+        # handle: a C of capsules on +y
+        y0, y1 = r, r + 0.6 * hh
+        z0 = 0.55 * hh
+        hrad = 0.006
+        for p0, p1 in (((0, y0 - 0.002, z0), (0, y1, z0)), ((0, y1, z0), (0, y1, -z0)),
+                       ((0, y1, -z0), (0, y0 - 0.002, -z0))):
+            length = float(np.linalg.norm(np.subtract(p1, p0)))
+            geoms.append((f'type="capsule" fromto="{_v(p0)} {_v(p1)}" size="{_f(hrad)}"',
+                          math.pi * hrad ** 2 * length))
+    total = sum(v for _, v in geoms)
+    body = [f'    <body name="{obj.name}" pos="{_v(pos)}" euler="{_v(obj.euler)}">',
+            f'      <freejoint name="{obj.name}_free"/>']
+    for i, (g, vol) in enumerate(geoms):
+        body.append(f'      <geom name="{obj.name}_{i}" class="object" {g} '
+                    f'mass="{_f(obj.mass * vol / total)}" friction="{fr}" rgba="{rgba}"/>')
+    body.append("    </body>")
+    quat = _euler_xyz_quat(obj.euler)
+    return "\n".join(body), np.r_[pos, quat]
+
+
+def _euler_xyz_quat(euler: Sequence[float]) -> np.ndarray:
+    """MuJoCo's default euler sequence 'xyz' (intrinsic... extrinsic-free) -> quat (w,x,y,z)."""
+    from hand_capture.model.joints import root_rotation_matrix
+
+    return _wxyz(root_rotation_matrix(np.asarray(euler, dtype=float)))
+
+
+def _as_spec(o: ObjectSpec | str) -> ObjectSpec:
+    if isinstance(o, ObjectSpec):
+        return o
+    if isinstance(o, str):
+        return ObjectSpec(kind=o)
+    raise InputError(f"objects must be ObjectSpec or a kind name {_KINDS}, got {o!r}")
+
+
+def build_scene(objects: Sequence[ObjectSpec | str] = (), shape: HandShape | None = None,
+                hand: str = "right", root_pos: Sequence[float] = DEFAULT_ROOT_POS,
+                gains: PDGains | None = None, table_friction: float = 0.5,
+                hand_gravcomp: bool = False, model: HandModel | None = None) -> str:
+    """A self-contained MJCF scene: floor, a table whose top is the plane z = 0, the hand and
+    free objects (kinds 'box', 'ball', 'stick', 'cup' or :class:`ObjectSpec`).
+
+    The hand comes first, so ``qpos[:27]``, ``qvel[:27]`` and ``ctrl[:27]`` are the hand's, in
+    JOINT_NAMES order; each object adds a free joint ``{name}_free`` (7 qpos, 6 qvel). The
+    ``home`` keyframe holds the hand above the table and the objects at rest on it.
+    ``hand_gravcomp`` cancels gravity on the hand bodies (then the controller must not add
+    its own gravity term, eq. III.19).
+    """
+    _check_side(hand)
+    if not (math.isfinite(table_friction) and 0 < table_friction <= 5):
+        raise InputError(f"table_friction must be in (0, 5], got {table_friction}")
+    model = model or HandModel(shape, side=hand)
+    gains = gains or PDGains()
+    specs = [_as_spec(o) for o in objects]
+    names = [o.name for o in specs]
+    if len(set(names)) != len(names):
+        raise InputError(f"object names must be unique, got {names}")
+    bodies, qpos_obj = [], []
+    for o in specs:
+        if o.pos is None:
+            x, y = _DEFAULT_XY[o.kind]
+            pos = (x, -y if hand == "left" else y, o.half_height + 1e-4)
+        else:
+            pos = o.pos
+        xml, q = _object_xml(o, pos)
+        bodies.append(xml)
+        qpos_obj.append(q)
+    home = _home_qpos_hand(root_pos)
+    key_qpos = np.concatenate([home] + qpos_obj)
+    key_ctrl = np.r_[home[:6], np.zeros(N_DOF - 6)]
+    objs = "\n".join(bodies)
+    return f"""<mujoco model="hand_suite scene ({hand} hand)">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{_f(TIMESTEP)}" integrator="implicitfast" cone="elliptic" impratio="10"/>
+  <visual>
+    <headlight diffuse="0.6 0.6 0.6" ambient="0.3 0.3 0.3" specular="0 0 0"/>
+    <global offwidth="640" offheight="480"/>
+  </visual>
+{_hand_defaults(gains)}
+  <worldbody>
+    <light pos="0 0 1.5" dir="0 0 -1" directional="true"/>
+    <geom name="floor" type="plane" size="2 2 0.05" pos="0 0 -0.75" rgba="0.5 0.5 0.5 1"
+          contype="1" conaffinity="3"/>
+    <geom name="table" type="box" size="0.4 0.4 0.02" pos="0.15 0 -0.02" rgba="0.55 0.4 0.3 1"
+          contype="1" conaffinity="3" condim="4" friction="{_f(table_friction)} 0.005 0.0001"/>
+{_hand_body(model, root_pos, gravcomp=hand_gravcomp)}
+{objs}
+  </worldbody>
+{_actuators(gains, root_pos)}
+{_sensors()}
+  <keyframe>
+    <key name="home" qpos="{_v(key_qpos)}" ctrl="{_v(key_ctrl)}"/>
+  </keyframe>
+</mujoco>
+"""
+
+
+@dataclass(frozen=True)
+class ExportedFiles:
+    hand: Path
+    scenes: dict[str, Path] = field(default_factory=dict)
+
+
+#: the scenes written by :func:`export_mjcf`: name -> objects
+DEFAULT_SCENES: dict[str, tuple[str, ...]] = {
+    "scene": (),
+    "scene_box": ("box",),
+    "scene_ball": ("ball",),
+    "scene_stick": ("stick",),
+    "scene_cup": ("cup",),
+    "scene_objects": ("box", "ball", "stick", "cup"),
+}
+
+
+def export_mjcf(out_dir: str | Path, shape: HandShape | None = None, hand: str = "right",
+                scenes: dict[str, Sequence[ObjectSpec | str]] | None = None) -> ExportedFiles:
+    """Write ``hand.xml`` and one ``<name>.xml`` per scene (default :data:`DEFAULT_SCENES`)
+    into ``out_dir``; every file is self-contained."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    model = HandModel(shape, side=hand)
+    hand_path = out / "hand.xml"
+    hand_path.write_text(build_hand(hand=hand, model=model))
+    written = {}
+    for name, objs in (DEFAULT_SCENES if scenes is None else scenes).items():
+        p = out / f"{name}.xml"
+        p.write_text(build_scene(objs, hand=hand, model=model))
+        written[name] = p
+    return ExportedFiles(hand_path, written)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m hand_capture.model.mjcf OUT_DIR [--hand left] [--shape-seed N]``."""
+    import argparse
+
+    from hand_capture.model.shape import sample_shape
+
+    ap = argparse.ArgumentParser(description="Write hand.xml and the MJCF scenes.")
+    ap.add_argument("out_dir")
+    ap.add_argument("--hand", choices=("right", "left"), default="right")
+    ap.add_argument("--shape-seed", type=int, default=-1,
+                    help="sample a subject shape with this seed (default: the template)")
+    args = ap.parse_args(argv)
+    shape = None if args.shape_seed < 0 else sample_shape(args.shape_seed)
+    out = export_mjcf(args.out_dir, shape=shape, hand=args.hand)
+    for p in [out.hand, *out.scenes.values()]:
+        print(p)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

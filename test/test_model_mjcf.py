@@ -1,0 +1,187 @@
+"""MJCF export: MuJoCo reproduces the numpy FK, scenes simulate cleanly, PD gains."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hand_capture.errors import ConfigError, InputError
+from hand_capture.model import (
+    BONE_NAMES,
+    FINGERS,
+    JOINT_LIMITS,
+    JOINT_NAMES,
+    HandModel,
+    sample_shape,
+)
+from hand_capture.model.mjcf import (
+    DEFAULT_SCENES,
+    ObjectSpec,
+    PDGains,
+    build_hand,
+    build_scene,
+    export_mjcf,
+    home_pose,
+)
+
+mujoco = pytest.importorskip("mujoco")
+
+
+def _load(xml: str):
+    m = mujoco.MjModel.from_xml_string(xml)
+    return m, mujoco.MjData(m)
+
+
+def _ids(m, kind, names):
+    return [mujoco.mj_name2id(m, kind, n) for n in names]
+
+
+@pytest.mark.parametrize("side", ["right", "left"])
+def test_mujoco_fk_matches_model(side: str) -> None:
+    model = HandModel(sample_shape(21), side=side)
+    m, d = _load(build_hand(hand=side, model=model))
+    assert m.nq == m.nv == m.nu == 27
+    assert [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, i) for i in range(27)] == list(
+        JOINT_NAMES)
+    assert [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(27)] == list(
+        JOINT_NAMES)
+    np.testing.assert_allclose(m.jnt_range[6:], JOINT_LIMITS[6:], atol=1e-9)
+    assert not m.jnt_limited[:6].any() and m.jnt_limited[6:].all()
+    bodies = _ids(m, mujoco.mjtObj.mjOBJ_BODY, BONE_NAMES)
+    sites = _ids(m, mujoco.mjtObj.mjOBJ_SITE, [f"{f}_tip" for f in FINGERS])
+    assert min(bodies) > 0 and min(sites) >= 0
+    rng = np.random.default_rng(0)
+    lo = np.r_[-0.5, -0.5, -0.5, -np.pi, -1.5, -np.pi, JOINT_LIMITS[6:, 0]]
+    hi = np.r_[0.5, 0.5, 0.5, np.pi, 1.5, np.pi, JOINT_LIMITS[6:, 1]]
+    for q in rng.uniform(lo, hi, size=(25, 27)):
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        fk = model.forward(q)
+        np.testing.assert_allclose(d.xpos[bodies], fk.joint_frames[:, :3, 3], atol=1e-6, rtol=0)
+        np.testing.assert_allclose(d.xmat[bodies].reshape(-1, 3, 3), fk.joint_frames[:, :3, :3],
+                                   atol=1e-6, rtol=0)
+        np.testing.assert_allclose(d.site_xpos[sites], fk.fingertips, atol=1e-6, rtol=0)
+        # collision capsules sit where the model puts them
+        seg = model.capsule_segments(q)
+        for c, s in zip(model.capsules, seg, strict=True):
+            g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, c.name)
+            np.testing.assert_allclose(d.geom_xpos[g], s.mean(axis=0), atol=1e-6, rtol=0)
+            assert m.geom_size[g, 0] == pytest.approx(c.radius)
+
+
+def test_hand_mass_and_home_keyframe() -> None:
+    m, d = _load(build_hand())
+    palm = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "palm")
+    assert 0.35 < m.body_subtreemass[palm] < 0.6  # ~0.6 % of body mass (de Leva 1996)
+    assert np.all(m.body_mass[1:] > 0) and np.all(m.body_inertia[1:] > 0)
+    key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
+    np.testing.assert_allclose(m.key_qpos[key], home_pose())
+    # qpos0 (reset) holds the wrist at the slides' ref position
+    mujoco.mj_kinematics(m, d)
+    np.testing.assert_allclose(d.xpos[palm], home_pose()[:3])
+
+
+def _step_random(xml: str, seconds: float, seed: int) -> tuple[object, object]:
+    m, d = _load(xml)
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    rng = np.random.default_rng(seed)
+    lo, hi = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
+    for i in range(int(round(seconds / m.opt.timestep))):
+        if i % 50 == 0:
+            d.ctrl[:] = rng.uniform(lo, hi)
+        mujoco.mj_step(m, d)
+    return m, d
+
+
+@pytest.mark.parametrize("objects", list(DEFAULT_SCENES.values()),
+                         ids=list(DEFAULT_SCENES.keys()))
+def test_scenes_step_without_warnings(objects: tuple[str, ...]) -> None:
+    xml = build_scene(objects, shape=sample_shape(2))
+    m, d = _step_random(xml, 1.0, seed=len(objects))
+    assert m.opt.timestep == pytest.approx(0.001)
+    assert all(int(w.number) == 0 for w in d.warning), [int(w.number) for w in d.warning]
+    assert np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))
+    assert m.nq == 27 + 7 * len(objects)
+
+
+def test_left_scene_and_objects_rest_on_the_table() -> None:
+    objs = [ObjectSpec("box", name="cube", mass=0.2, friction=1.2), "ball", "stick", "cup"]
+    m, d = _load(build_scene(objs, hand="left"))
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    d.ctrl[:6] = home_pose()[:6]
+    for _ in range(500):
+        mujoco.mj_step(m, d)
+    assert all(int(w.number) == 0 for w in d.warning)
+    for name in ("cube", "ball", "stick", "cup"):
+        b = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
+        assert np.linalg.norm(d.cvel[b]) < 0.05, name  # at rest
+        assert d.xpos[b, 2] > 0.0
+    cube = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "cube")
+    assert m.body_subtreemass[cube] == pytest.approx(0.2)
+    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "cube_0")
+    assert m.geom_friction[g, 0] == pytest.approx(1.2)
+    cup = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "cup")
+    assert m.body_subtreemass[cup] == pytest.approx(0.3)
+
+
+def test_explicit_pd_with_table_gains_is_stable() -> None:
+    """The controller's own PD torques (eq. 8, Table 1 gains) on the motors at 1 ms."""
+    gains = PDGains()
+    m, d = _load(build_scene(["box"]))
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    rng = np.random.default_rng(3)
+    target = home_pose()
+    for i in range(1500):
+        if i % 300 == 0:
+            target[6:] = rng.uniform(JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1])
+        tau = gains.torque(target, d.qpos[:27], d.qvel[:27])
+        d.ctrl[:6] = target[:6]
+        d.ctrl[6:] = tau[6:]
+        mujoco.mj_step(m, d)
+    assert all(int(w.number) == 0 for w in d.warning)
+    assert np.abs(d.qvel[6:27]).max() < 5.0  # settled, no oscillation
+    err = np.abs(d.qpos[6:27] - target[6:])
+    assert np.median(err) < 0.05
+
+
+def test_pd_gains_table() -> None:
+    g = PDGains().by_name()
+    assert g["root_tx"] == (400.0, 50.0) and g["root_rz"] == (600.0, 50.0)
+    assert g["thumb_tm_abd"] == g["thumb_tm_flex"] == (10.0, 0.3)
+    assert g["thumb_mcp_flex"] == (8.0, 0.2) and g["thumb_ip_flex"] == (4.0, 0.4)
+    assert g["index_mcp_abd"] == (4.0, 0.2) and g["index_dip_flex"] == (2.0, 0.1)
+    assert g["middle_pip_flex"] == (4.0, 0.1) and g["little_mcp_flex"] == (4.0, 0.4)
+    tau = PDGains().torque(np.ones(27), np.zeros(27), np.ones(27))
+    np.testing.assert_allclose(tau, np.array(PDGains().kp) - np.array(PDGains().kd))
+    with pytest.raises(ConfigError):
+        PDGains(kp=(1.0,) * 26)
+    with pytest.raises(ConfigError):
+        PDGains(kd=(-1.0,) * 27)
+    with pytest.raises(InputError):
+        PDGains().torque(np.zeros(26), np.zeros(27), np.zeros(27))
+
+
+def test_object_spec_validation() -> None:
+    with pytest.raises(InputError):
+        ObjectSpec("teapot")
+    with pytest.raises(InputError):
+        ObjectSpec("box", size=(0.1, 0.1))
+    with pytest.raises(InputError):
+        ObjectSpec("ball", mass=-1.0)
+    with pytest.raises(InputError):
+        ObjectSpec("cup", size=(0.04, 0.05, 0.05))
+    with pytest.raises(InputError):
+        build_scene(["box", "box"])
+    with pytest.raises(InputError):
+        build_scene([3])  # type: ignore[list-item]
+    with pytest.raises(InputError):
+        build_scene(hand="middle")
+
+
+def test_export_writes_loadable_files(tmp_path) -> None:
+    out = export_mjcf(tmp_path, shape=sample_shape(4), hand="right")
+    assert out.hand.name == "hand.xml" and out.hand.exists()
+    assert set(out.scenes) == set(DEFAULT_SCENES)
+    for p in [out.hand, *out.scenes.values()]:
+        m = mujoco.MjModel.from_xml_path(str(p))
+        assert m.nu == 27
