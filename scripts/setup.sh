@@ -99,7 +99,9 @@ if ! stamp_ok hand_msgs "$h"; then
     # point them at this interpreter's headers and numpy's (ENVIRONMENT.md).
     inc="$("$VPY" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')"
     npinc="$("$VPY" -c 'import numpy; print(numpy.get_include())')"
-    grep -l "/opt/python/cp3" "$VENV"/share/*/cmake/*.cmake 2>/dev/null | while read -r f; do
+    # (grep exits 1 when every file is patched already: not an error)
+    { grep -l "/opt/python/cp3" "$VENV"/share/*/cmake/*.cmake 2>/dev/null || true; } \
+        | while read -r f; do
         sed -i -E "s#/opt/python/cp3[0-9]+-cp3[0-9]+/lib/python3\.[0-9]+/site-packages/numpy/_core/include#$npinc#g; s#/opt/python/cp3[0-9]+-cp3[0-9]+/include/python3\.[0-9]+#$inc#g" "$f"
     done
     bdir="$ROOT/build/hand_msgs"
