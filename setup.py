@@ -14,6 +14,7 @@ NODES = {
     "camera": "hand_capture.nodes.camera:main",
     "synthetic_camera": "hand_capture.nodes.synthetic_camera:main",
     "grasp_phase": "hand_control.nodes.grasp_phase:main",
+    "servo_bridge": "hand_control.nodes.servo_bridge:main",
 }
 
 setup(

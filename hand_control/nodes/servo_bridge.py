@@ -1,0 +1,196 @@
+"""servo_bridge: a lifecycle node that drives a DYNAMIXEL hand from the tracked or simulated hand.
+
+Thin wrapper around :class:`hand_control.dynamixel.bridge.ServoBridge` (all logic lives there).
+
+Topics:
+    in   hand/pose (hand_msgs/HandPose, source: tracked) or
+         sim/joint_states (sensor_msgs/JointState, source: simulated), sensor-data QoS
+    out  servo/joint_states (sensor_msgs/JointState: servo angle [rad], velocity [rad/s],
+         effort = motor current [A]; only servos read cleanly in that cycle)
+    out  diagnostics (diagnostic_msgs/DiagnosticArray: bus state, loop rate, per-servo
+         temperature, voltage, current, hardware error bits)
+Parameters: those of :class:`BridgeConfig`; ``goal_current_scale`` (grip strength in
+    current-based position mode) may change while running, the others are read-only.
+Service:
+    ~/reboot (std_srvs/Trigger): reboot servos with a hardware error (or recover from the
+         bus ERROR state); positions are re-read before torque comes back on.
+Lifecycle: configure = open the port, ping and check every servo, write modes and limits;
+    activate = torque on (after a good read, goal := present position); deactivate = torque
+    off; cleanup/shutdown/error = torque off and close. With ``autostart: true`` (default) the
+    node configures and activates itself. ``on_shutdown()``, which ``run_node`` calls on every
+    exit path (Ctrl-C, SIGTERM, exception), switches torque off.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from hand_msgs.msg import HandPose
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from hand_capture.nodes.params import declare_config
+from hand_capture.nodes.shell import run_node
+from hand_control.dynamixel.bridge import BridgeConfig, ServoBridge
+from hand_control.errors import HandSuiteError
+
+_SUCCESS = TransitionCallbackReturn.SUCCESS
+_FAILURE = TransitionCallbackReturn.FAILURE
+
+
+class ServoBridgeNode(LifecycleNode):
+    """Lifecycle node wrapping :class:`ServoBridge`."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("servo_bridge", **kwargs)
+        self.config: BridgeConfig = declare_config(self, BridgeConfig)
+        self.core: ServoBridge | None = None
+        self._last_error = ""
+        self._state_pub = None
+        self._sub = None
+        self._srv = None
+        self._control_timer = None
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self._diag_timer = self.create_timer(1.0 / self.config.diagnostics_rate_hz,
+                                             self._publish_diagnostics)
+        if self.config.autostart and self.trigger_configure() == _SUCCESS:
+            self.trigger_activate()
+
+    # ------------------------------------------------------------------------ transitions
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self.core = ServoBridge(self.config, logger=self.get_logger())
+            self.core.set_goal_current_scale(self.get_parameter("goal_current_scale").value)
+            self.core.configure()
+        except HandSuiteError as e:
+            self._last_error = str(e)
+            self.get_logger().error(f"configure failed: {e}")
+            if self.core is not None:
+                self.core.close()
+            self.core = None
+            return _FAILURE
+        self._state_pub = self.create_lifecycle_publisher(JointState, "servo/joint_states", 10)
+        if self.config.source == "tracked":
+            self._sub = self.create_subscription(HandPose, "hand/pose", self._on_pose,
+                                                 qos_profile_sensor_data)
+        else:
+            self._sub = self.create_subscription(JointState, "sim/joint_states",
+                                                 self._on_joint_state, qos_profile_sensor_data)
+        self._srv = self.create_service(Trigger, "~/reboot", self._on_reboot)
+        return super().on_configure(state)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self.core.activate()
+        except HandSuiteError as e:
+            self._last_error = str(e)
+            self.get_logger().error(f"activate failed: {e}")
+            return _FAILURE
+        self._control_timer = self.create_timer(1.0 / self.config.control_rate_hz,
+                                                self._on_control)
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop_control()
+        if self.core is not None:
+            self.core.deactivate()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._teardown()
+        return super().on_cleanup(state)
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._teardown()
+        return _SUCCESS
+
+    def on_shutdown(self, state: LifecycleState | None = None) -> TransitionCallbackReturn:
+        """Torque off and close; the lifecycle shutdown transition and ``run_node`` call it."""
+        self._teardown()
+        return _SUCCESS
+
+    def _stop_control(self) -> None:
+        if self._control_timer is not None:
+            self.destroy_timer(self._control_timer)
+            self._control_timer = None
+
+    def _teardown(self) -> None:
+        self._stop_control()
+        if self.core is not None:
+            self.core.close()  # torque off, then close the port
+        for ent, destroy in ((self._sub, self.destroy_subscription),
+                             (self._srv, self.destroy_service)):
+            if ent is not None:
+                destroy(ent)
+        if self._state_pub is not None:
+            self.destroy_lifecycle_publisher(self._state_pub)
+        self._sub = self._srv = self._state_pub = None
+
+    # ---------------------------------------------------------------------------- callbacks
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        # the only parameter that may change while running (the others are read-only)
+        for p in params:
+            if p.name == "goal_current_scale" and self.core is not None:
+                self.core.set_goal_current_scale(float(p.value))
+        return SetParametersResult(successful=True)
+
+    def _on_pose(self, msg: HandPose) -> None:
+        if self.core is None:
+            return
+        valid = msg.status not in (HandPose.STATUS_UNKNOWN, HandPose.STATUS_LOST)
+        hand = "left" if msg.handedness == HandPose.HAND_LEFT else "right"
+        self.core.handle_pose(msg.joint_names, msg.positions, handedness=hand, valid=valid)
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        if self.core is not None:
+            self.core.handle_joint_state(msg.name, msg.position)
+
+    def _on_control(self) -> None:
+        r = self.core.step() if self.core is not None else None
+        if r is None or self._state_pub is None or not r.fresh.any():
+            return
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        idx = r.fresh.nonzero()[0]
+        msg.name = [self.core.names[k] for k in idx]
+        msg.position = r.position[idx].tolist()
+        msg.velocity = r.velocity[idx].tolist()
+        msg.effort = r.current[idx].tolist()
+        self._state_pub.publish(msg)
+
+    def _on_reboot(self, request: Trigger.Request, response: Trigger.Response):
+        if self.core is None:
+            response.success, response.message = False, "not configured"
+        else:
+            response.success, response.message = self.core.reboot()
+        return response
+
+    def _publish_diagnostics(self) -> None:
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        if self.core is None:
+            arr.status = [DiagnosticStatus(
+                level=DiagnosticStatus.WARN, name="servo_bridge: bus",
+                message=f"not configured{': ' + self._last_error if self._last_error else ''}",
+                hardware_id=self.config.port)]
+        else:
+            for r in self.core.diagnostics():
+                arr.status.append(DiagnosticStatus(
+                    level=bytes((r.level,)), name=r.name, message=r.message,
+                    hardware_id=r.hardware_id,
+                    values=[KeyValue(key=k, value=v) for k, v in r.values.items()]))
+        self._diag_pub.publish(arr)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(ServoBridgeNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,209 @@
+"""The servo_bridge lifecycle node: HandPose / JointState in, emulated servos move; lifecycle
+transitions switch torque; torque goes off on Ctrl-C, SIGTERM and an exception."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from hand_msgs.msg import HandPose
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from ros_helpers import ROOT, wait_for
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from hand_capture.model.joints import ARTICULATED_JOINTS
+from hand_capture.nodes.shell import run_node
+from hand_control.dynamixel.emulator import BusEmulator
+from hand_control.dynamixel.servo_map import load_servo_map
+from hand_control.nodes.servo_bridge import ServoBridgeNode
+
+NAMES = list(ARTICULATED_JOINTS)
+
+
+def params(**kw) -> list[Parameter]:
+    kw.setdefault("servo_map", "generic_3dof")
+    kw.setdefault("packet_timeout_ms", 100.0)
+    return [Parameter(k, value=v) for k, v in kw.items()]
+
+
+@pytest.fixture
+def ros():
+    rclpy.init()
+    peer = rclpy.create_node("servo_test_peer")
+    ex = SingleThreadedExecutor()
+    ex.add_node(peer)
+    nodes = []
+
+    def spin_until(cond, timeout: float, tick=None) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if tick is not None:
+                tick()
+            ex.spin_once(timeout_sec=0.005)
+            if cond():
+                return True
+        return cond()
+
+    def add(node):
+        nodes.append(node)
+        ex.add_node(node)
+        return node
+
+    yield peer, add, spin_until
+    for n in nodes:
+        n.on_shutdown()
+        n.destroy_node()
+    peer.destroy_node()
+    rclpy.shutdown()
+
+
+def hand_pose(**angles: float) -> HandPose:
+    q = dict.fromkeys(NAMES, 0.0)
+    q.update(angles)
+    return HandPose(joint_names=NAMES, positions=[q[n] for n in NAMES],
+                    status=HandPose.STATUS_TRACKING, handedness=HandPose.HAND_RIGHT)
+
+
+def test_hand_pose_topic_moves_the_emulated_servos(ros) -> None:
+    peer, add, spin_until = ros
+    node = add(ServoBridgeNode(parameter_overrides=params()))
+    assert node._state_machine.current_state[1] == "active"  # autostart
+    states, diags = [], []
+    peer.create_subscription(JointState, "servo/joint_states", states.append, 10)
+    peer.create_subscription(DiagnosticArray, "diagnostics", diags.append, 10)
+    pub = peer.create_publisher(HandPose, "hand/pose", 10)
+    msg = hand_pose(thumb_tm_flex=0.5, thumb_mcp_flex=0.5, index_mcp_flex=0.5,
+                    index_pip_flex=0.5, index_dip_flex=0.5)
+    emu = node.core.emulator
+    # thumb: -0.3 + 0.5 rad; index_curl: -(0.5) rad (direction -1), 651.9 ticks/rad
+    want = [2048 + round(0.2 * 651.8986), 2048 - round(0.5 * 651.8986), 2048]
+    assert spin_until(lambda: [emu.value(i, "goal_position") for i in (1, 2, 3)] == want,
+                      10.0, tick=lambda: pub.publish(msg))
+    assert spin_until(lambda: states and diags, 5.0)
+    assert list(states[-1].name) == ["thumb", "index_curl", "fingers_curl"]
+    assert states[-1].position[0] == pytest.approx(0.2, abs=0.02)
+    bus = [s for s in diags[-1].status if s.name.startswith("servo_bridge: bus")][0]
+    assert bus.level == b"\x00" and {kv.key for kv in bus.values} >= {"loop_rate_hz", "state"}
+
+
+def test_simulated_source_follows_sim_joint_states(ros) -> None:
+    peer, add, spin_until = ros
+    node = add(ServoBridgeNode(parameter_overrides=params(source="simulated")))
+    pub = peer.create_publisher(JointState, "sim/joint_states", 10)
+    msg = JointState(name=["box_x", *NAMES], position=[0.1] + [0.0] * len(NAMES))
+    msg.position[1 + NAMES.index("middle_pip_flex")] = 0.5
+    emu = node.core.emulator
+    want = 2048 + round(1.2 * 0.34 * 0.5 * 651.8986)
+    assert spin_until(lambda: abs(emu.value(3, "goal_position") - want) <= 1, 10.0,
+                      tick=lambda: pub.publish(msg))
+
+
+def test_lifecycle_transitions_switch_torque(ros) -> None:
+    _, add, _ = ros
+    node = add(ServoBridgeNode(parameter_overrides=params(autostart=False)))
+    assert node._state_machine.current_state[1] == "unconfigured" and node.core is None
+    node.trigger_configure()
+    emu = node.core.emulator
+    torque = lambda: [emu.value(i, "torque_enable") for i in (1, 2, 3)]
+    assert node._state_machine.current_state[1] == "inactive" and torque() == [0, 0, 0]
+    node.trigger_activate()
+    assert torque() == [1, 1, 1]
+    node.trigger_deactivate()
+    assert torque() == [0, 0, 0]
+    node.trigger_activate()
+    node.trigger_shutdown()
+    assert node._state_machine.current_state[1] == "finalized"
+    assert [emu.servo(i).get("torque_enable") for i in (1, 2, 3)] == [0, 0, 0]
+    assert not node.core.bus.is_open
+
+
+def test_configure_failure_keeps_the_node_up_and_reports_it(ros) -> None:
+    _, add, _ = ros
+    with BusEmulator({1: "XL330-M288"}) as emu:  # IDs 2 and 3 missing
+        node = add(ServoBridgeNode(parameter_overrides=params(port=emu.port_name,
+                                                              packet_timeout_ms=20.0)))
+        assert node._state_machine.current_state[1] == "unconfigured"
+        assert "no answer to ping" in node._last_error
+
+
+def test_reboot_service_clears_a_hardware_error(ros) -> None:
+    peer, add, spin_until = ros
+    node = add(ServoBridgeNode(parameter_overrides=params()))
+    emu = node.core.emulator
+    pub = peer.create_publisher(HandPose, "hand/pose", 10)
+    emu.inject_hardware_error(3, 1 << 5)
+    assert spin_until(lambda: 3 in node.core.faults, 5.0, tick=lambda: pub.publish(hand_pose()))
+    client = peer.create_client(Trigger, "servo_bridge/reboot")
+    assert client.wait_for_service(timeout_sec=5.0)
+    future = client.call_async(Trigger.Request())
+    assert spin_until(future.done, 10.0)
+    assert future.result().success, future.result().message
+    assert 3 not in node.core.faults and emu.value(3, "torque_enable") == 1
+
+
+def test_goal_current_scale_can_change_while_running(ros) -> None:
+    peer, add, spin_until = ros
+    node = add(ServoBridgeNode(parameter_overrides=params(servo_map="leap_hand")))
+    emu = node.core.emulator
+    pub = peer.create_publisher(HandPose, "hand/pose", 10)
+    node.set_parameters([Parameter("goal_current_scale", value=0.2)])
+    assert spin_until(lambda: emu.value(5, "goal_current") == 110, 5.0,
+                      tick=lambda: pub.publish(hand_pose()))
+    result = node.set_parameters([Parameter("control_rate_hz", value=50.0)])[0]
+    assert not result.successful  # read-only
+
+
+NODE_CMD = [sys.executable, "-m", "hand_control.nodes.servo_bridge", "--ros-args",
+            "-p", "servo_map:=generic_3dof", "-p", "packet_timeout_ms:=100.0"]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_switches_torque_off(sig) -> None:
+    ids = load_servo_map("generic_3dof").ids
+    with BusEmulator({1: "XL330-M288", 2: "XL330-M288", 3: "XM430-W350"}) as emu:
+        proc = subprocess.Popen([*NODE_CMD, "-p", f"port:={emu.port_name}"], cwd=ROOT,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        try:
+            on = wait_for(lambda: all(emu.value(i, "torque_enable") == 1 for i in ids), 30.0)
+            assert on, proc.stderr.read() if proc.poll() is not None else "no torque"
+            proc.send_signal(sig)
+            assert proc.wait(timeout=20) == 0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert [emu.value(i, "torque_enable") for i in ids] == [0, 0, 0]
+
+
+def test_exception_in_the_control_loop_switches_torque_off() -> None:
+    made = {}
+
+    def factory():
+        node = ServoBridgeNode(parameter_overrides=params())
+        step, count = node.core.step, [0]
+
+        def failing_step(*a, **k):
+            count[0] += 1
+            if count[0] > 5:
+                raise RuntimeError("bug in the control loop")
+            return step(*a, **k)
+
+        node.core.step = failing_step
+        made["emu"] = node.core.emulator
+        return node
+
+    old = signal.getsignal(signal.SIGTERM)
+    try:
+        assert run_node(factory, args=["servo_bridge"]) == 1
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    emu = made["emu"]
+    assert [emu.servo(i).get("torque_enable") for i in (1, 2, 3)] == [0, 0, 0]
