@@ -6,6 +6,7 @@
     hand-suite bag info DIR | bag recover DIR [-o OUT]
     hand-suite bench NAME [--quick] | bench --list
     hand-suite capture [-o DIR] [--clip C] [--seconds S] [--fps F] [--shape-seed N]
+    hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
     hand-suite demo [--out DIR]          the README's main job
     hand-suite test [PYTEST ARGS]        lint + the test suite (what CI runs)
@@ -157,6 +158,12 @@ def cmd_capture(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_mjcf(a: argparse.Namespace) -> int:
+    from hand_capture.model import mjcf
+
+    return mjcf.main(a.mjcf_args)
+
+
 def cmd_report(a: argparse.Namespace) -> int:
     from hand_control.report import build_report
 
@@ -234,6 +241,11 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--shape-seed", type=int, default=-1, help="-1 = default hand shape")
     cp.add_argument("--noise-seed", type=int, default=0)
     cp.set_defaults(func=cmd_capture)
+
+    mj = sub.add_parser("mjcf", help="write the MuJoCo hand.xml and scenes",
+                        add_help=False)
+    mj.add_argument("mjcf_args", nargs=argparse.REMAINDER)
+    mj.set_defaults(func=cmd_mjcf)
 
     rp = sub.add_parser("report", help="HTML report of a recorded bag")
     rp.add_argument("bag")
