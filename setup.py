@@ -15,6 +15,8 @@ NODES = {
     "synthetic_camera": "hand_capture.nodes.synthetic_camera:main",
     "grasp_phase": "hand_control.nodes.grasp_phase:main",
     "servo_bridge": "hand_control.nodes.servo_bridge:main",
+    "touch_source": "hand_capture.nodes.touch_source:main",
+    "touch_encoder": "hand_capture.nodes.touch_encoder:main",
 }
 
 setup(
@@ -29,6 +31,7 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/graphs", glob("config/graphs/*.yaml")),
         (f"share/{PACKAGE}/config/servo_maps", glob("config/servo_maps/*.yaml")),
+        (f"share/{PACKAGE}/data/touch", glob("data/touch/*.npz")),
     ],
     install_requires=["setuptools"],
     extras_require={"realsense": ["pyrealsense2"]},

@@ -6,6 +6,7 @@
     hand-suite bag info DIR | bag recover DIR [-o OUT]
     hand-suite bench NAME [--quick] | bench --list
     hand-suite capture [-o DIR] [--clip C] [--seconds S] [--fps F] [--shape-seed N]
+    hand-suite train touch [ARGS]        fit the multi-touch encodings (data/touch)
     hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
     hand-suite demo [--out DIR]          the README's main job
@@ -158,6 +159,15 @@ def cmd_capture(a: argparse.Namespace) -> int:
     return 0
 
 
+TRAINERS = {"touch": "hand_capture.touch.train"}
+
+
+def cmd_train(a: argparse.Namespace) -> int:
+    if a.what not in TRAINERS:
+        raise HandSuiteError(f"nothing to train called {a.what!r}; valid: {sorted(TRAINERS)}")
+    return int(importlib.import_module(TRAINERS[a.what]).main(a.train_args) or 0)
+
+
 def cmd_mjcf(a: argparse.Namespace) -> int:
     from hand_capture.model import mjcf
 
@@ -241,6 +251,11 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--shape-seed", type=int, default=-1, help="-1 = default hand shape")
     cp.add_argument("--noise-seed", type=int, default=0)
     cp.set_defaults(func=cmd_capture)
+
+    tr = sub.add_parser("train", help="train a learned component (touch, ...)")
+    tr.add_argument("what")
+    tr.add_argument("train_args", nargs=argparse.REMAINDER)
+    tr.set_defaults(func=cmd_train)
 
     mj = sub.add_parser("mjcf", help="write the MuJoCo hand.xml and scenes",
                         add_help=False)

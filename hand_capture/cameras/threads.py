@@ -4,7 +4,8 @@ numpy's bundled OpenBLAS starts one thread per core. On a small shared machine a
 loop of many small matrix products (the hand model's skinning, eq. II.8) then waits for
 descheduled BLAS threads: measured on the 2-core project machine under load, one
 ``HandModel.vertices`` call took 12 ms with the default pool and 0.4 ms with one thread.
-Camera nodes and benchmarks therefore call :func:`limit_blas_threads` once at start-up.
+Camera and tracker nodes call :func:`limit_blas_threads` once at start-up; the touch encoder
+runs its small products inside :func:`blas_threads`.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import ctypes
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
+from functools import cache
 
 __all__ = ["blas_threads", "get_blas_threads", "limit_blas_threads"]
 
@@ -32,7 +34,9 @@ _SYMBOLS = (
 )
 
 
-def _openblas_libs() -> list[ctypes.CDLL]:
+@cache
+def _openblas_libs() -> tuple[ctypes.CDLL, ...]:
+    """The OpenBLAS libraries loaded in this process (looked up once; hot paths call this)."""
     import numpy  # noqa: F401  (make sure numpy's BLAS is loaded)
 
     try:
@@ -40,14 +44,14 @@ def _openblas_libs() -> list[ctypes.CDLL]:
             paths = sorted({line.split()[-1] for line in fh
                             if "openblas" in line.lower() and line.split()[-1].startswith("/")})
     except OSError:
-        return []
+        return ()
     libs = []
     for path in paths:
         try:
             libs.append(ctypes.CDLL(path))
         except OSError:
             continue
-    return libs
+    return tuple(libs)
 
 
 def get_blas_threads() -> int | None:

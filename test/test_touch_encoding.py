@@ -1,0 +1,147 @@
+"""Polynomial encodings (eq. 1-3), the input vector u, the model file and the PCA-IK basis."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from hand_capture.errors import ConfigError, InputError
+from hand_capture.touch.encoding import (
+    INCH,
+    PolynomialEncoder,
+    PolynomialFeatures,
+    absolute_pose,
+    encode_input,
+    n_features,
+    relative_pose,
+)
+from hand_capture.touch.pcaik import components_for
+from hand_capture.touch.touch_model import TouchModel
+
+
+def test_feature_counts_match_the_paper():
+    # sec. 2: "120 + 15 + 1 = 136 coefficients per degree-of-freedom" for 15-dim u
+    assert n_features(2) == 136 == PolynomialFeatures(2).size
+    assert n_features(1) == 16 and n_features(3) == 816  # eq. (2), eq. (3)
+    with pytest.raises(ConfigError):
+        PolynomialFeatures(4)
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3])
+def test_features_are_all_monomials_in_order(degree):
+    u = np.random.default_rng(0).normal(size=(7, 15))
+    ref = [np.ones(7)] + [u[:, i] for i in range(15)]
+    for d in range(2, degree + 1):
+        ref += [np.prod(u[:, list(c)], axis=1)
+                for c in itertools.combinations_with_replacement(range(15), d)]
+    np.testing.assert_allclose(PolynomialFeatures(degree)(u), np.stack(ref, 1), rtol=1e-12)
+
+
+def test_fit_reproduces_a_known_quadratic_exactly():
+    rng = np.random.default_rng(1)
+    u = rng.normal(size=(600, 15))
+    coef = rng.normal(size=(136, 27))
+    y = PolynomialFeatures(2)(u) @ coef
+    enc = PolynomialEncoder.fit(u, y, degree=2)
+    np.testing.assert_allclose(enc.coef, coef, atol=1e-9)
+    u_new = rng.normal(size=(50, 15))
+    np.testing.assert_allclose(enc.predict(u_new), PolynomialFeatures(2)(u_new) @ coef,
+                               atol=1e-8)
+    # the ridge path (standardised monomials) converges to the same function
+    ridge = PolynomialEncoder.fit(u, y, degree=2, ridge=1e-12)
+    np.testing.assert_allclose(ridge.predict(u_new), enc.predict(u_new), atol=1e-5)
+    # a linear encoder cannot: its residual stays large
+    lin = PolynomialEncoder.fit(u, y, degree=1)
+    assert np.abs(lin.predict(u) - y).mean() > 1.0
+
+
+def test_fit_rejects_bad_data():
+    u = np.zeros((10, 15))
+    with pytest.raises(InputError):
+        PolynomialEncoder.fit(u, np.zeros((9, 27)), 2)
+    u[0, 0] = np.nan
+    with pytest.raises(InputError):
+        PolynomialEncoder.fit(u, np.zeros((10, 27)), 2)
+    with pytest.raises(ConfigError):
+        PolynomialEncoder(2, np.zeros((16, 27)))
+
+
+def test_encode_input_relative_to_leftmost_contact_in_inches():
+    pads = np.zeros((5, 2))
+    pads[1] = (0.10, 0.05)     # index
+    pads[2] = (0.0746, 0.0754)  # middle: leftmost of the contacts
+    pads[4] = (0.5, 0.5)       # little, lifted: its position must not matter
+    contact = np.array([False, True, True, False, False])
+    u, origin = encode_input(pads, contact)
+    np.testing.assert_allclose(origin, pads[2])
+    assert u.shape == (15,)
+    np.testing.assert_allclose(u[2:4], (pads[1] - pads[2]) / INCH)
+    np.testing.assert_allclose(u[4:6], 0.0)
+    np.testing.assert_allclose(u[[0, 1, 6, 7, 8, 9]], -1.0)  # lifted fingers: (-1, -1)
+    np.testing.assert_array_equal(u[10:], contact.astype(float))
+    # translation invariance
+    u2, _ = encode_input(pads + (0.03, -0.01), contact)
+    np.testing.assert_allclose(u2, u)
+
+
+def test_encode_input_rejects_bad_input():
+    pads = np.zeros((5, 2))
+    with pytest.raises(InputError, match="at least one"):
+        encode_input(pads, np.zeros(5, bool))
+    pads[0, 0] = np.nan
+    with pytest.raises(InputError, match="non-finite"):
+        encode_input(pads, np.array([True, True, False, False, False]))
+    # NaN of a lifted finger is irrelevant
+    encode_input(pads, np.array([False, True, True, False, False]))
+    with pytest.raises(InputError):
+        encode_input(np.zeros((4, 2)), np.ones(4, bool))
+
+
+def test_relative_and_absolute_pose_are_inverse_in_the_table_frame():
+    q = np.random.default_rng(2).normal(size=(3, 27))
+    origin = np.array([0.05, 0.08])  # surface coordinates: y grows towards the user
+    rel = relative_pose(q, origin)
+    np.testing.assert_allclose(rel[:, :2], q[:, :2] - (0.05, -0.08))
+    np.testing.assert_allclose(absolute_pose(rel, origin), q)
+    np.testing.assert_array_equal(rel[:, 2:], q[:, 2:])
+
+
+def test_model_file_round_trip(tmp_path):
+    rng = np.random.default_rng(3)
+    encs = {name: PolynomialEncoder(d, rng.normal(size=(n_features(d), 27)))
+            for name, d in (("linear", 1), ("quadratic", 2))}
+    ref = rng.normal(size=(50, 27))
+    path = TouchModel(encs, ref, {"seed": "0"}).save(tmp_path / "m.npz", max_reference=20)
+    back = TouchModel.load(path)
+    assert set(back.encoders) == {"linear", "quadratic"} and back.meta["seed"] == "0"
+    np.testing.assert_allclose(back.encoder("quadratic").coef, encs["quadratic"].coef)
+    assert back.reference_poses.shape == (20, 27)
+    with pytest.raises(ConfigError, match="cubic"):
+        back.encoder("cubic")
+    with pytest.raises(ConfigError, match="not found"):
+        TouchModel.load(tmp_path / "missing.npz")
+
+
+def test_shipped_model_file_loads_and_is_small():
+    model = TouchModel.load()
+    assert set(model.encoders) == {"linear", "quadratic", "cubic"}
+    assert model.encoder("quadratic").coef.shape == (136, 27)
+    from hand_capture.touch.touch_model import default_model_path
+
+    assert default_model_path().stat().st_size < 1_000_000
+
+
+def test_pcaik_components_per_contact_count():
+    # sec. 3: 3, 6, 9, 12 principal components for 2, 3, 4, 5 contacts
+    assert [components_for(n) for n in (2, 3, 4, 5)] == [3, 6, 9, 12]
+
+
+def test_shipped_model_file_was_trained_on_the_current_hand_model():
+    from hand_capture.touch.datagen import build_model, model_fingerprint
+
+    meta = TouchModel.load().meta
+    assert meta.get("hand_model") == model_fingerprint(build_model(-1)), (
+        "data/touch/touch_model.npz is stale: the hand model changed; regenerate it with "
+        "'python -m hand_capture.touch.train'")
