@@ -12,7 +12,7 @@ import time
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from hand_msgs.msg import HandPose
+from hand_msgs.msg import HandPose, JointCommand
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from ros_helpers import ROOT, wait_for
@@ -79,9 +79,12 @@ def test_hand_pose_topic_moves_the_emulated_servos(ros) -> None:
     states, diags = [], []
     peer.create_subscription(JointState, "servo/joint_states", states.append, 10)
     peer.create_subscription(DiagnosticArray, "diagnostics", diags.append, 10)
+    goals: list[JointCommand] = []
+    peer.create_subscription(JointCommand, "servo/goal", goals.append, 10)
     pub = peer.create_publisher(HandPose, "hand/pose", 10)
     msg = hand_pose(thumb_tm_flex=0.5, thumb_mcp_flex=0.5, index_mcp_flex=0.5,
                     index_pip_flex=0.5, index_dip_flex=0.5)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 42, 7  # the source image's stamp
     emu = node.core.emulator
     # thumb: -0.3 + 0.5 rad; index_curl: -(0.5) rad (direction -1), 651.9 ticks/rad
     want = [2048 + round(0.2 * 651.8986), 2048 - round(0.5 * 651.8986), 2048]
@@ -92,6 +95,11 @@ def test_hand_pose_topic_moves_the_emulated_servos(ros) -> None:
     assert states[-1].position[0] == pytest.approx(0.2, abs=0.02)
     bus = [s for s in diags[-1].status if s.name.startswith("servo_bridge: bus")][0]
     assert bus.level == b"\x00" and {kv.key for kv in bus.values} >= {"loop_rate_hz", "state"}
+    # the goals written to the bus carry the stamp of the pose they come from
+    assert spin_until(lambda: goals, 5.0)
+    assert (goals[-1].header.stamp.sec, goals[-1].header.stamp.nanosec) == (42, 7)
+    assert list(goals[-1].joint_names) == ["thumb", "index_curl", "fingers_curl"]
+    assert goals[-1].positions[0] == pytest.approx(0.2, abs=1e-3)
 
 
 def test_simulated_source_follows_sim_joint_states(ros) -> None:

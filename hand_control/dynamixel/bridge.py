@@ -145,6 +145,7 @@ class CycleResult:
     current: np.ndarray  # [A]
     written: int  # servos that got a goal this cycle
     duration_s: float  # software time of the cycle
+    goal: np.ndarray  # last goal written to each servo [rad] (NaN: none yet)
 
 
 @dataclass
@@ -684,7 +685,8 @@ class ServoBridge:
         dur = time.perf_counter() - t0
         self._cycle_t.append(now)
         self._cycle_dur.append(dur)
-        return CycleResult(now, fresh, pos, vel, cur, written, dur)
+        goal = ticks_to_angles(np.asarray(self.limiter.last, dtype=float))
+        return CycleResult(now, fresh, pos, vel, cur, written, dur, goal)
 
     # --------------------------------------------------------------------------------- reboot
     def reboot(self, ids: Sequence[int] | None = None) -> tuple[bool, str]:

@@ -7,6 +7,8 @@ Topics:
          sim/joint_states (sensor_msgs/JointState, source: simulated), sensor-data QoS
     out  servo/joint_states (sensor_msgs/JointState: servo angle [rad], velocity [rad/s],
          effort = motor current [A]; only servos read cleanly in that cycle)
+    out  servo/goal (hand_msgs/JointCommand: the goals [rad] written to the bus in a cycle,
+         stamped with the stamp of the input they come from, for per-stage latency)
     out  diagnostics (diagnostic_msgs/DiagnosticArray: bus state, loop rate, per-servo
          temperature, voltage, current, hardware error bits)
 Parameters: those of :class:`BridgeConfig`; ``goal_current_scale`` (grip strength in
@@ -26,7 +28,7 @@ from __future__ import annotations
 import sys
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from hand_msgs.msg import HandPose
+from hand_msgs.msg import HandPose, JointCommand
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
@@ -52,6 +54,8 @@ class ServoBridgeNode(LifecycleNode):
         self.core: ServoBridge | None = None
         self._last_error = ""
         self._state_pub = None
+        self._goal_pub = None
+        self._input_stamp = None  # header stamp of the last accepted input
         self._sub = None
         self._srv = None
         self._control_timer = None
@@ -76,6 +80,7 @@ class ServoBridgeNode(LifecycleNode):
             self.core = None
             return _FAILURE
         self._state_pub = self.create_lifecycle_publisher(JointState, "servo/joint_states", 10)
+        self._goal_pub = self.create_lifecycle_publisher(JointCommand, "servo/goal", 10)
         if self.config.source == "tracked":
             self._sub = self.create_subscription(HandPose, "hand/pose", self._on_pose,
                                                  qos_profile_sensor_data)
@@ -128,9 +133,10 @@ class ServoBridgeNode(LifecycleNode):
                              (self._srv, self.destroy_service)):
             if ent is not None:
                 destroy(ent)
-        if self._state_pub is not None:
-            self.destroy_lifecycle_publisher(self._state_pub)
-        self._sub = self._srv = self._state_pub = None
+        for pub in (self._state_pub, self._goal_pub):
+            if pub is not None:
+                self.destroy_lifecycle_publisher(pub)
+        self._sub = self._srv = self._state_pub = self._goal_pub = None
 
     # ---------------------------------------------------------------------------- callbacks
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
@@ -145,15 +151,24 @@ class ServoBridgeNode(LifecycleNode):
             return
         valid = msg.status not in (HandPose.STATUS_UNKNOWN, HandPose.STATUS_LOST)
         hand = "left" if msg.handedness == HandPose.HAND_LEFT else "right"
-        self.core.handle_pose(msg.joint_names, msg.positions, handedness=hand, valid=valid)
+        if self.core.handle_pose(msg.joint_names, msg.positions, handedness=hand,
+                                 valid=valid):
+            self._input_stamp = msg.header.stamp
 
     def _on_joint_state(self, msg: JointState) -> None:
-        if self.core is not None:
-            self.core.handle_joint_state(msg.name, msg.position)
+        if self.core is not None and self.core.handle_joint_state(msg.name, msg.position):
+            self._input_stamp = msg.header.stamp
 
     def _on_control(self) -> None:
         r = self.core.step() if self.core is not None else None
-        if r is None or self._state_pub is None or not r.fresh.any():
+        if r is None or self._state_pub is None:
+            return
+        if r.written and self._input_stamp is not None:
+            goal = JointCommand(joint_names=list(self.core.names),
+                                positions=[float(v) for v in r.goal])
+            goal.header.stamp = self._input_stamp
+            self._goal_pub.publish(goal)
+        if not r.fresh.any():
             return
         msg = JointState()
         msg.header.stamp = self.get_clock().now().to_msg()
