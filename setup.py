@@ -17,6 +17,8 @@ NODES = {
     "servo_bridge": "hand_control.nodes.servo_bridge:main",
     "touch_source": "hand_capture.nodes.touch_source:main",
     "touch_encoder": "hand_capture.nodes.touch_encoder:main",
+    "sim": "hand_control.nodes.sim:main",
+    "controller": "hand_control.nodes.controller:main",
 }
 
 setup(
@@ -31,6 +33,7 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/graphs", glob("config/graphs/*.yaml")),
         (f"share/{PACKAGE}/config/servo_maps", glob("config/servo_maps/*.yaml")),
+        (f"share/{PACKAGE}/config/scenarios", glob("config/scenarios/*.yaml")),
         (f"share/{PACKAGE}/data/touch", glob("data/touch/*.npz")),
     ],
     install_requires=["setuptools"],

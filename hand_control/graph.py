@@ -3,7 +3,7 @@
 A graph is a YAML file ``config/graphs/<name>.yaml``::
 
     description: one line shown by `hand-suite run --list`
-    params: replay.yaml            # parameter file under config/ (optional)
+    params: [sim.yaml, controller.yaml]   # parameter file(s) under config/ (optional)
     nodes:
       - name: bag_player           # ROS node name
         executable: bag_player     # console script of hand_suite (setup.py)
@@ -46,7 +46,7 @@ class GraphSpec:
 
     name: str
     description: str
-    params_file: Path | None
+    params_files: tuple[Path, ...]
     nodes: tuple[NodeSpec, ...]
 
     def node(self, name: str) -> NodeSpec:
@@ -97,11 +97,13 @@ def load_graph(name_or_path: str | Path) -> GraphSpec:
     names = [n.name for n in nodes]
     if len(set(names)) != len(names):
         raise GraphError(f"{path}: node names must be unique, got {names}")
-    params = data.get("params")
-    params_file = config_dir() / params if params else None
-    if params_file is not None and not params_file.is_file():
-        raise GraphError(f"{path}: parameter file {params_file} does not exist")
-    return GraphSpec(path.stem, str(data.get("description", "")), params_file, tuple(nodes))
+    params = data.get("params") or []
+    params_files = tuple(config_dir() / f for f in ([params] if isinstance(params, str)
+                                                    else params))
+    for f in params_files:
+        if not f.is_file():
+            raise GraphError(f"{path}: parameter file {f} does not exist")
+    return GraphSpec(path.stem, str(data.get("description", "")), params_files, tuple(nodes))
 
 
 def format_value(value: Any) -> str:
@@ -143,14 +145,14 @@ def launch_description(name: str) -> Any:
 
     graph = load_graph(name)
     actions: list[Any] = []
-    base: list[Any] = []
-    if graph.params_file is not None:
-        # params_file defaults to the graph's own file; a user file given on the command line
-        # is applied after it.
+    base: list[Any] = [str(f) for f in graph.params_files]
+    if graph.params_files:
+        # params_file defaults to the graph's last file; a user file given on the command
+        # line is applied after the graph's own.
         actions.append(DeclareLaunchArgument(
-            "params_file", default_value=str(graph.params_file),
+            "params_file", default_value=str(graph.params_files[-1]),
             description="extra ROS parameter file applied to every node"))
-        base = [str(graph.params_file), LaunchConfiguration("params_file")]
+        base.append(LaunchConfiguration("params_file"))
     for nd in graph.nodes:
         params: list[Any] = list(base)
         if nd.parameters:

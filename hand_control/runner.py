@@ -113,7 +113,7 @@ def run_graph(
     if unknown:
         raise GraphError(f"overrides for unknown node(s) {sorted(unknown)}; graph "
                          f"{graph.name} has {[n.name for n in graph.nodes]}")
-    files = ([graph.params_file] if graph.params_file else []) + list(extra_params or [])
+    files = list(graph.params_files) + list(extra_params or [])
     for f in files:
         if not Path(f).is_file():
             raise GraphError(f"parameter file not found: {f}")

@@ -33,7 +33,7 @@ def test_every_graph_names_existing_scripts_and_parameter_files() -> None:
     assert available_graphs(), "no graph described"
     for name in available_graphs():
         g = load_graph(name)
-        assert g.params_file is None or g.params_file.is_file()
+        assert all(f.is_file() for f in g.params_files)
         for n in g.nodes:
             assert n.executable in scripts, f"{name}: {n.executable} not in setup.py"
             module = scripts[n.executable].split(":")[0]
@@ -77,7 +77,8 @@ def test_launch_description_builds_the_same_graph(monkeypatch: pytest.MonkeyPatc
     graph = load_graph("replay")
     assert [(n["name"], n["executable"]) for n in nodes] == [
         (n.name, n.executable) for n in graph.nodes]
-    assert all(n["parameters"][0] == str(graph.params_file) for n in nodes)
+    assert all(n["parameters"][: len(graph.params_files)] == [str(f) for f in graph.params_files]
+               for n in nodes)
 
 
 def test_unknown_graph_lists_the_valid_ones() -> None:

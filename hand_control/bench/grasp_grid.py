@@ -1,0 +1,135 @@
+"""Lift-and-carry grid: composite control vs PD-only trajectory tracking, in simulation.
+
+Every cell (object x mass x friction) runs the same scenario twice in lockstep
+(:mod:`hand_control.sim.lockstep`): reach, close onto the grasp found by fingertip IK, lift the
+object 10 cm and carry it 10 cm sideways, hold. Once with the composite controller (PD servos
++ grasp torques from the contact-force QP, seed 000 eq. 8-13 / dissertation III.19-III.23),
+once with PD-only trajectory tracking (the dissertation's baseline, sec. III.8.2: the same
+servo targets, no grasp torques). A run succeeds when the object ends within 3 cm of its target
+and at least half-way up. Success rates are counted over the cells where the dynamic
+feasibility LP (III.10-III.16) says the planned contacts can hold the object; the object
+tracking error (mm, deg) is averaged over lifting, carrying and holding.
+
+This module is the grid part of ``hand-suite bench contact`` (merged by its owner); it can run
+alone: ``python -m hand_control.bench.grasp_grid [--quick]``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from hand_capture.bench import json_line, print_table
+from hand_control.errors import HandSuiteError
+from hand_control.sim.control_loop import ControllerNodeConfig
+from hand_control.sim.lockstep import LockstepRunner
+from hand_control.sim.scenario import ScenarioSpec
+
+OBJECTS = ("box", "ball", "cylinder")
+MASSES = (0.05, 0.2, 0.5, 1.0)
+FRICTIONS = (0.3, 0.5, 0.75, 1.0)
+QUICK_OBJECTS = ("box", "ball")
+QUICK_MASSES = (0.05, 1.0)
+QUICK_FRICTIONS = (0.3, 1.0)
+
+
+
+def grid_spec(kind: str, mass: float, mu: float, quick: bool) -> ScenarioSpec:
+    t = dict(t_reach=0.3, t_close=0.4, t_settle=0.2, t_lift=0.6, t_carry=0.6, t_hold=0.4) \
+        if quick else dict(t_reach=0.5, t_close=0.5, t_settle=0.3, t_lift=1.0, t_carry=1.0,
+                           t_hold=0.7)
+    return ScenarioSpec(name=f"grid_{kind}", object_kind=kind, object_mass=mass,
+                        object_friction=mu, **t)
+
+
+def run_grid(quick: bool = False) -> dict[str, Any]:
+    """Run the grid; returns the figures (keys ``composite_success``, ``pd_only_success``,
+    tracking errors, cell counts)."""
+    objects = QUICK_OBJECTS if quick else OBJECTS
+    masses = QUICK_MASSES if quick else MASSES
+    frictions = QUICK_FRICTIONS if quick else FRICTIONS
+    control_every = 2 if quick else 1
+    rows = []
+    stats: dict[str, dict[str, list[float]]] = {m: {"ok": [], "pos": [], "rot": []}
+                                                for m in ("composite", "pd_only")}
+    feasible_cells = 0
+    cells = 0
+    t0 = time.perf_counter()
+    plans: dict[str, Any] = {}
+    for kind, mass, mu in itertools.product(objects, masses, frictions):
+        spec = grid_spec(kind, mass, mu, quick)
+        cells += 1
+        row = [kind, mass, mu]
+        feasible = None
+        for mode in ("composite", "pd_only"):
+            # contact-QP weights: ControllerNodeConfig's defaults (alpha3 = alpha4 = 1e-3, see
+            # config/controller.yaml), the same as the controller node
+            cfg = ControllerNodeConfig(scenario=spec.name, mode=mode)
+            try:
+                runner = LockstepRunner(spec, controller_config=cfg,
+                                        control_every=control_every, plan=plans.get(kind))
+            except HandSuiteError as e:
+                print(f"  {kind}: cannot plan a grasp: {e}", file=sys.stderr)
+                break
+            plans[kind] = runner.plan
+            if feasible is None:
+                feasible = runner.feasibility()
+                feasible_cells += int(feasible)
+            try:
+                r = runner.run()
+                ok, pos, rot = r.success, r.pos_err_mean_mm, r.rot_err_mean_deg
+            except HandSuiteError as e:  # a divergence counts as a failure, reported
+                print(f"  {kind} m={mass} mu={mu} {mode}: {e}", file=sys.stderr)
+                ok, pos, rot = False, math.nan, math.nan
+            if feasible:
+                stats[mode]["ok"].append(float(ok))
+                stats[mode]["pos"].append(pos)
+                stats[mode]["rot"].append(rot)
+            row += ["yes" if ok else "no", pos, rot]
+        row.insert(3, "yes" if feasible else "no")
+        rows.append(row)
+    print_table(
+        "lift-and-carry grid (success; object tracking error over lift/carry/hold)",
+        ["object", "mass kg", "mu", "LP feasible", "composite", "err mm", "err deg",
+         "PD-only", "err mm", "err deg"], rows)
+
+    def rate(mode: str) -> float:
+        v = stats[mode]["ok"]
+        return float(np.mean(v)) if v else math.nan
+
+    def mean(mode: str, key: str) -> float:
+        v = np.asarray(stats[mode][key], dtype=float)
+        v = v[np.isfinite(v)]
+        return float(v.mean()) if v.size else math.nan
+
+    out = {
+        "composite_success": rate("composite"),
+        "pd_only_success": rate("pd_only"),
+        "success_ratio": (rate("composite") / rate("pd_only")
+                          if rate("pd_only") > 0 else math.inf),
+        "composite_err_mm": mean("composite", "pos"),
+        "pd_only_err_mm": mean("pd_only", "pos"),
+        "composite_err_deg": mean("composite", "rot"),
+        "pd_only_err_deg": mean("pd_only", "rot"),
+        "grid_cells": cells,
+        "feasible_cells": feasible_cells,
+        "grid_wall_s": time.perf_counter() - t0,
+    }
+    print_table("summary (feasible cells)", ["controller", "success", "err mm", "err deg"], [
+        ["composite", out["composite_success"], out["composite_err_mm"],
+         out["composite_err_deg"]],
+        ["PD-only", out["pd_only_success"], out["pd_only_err_mm"], out["pd_only_err_deg"]]])
+    return out
+
+
+def run(quick: bool = False) -> dict[str, Any]:
+    return run_grid(quick)
+
+
+if __name__ == "__main__":
+    print(json_line({"bench": "grasp_grid", **run_grid("--quick" in sys.argv)}))

@@ -1,0 +1,217 @@
+"""controller: composite motion control of the simulated hand (seed 000 eq. 8-13).
+
+Thin wrapper around :class:`hand_control.sim.control_loop.ControllerCore`.
+
+Topics:
+    in   sim/joint_states (sensor_msgs/JointState): each message triggers one control step
+    in   sim/object_pose (geometry_msgs/PoseStamped), sim/object_twist (TwistStamped)
+    in   sim/contacts (hand_msgs/ContactArray; hand-object contacts are used)
+    in   hand/pose (hand_msgs/HandPose) when ``reference: hand_pose``; otherwise the
+         scenario's scripted reference at the current (simulation) time
+    in   control/object_target (geometry_msgs/PoseStamped): overrides the object target
+    out  control/joint_command (hand_msgs/JointCommand: servo position targets and the grasp
+         torques as feed-forward efforts, by joint name), reliable
+    out  control/contact_forces (hand_msgs/ContactArray: the planned contact forces on the
+         object, eq. III.23), control/contact_markers (visualization_msgs/MarkerArray: arrows),
+         both at ``forces_rate`` (50 Hz)
+    out  diagnostics (1 Hz: steps, QP fallbacks, rejected inputs)
+A QP without solution or bad input gives a PD-only command (zero efforts), counted and logged;
+a non-finite value never reaches a joint.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point, PoseStamped, TwistStamped
+from hand_msgs.msg import Contact, ContactArray, HandPose, JointCommand
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+from visualization_msgs.msg import Marker, MarkerArray
+
+from hand_capture.model.joints import JOINT_NAMES
+from hand_capture.nodes.params import declare_config
+from hand_capture.nodes.shell import run_node
+from hand_capture.posemsg import pose_from_msg
+from hand_control.errors import InputError
+from hand_control.nodes.sim import contacts_from_msg
+from hand_control.sim.control_loop import ControllerCore, ControllerNodeConfig
+from hand_control.sim.lockstep import LockstepRunner
+from hand_control.sim.scenario import load_scenario
+
+
+class ControllerNode(Node):
+    """Runs :class:`ControllerCore` on every joint state from the simulation."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("controller", **kwargs)
+        self.cfg: ControllerNodeConfig = declare_config(self, ControllerNodeConfig)
+        spec = load_scenario(self.cfg.scenario)
+        runner = LockstepRunner(spec, controller_config=self.cfg)  # world, grasp, reference
+        world = runner.world
+        body = world.objects[runner.obj.name]["body"]
+        self.core = ControllerCore(world, runner.reference, spec.object_mass, self.cfg,
+                                   object_inertia=float(world.model.body_inertia[body].min()),
+                                   control_period=0.004)
+        self.object_name = runner.obj.name
+        self._obj = None
+        self._twist = (np.zeros(3), np.zeros(3))
+        self._contacts = None
+        self._warned = 0.0
+        self.commands = 0
+        self.create_subscription(JointState, "sim/joint_states", self._on_joint_state,
+                                 qos_profile_sensor_data)
+        self.create_subscription(PoseStamped, "sim/object_pose", self._on_pose,
+                                 qos_profile_sensor_data)
+        self.create_subscription(TwistStamped, "sim/object_twist", self._on_twist,
+                                 qos_profile_sensor_data)
+        self.create_subscription(ContactArray, "sim/contacts", self._on_contacts,
+                                 qos_profile_sensor_data)
+        self.create_subscription(PoseStamped, "control/object_target", self._on_object_target,
+                                 10)
+        if self.cfg.reference == "hand_pose":
+            self.create_subscription(HandPose, "hand/pose", self._on_hand_pose,
+                                     qos_profile_sensor_data)
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub_cmd = self.create_publisher(JointCommand, "control/joint_command", reliable)
+        self.pub_forces = self.create_publisher(ContactArray, "control/contact_forces", 10)
+        self.pub_markers = self.create_publisher(MarkerArray, "control/contact_markers", 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self._last_forces = 0.0
+        self.create_timer(1.0, self._diagnostics)
+
+    def _log_throttled(self, text: str) -> None:
+        now = time.monotonic()
+        if now - self._warned > 1.0:
+            self._warned = now
+            self.get_logger().warning(text)
+
+    # ----------------------------------------------------------------------------- inputs
+    def _on_pose(self, msg: PoseStamped) -> None:
+        p, o = msg.pose.position, msg.pose.orientation
+        self._obj = (np.array([p.x, p.y, p.z]), np.array([o.w, o.x, o.y, o.z]))
+
+    def _on_twist(self, msg: TwistStamped) -> None:
+        lin, ang = msg.twist.linear, msg.twist.angular
+        self._twist = (np.array([lin.x, lin.y, lin.z]), np.array([ang.x, ang.y, ang.z]))
+
+    def _on_contacts(self, msg: ContactArray) -> None:
+        self._contacts = msg
+
+    def _on_object_target(self, msg: PoseStamped) -> None:
+        p, o = msg.pose.position, msg.pose.orientation
+        pos = np.array([p.x, p.y, p.z])
+        quat = np.array([o.w, o.x, o.y, o.z])
+        if not (np.isfinite(pos).all() and np.isfinite(quat).all()) or np.linalg.norm(quat) < 1e-9:
+            self.core.counters["rejected_inputs"] += 1
+            self._log_throttled("control/object_target rejected: NaN or zero quaternion")
+            return
+        self.core.object_target_override = (pos, quat / np.linalg.norm(quat))
+
+    def _on_hand_pose(self, msg: HandPose) -> None:
+        if msg.status in (HandPose.STATUS_UNKNOWN, HandPose.STATUS_LOST):
+            return
+        try:
+            pose = pose_from_msg(msg)  # (27,) JOINT_NAMES order, root from wrist_pose
+            q = self.core.hand_pose_from_names(JOINT_NAMES, pose)
+        except InputError as e:
+            self.core.counters["rejected_inputs"] += 1
+            self._log_throttled(f"hand/pose rejected: {e}")
+            return
+        self.core.hand_target_override = q
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        if self._obj is None:
+            return
+        try:
+            q = self.core.hand_pose_from_names(msg.name, msg.position)
+            qd = self.core.hand_pose_from_names(msg.name, msg.velocity)
+        except InputError as e:
+            self.core.counters["rejected_inputs"] += 1
+            self._log_throttled(f"sim/joint_states rejected: {e}")
+            return
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        bodies, pts, nrm, frc, mu = [], np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), \
+            np.zeros(0)
+        if self._contacts is not None:
+            b1, b2, p_, n_, f_, m_ = contacts_from_msg(self._contacts)
+            hand = self.core.kin.is_hand_body
+            sel = [i for i, (a, b) in enumerate(zip(b1, b2, strict=True))
+                   if b == self.object_name and hand(a)]
+            bodies = [b1[i] for i in sel]
+            pts, nrm, frc, mu = p_[sel], n_[sel], f_[sel], m_[sel]
+        before = dict(self.core.counters)
+        cmd = self.core.step(t, q, qd, (*self._obj, *self._twist), bodies, pts, nrm, frc, mu)
+        c = self.core.counters
+        if c["qp_fallbacks"] > before["qp_fallbacks"]:
+            self._log_throttled(f"contact QP found no solution: PD-only step "
+                                f"({c['qp_fallbacks']} so far)")
+        elif c["rejected_inputs"] > before["rejected_inputs"]:
+            self._log_throttled(f"bad contact/state input: PD-only step "
+                                f"({c['rejected_inputs']} so far)")
+        out = JointCommand()
+        out.header.stamp = msg.header.stamp
+        out.joint_names = list(cmd.joint_names)
+        out.positions = cmd.positions.tolist()
+        out.efforts = cmd.efforts.tolist()
+        self.pub_cmd.publish(out)
+        self.commands += 1
+        self._publish_forces(msg, cmd)
+
+    def _publish_forces(self, state: JointState, cmd) -> None:
+        now = time.monotonic()
+        rate = self.cfg.forces_rate
+        if rate > 0 and now - self._last_forces < 1.0 / rate:
+            return
+        self._last_forces = now
+        arr = ContactArray()
+        arr.header.stamp = state.header.stamp
+        arr.header.frame_id = "world"
+        for k in range(len(cmd.planned_forces)):
+            c = Contact()
+            c.body1, c.body2 = cmd.contact_bodies[k], self.object_name
+            c.point.x, c.point.y, c.point.z = cmd.contact_points[k].tolist()
+            c.normal.x, c.normal.y, c.normal.z = cmd.contact_normals[k].tolist()
+            c.force.x, c.force.y, c.force.z = cmd.planned_forces[k].tolist()
+            c.torsional_torque = float(cmd.planned_torsion[k])
+            arr.contacts.append(c)
+        self.pub_forces.publish(arr)
+        markers = MarkerArray()
+        clear = Marker()
+        clear.action = Marker.DELETEALL
+        markers.markers.append(clear)
+        for k, c in enumerate(arr.contacts):
+            m = Marker()
+            m.header = arr.header
+            m.ns, m.id, m.type, m.action = "planned_contact_forces", k, Marker.ARROW, Marker.ADD
+            p0 = np.array([c.point.x, c.point.y, c.point.z])
+            f = np.array([c.force.x, c.force.y, c.force.z])
+            p1 = p0 + self.cfg.marker_scale * f
+            m.points = [Point(x=float(p0[0]), y=float(p0[1]), z=float(p0[2])),
+                        Point(x=float(p1[0]), y=float(p1[1]), z=float(p1[2]))]
+            m.scale.x, m.scale.y, m.scale.z = 0.002, 0.004, 0.004
+            m.color.r, m.color.g, m.color.b, m.color.a = 0.1, 0.8, 0.1, 1.0  # green (Fig. III.5)
+            markers.markers.append(m)
+        self.pub_markers.publish(markers)
+
+    def _diagnostics(self) -> None:
+        c = self.core.counters
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        bad = c["qp_fallbacks"] or c["rejected_inputs"] or c["non_finite_outputs"]
+        arr.status = [DiagnosticStatus(
+            level=DiagnosticStatus.WARN if bad else DiagnosticStatus.OK, name="controller",
+            message="running", values=[KeyValue(key=k, value=str(v)) for k, v in c.items()])]
+        self.pub_diag.publish(arr)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(ControllerNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,237 @@
+"""The controller side of the sim <-> controller loop, as arrays (what the controller node wraps).
+
+:class:`ControllerCore` holds the composite controller, the reference of a scenario and a
+kinematic copy of the simulated hand (:class:`HandKinematics`: the same MJCF, never stepped)
+that turns the contacts received from the simulation (hand bone name, point, normal, force)
+into the contact Jacobians of eq. (12) with ``mj_jac``. Each :meth:`ControllerCore.step` maps
+
+    joint state + object state + contacts + time  ->  servo targets + feed-forward efforts
+
+Failures never reach a joint: a QP without solution, bad input or a non-finite result gives a
+PD-only command (zero efforts), counted in :attr:`ControllerCore.counters`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from hand_capture.config import param, validate
+from hand_control.contact import ContactQPConfig, ContactSet
+from hand_control.control import (
+    CompositeControlConfig,
+    CompositeController,
+    ObjectState,
+    ObjectTarget,
+)
+from hand_control.errors import HandSuiteError, InputError
+from hand_control.sim.scenario import Reference
+from hand_control.sim.world import SimWorld
+
+__all__ = ["Command", "ControllerCore", "ControllerNodeConfig", "HandKinematics"]
+
+
+@dataclass(frozen=True)
+class ControllerNodeConfig:
+    """The controller node (composite control of a scenario's object)."""
+
+    scenario: str = param("lift_box", "scenario file (config/scenarios/<name>.yaml): object, "
+                          "grasp and reference motion")
+    mode: str = param("composite", "'composite' (PD + grasp torques) or 'pd_only'",
+                      choices=("composite", "pd_only"))
+    reference: str = param(
+        "scripted", "hand target: 'scripted' (the scenario's reference at the current time) or "
+        "'hand_pose' (hand/pose from a tracker; the object target then comes from "
+        "control/object_target)", choices=("scripted", "hand_pose"))
+    alpha3: float = param(1e-3, "contact-QP weight of sum |f|^2 (eq. III.23; the "
+                          "dissertation's 0.1 under-delivers heavy loads, see README)", lo=1e-9)
+    alpha4: float = param(1e-3, "contact-QP weight of sum l^2 (eq. III.23)", lo=1e-9)
+    torsion_bound: bool = param(
+        True, "bound the torsional torques by the contacts' torsional friction "
+        "(|l| <= torsional_friction x normal force); the papers leave them free")
+    torsional_friction: float = param(
+        0.005, "torsional friction coefficient [m]; 0.005 = the exported MJCF's", lo=0.0)
+    state_timeout: float = param(0.2, "inputs older than this [s] are ignored", lo=0.0)
+    forces_rate: float = param(
+        50.0, "rate of control/contact_forces and control/contact_markers [Hz] (they are for "
+        "RViz and recording; 0 = every control step)", lo=0.0)
+    marker_scale: float = param(0.01, "arrow length per newton in control/contact_markers "
+                                "[m/N]", lo=0.0)
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+
+class HandKinematics:
+    """Kinematics of the simulated hand (the sim's own MJCF) for Jacobians from joint states."""
+
+    def __init__(self, world: SimWorld) -> None:
+        self.model = world.model
+        self.data = mujoco.MjData(self.model)
+        self.data.qpos[:] = world.data.qpos
+        self.joint_names = world.joint_names
+        self.qpos_adr = world.qpos_adr
+        self.dof_adr = world.dof_adr
+        self._body = {world._body_names[b]: b for b in world.hand_body_ids}
+        self._jacp = np.zeros((3, self.model.nv))
+        self._jacr = np.zeros((3, self.model.nv))
+
+    def is_hand_body(self, name: str) -> bool:
+        return name in self._body
+
+    def body_id(self, name: str) -> int:
+        try:
+            return self._body[name]
+        except KeyError:
+            raise InputError(f"{name!r} is not a hand body ({sorted(self._body)})") from None
+
+    def update(self, q: np.ndarray) -> None:
+        self.data.qpos[self.qpos_adr] = q
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_comPos(self.model, self.data)
+
+    def jacobians(self, bodies: Sequence[str], points: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """(K, 3, n_hand) translational and rotational Jacobians at ``points`` on ``bodies``
+        (call :meth:`update` first)."""
+        k = len(bodies)
+        jp = np.empty((k, 3, len(self.qpos_adr)))
+        jr = np.empty_like(jp)
+        for i, (b, p) in enumerate(zip(bodies, points, strict=True)):
+            mujoco.mj_jac(self.model, self.data, self._jacp, self._jacr, p, self.body_id(b))
+            jp[i] = self._jacp[:, self.dof_adr]
+            jr[i] = self._jacr[:, self.dof_adr]
+        return jp, jr
+
+
+@dataclass(frozen=True, eq=False)
+class Command:
+    """One controller output: servo targets and feed-forward efforts by joint name."""
+
+    joint_names: tuple[str, ...]
+    positions: np.ndarray
+    efforts: np.ndarray
+    phase: str
+    planned_forces: np.ndarray      # (K, 3) on the object [N] (empty when none)
+    planned_torsion: np.ndarray     # (K,)
+    contact_points: np.ndarray      # (K, 3)
+    contact_normals: np.ndarray     # (K, 3)
+    contact_bodies: tuple[str, ...]
+    pd_only: bool                   # no grasp torques this step (by design or fallback)
+
+
+class ControllerCore:
+    """Composite controller + scenario reference + hand kinematics (see module docstring)."""
+
+    def __init__(self, world: SimWorld, reference: Reference, object_mass: float,
+                 config: ControllerNodeConfig | None = None, object_inertia: float = 0.0,
+                 control_period: float = 0.001) -> None:
+        self.config = config or ControllerNodeConfig()
+        self.kin = HandKinematics(world)
+        self.reference = reference
+        self.object_mass = float(object_mass)
+        # Virtual object servo (eq. III.22, gains of Table III.1). Its damping is explicit at
+        # the control period: for small objects kd_rot * dt / I exceeds the explicit-Euler
+        # limit (a 50 g ball: 0.5 * 1e-3 / 2.5e-5 = 20) and the virtual torque oscillates and
+        # throws the object. The rotational gains are therefore capped at
+        # kd <= 0.5 I / dt and kp <= 0.25 I / dt^2 (no change for the tables' 1 kg objects).
+        base = CompositeControlConfig()
+        kd_rot, kp_rot = base.object_kd_rotate, base.object_kp_rotate
+        if object_inertia > 0:
+            kd_rot = min(kd_rot, 0.5 * object_inertia / control_period)
+            kp_rot = min(kp_rot, 0.25 * object_inertia / control_period**2)
+        self.object_rot_gains = (kp_rot, kd_rot)
+        self.controller = CompositeController(
+            CompositeControlConfig(mode=self.config.mode, gravity_compensation=False,
+                                   object_kp_rotate=kp_rot, object_kd_rotate=kd_rot),
+            ContactQPConfig(alpha3=self.config.alpha3, alpha4=self.config.alpha4,
+                            torsion_bound=self.config.torsion_bound,
+                            torsional_friction=self.config.torsional_friction),
+            joint_names=world.joint_names)
+        self.joint_names = world.joint_names
+        self._index = {n: i for i, n in enumerate(self.joint_names)}
+        self.counters = {"steps": 0, "qp_fallbacks": 0, "rejected_inputs": 0,
+                         "non_finite_outputs": 0}
+        self.last_output = None  # the controller's last ControlOutput (for diagnostics)
+        self.object_target_override: tuple[np.ndarray, np.ndarray] | None = None
+        self.hand_target_override: np.ndarray | None = None
+
+    def needs_contacts(self, t: float) -> bool:
+        """Whether the step at ``t`` uses contacts (composite mode, grasp torques on)."""
+        return self.controller.config.mode == "composite" and self.reference(t).grasp
+
+    def hand_pose_from_names(self, names: Sequence[str], positions: Sequence[float],
+                             default: np.ndarray | None = None) -> np.ndarray:
+        """A (n_hand,) vector from name/value lists; unknown names raise InputError."""
+        q = np.zeros(len(self.joint_names)) if default is None else default.copy()
+        if len(names) != len(positions):
+            raise InputError(f"{len(names)} names but {len(positions)} values")
+        for n, v in zip(names, positions, strict=True):
+            i = self._index.get(n)
+            if i is None:
+                raise InputError(f"unknown joint {n!r}")
+            q[i] = v
+        if not np.isfinite(q).all():
+            raise InputError("non-finite joint values")
+        return q
+
+    def step(self, t: float, q: np.ndarray, qd: np.ndarray, object_pose: tuple[np.ndarray, ...],
+             contact_bodies: Sequence[str], contact_points: np.ndarray,
+             contact_normals: np.ndarray, contact_forces: np.ndarray,
+             contact_friction: np.ndarray, contact_set: ContactSet | None = None) -> Command:
+        """One control step.
+
+        Args:
+            t: time [s] on the reference's clock (simulation time).
+            q, qd: (n_hand,) hand joint positions / velocities (``joint_names`` order).
+            object_pose: ``(position, quaternion wxyz, linear velocity, angular velocity)``.
+            contact_*: hand-object contacts (hand = body 1), world frame.
+            contact_set: contacts with Jacobians already computed (lockstep path).
+        """
+        self.counters["steps"] += 1
+        ref = self.reference(t)
+        q_target = ref.q_target if self.hand_target_override is None else \
+            self.hand_target_override
+        obj_pos, obj_quat = ref.object_position, ref.object_quaternion
+        if self.object_target_override is not None:
+            obj_pos, obj_quat = self.object_target_override
+        effort = np.zeros(len(self.joint_names))
+        k = len(contact_bodies)
+        empty3 = np.zeros((0, 3))
+        forces, torsion = empty3, np.zeros(0)
+        pd_only = True
+        if ref.grasp and self.controller.config.mode == "composite" and k > 0:
+            try:
+                if contact_set is None:
+                    self.kin.update(q)
+                    jp, jr = self.kin.jacobians(contact_bodies, contact_points)
+                    contact_set = ContactSet(contact_points, contact_normals,
+                                             contact_friction, forces=contact_forces,
+                                             jacp=jp, jacr=jr)
+                out = self.controller.compute(
+                    q, qd, q_target,
+                    ObjectState(object_pose[0], object_pose[1], object_pose[2],
+                                object_pose[3], self.object_mass),
+                    ObjectTarget(obj_pos, obj_quat), contact_set, grasp=True)
+                self.last_output = out
+                if out.fallback:
+                    self.counters["qp_fallbacks"] += 1
+                else:
+                    effort = out.tau_grasp + out.tau_gravity
+                    forces, torsion = out.qp.forces, out.qp.torsion
+                    pd_only = False
+            except HandSuiteError:
+                self.counters["rejected_inputs"] += 1
+        if not (np.isfinite(effort).all() and np.isfinite(q_target).all()):
+            self.counters["non_finite_outputs"] += 1
+            effort = np.zeros(len(self.joint_names))
+            q_target = np.where(np.isfinite(q_target), q_target, q)
+            pd_only = True
+        return Command(self.joint_names, np.asarray(q_target, dtype=float).copy(), effort,
+                       ref.phase, forces, torsion,
+                       np.asarray(contact_points).reshape(-1, 3) if not pd_only else empty3,
+                       np.asarray(contact_normals).reshape(-1, 3) if not pd_only else empty3,
+                       tuple(contact_bodies) if not pd_only else (), pd_only)

@@ -1,0 +1,245 @@
+"""Simulation and composite controller in one process, in lockstep, without DDS.
+
+The same core classes the nodes wrap (:class:`SimWorld`, :class:`CompositeController`,
+:class:`Reference`) run one scenario here for benchmarks, tests and offline work. Per control
+step (every ``control_every`` physics steps; 1 = the 1 kHz of the dissertation):
+
+1. read the hand state, the object state and the hand-object contacts with their Jacobians;
+2. the composite controller (seed 000 eq. 8-13) computes the grasp torques ``tau_grasp``
+   realising the virtual object wrench (eq. 9) through the contact-force QP (III.23);
+3. the sim's servos get the reference pose as PD targets (eq. 8, applied at every physics
+   step) and ``tau_grasp`` as feed-forward effort. Gravity on the hand is cancelled inside
+   MuJoCo (``hand_gravcomp``), which is ``tau_gravity`` of eq. (III.19).
+
+PD-only trajectory tracking (the papers' baseline, dissertation sec. III.8.2) is the same run
+with ``CompositeControlConfig(mode="pd_only")``: no grasp torques.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hand_capture.model.mjcf import ObjectSpec, build_scene
+from hand_control.contact.feasibility import dynamic_feasibility
+from hand_control.sim.config import SimConfig
+from hand_control.sim.contacts import ContactFrame
+from hand_control.sim.control_loop import ControllerCore, ControllerNodeConfig
+from hand_control.sim.grasp import GraspPlan, plan_grasp
+from hand_control.sim.scenario import Reference, ScenarioSpec
+from hand_control.sim.world import SimWorld
+
+__all__ = ["EpisodeResult", "LockstepRunner", "build_world", "object_spec", "run_episode"]
+
+IMPACT_BALL = "impact_ball"
+_DEFAULT_SIZES = {"box": (0.0285, 0.0285, 0.0285), "ball": (0.035,), "cylinder": (0.03, 0.06)}
+
+
+def object_spec(spec: ScenarioSpec) -> tuple[ObjectSpec, tuple[float, ...]]:
+    """The MJCF object of a scenario, resting on the table, and its size."""
+    size = tuple(spec.object_size) or _DEFAULT_SIZES[spec.object_kind]
+    x, y = spec.object_xy
+    if spec.object_kind == "cylinder":  # the export's "stick" stood on its end
+        o = ObjectSpec("stick", name="cylinder", size=size, mass=spec.object_mass,
+                       friction=spec.object_friction, pos=(x, y, size[1] + 1e-4),
+                       euler=(0.0, math.pi / 2, 0.0), rgba=(0.8, 0.5, 0.2, 1.0))
+    else:
+        h = size[2] if spec.object_kind == "box" else size[0]
+        o = ObjectSpec(spec.object_kind, name=spec.object_kind, size=size,
+                       mass=spec.object_mass, friction=spec.object_friction,
+                       pos=(x, y, h + 1e-4))
+    return o, size
+
+
+def build_world(spec: ScenarioSpec, config: SimConfig | None = None
+                ) -> tuple[SimWorld, ObjectSpec, tuple[float, ...]]:
+    """The MuJoCo world of a scenario (hand, table, object, optional falling ball)."""
+    obj, size = object_spec(spec)
+    objects = [obj]
+    if spec.perturb_mass > 0:
+        r = spec.perturb_radius
+        objects.append(ObjectSpec("ball", name=IMPACT_BALL, size=(r,), mass=spec.perturb_mass,
+                                  friction=0.5, pos=(0.45, 0.30, r + 1e-4),
+                                  rgba=(0.8, 0.2, 0.2, 1.0)))
+    config = config or SimConfig()
+    xml = build_scene(objects, hand_gravcomp=config.hand_gravcomp)
+    return SimWorld(xml, config), obj, size
+
+
+@dataclass
+class EpisodeResult:
+    """Outcome of one lockstep episode (errors over lifting, carrying and holding)."""
+
+    scenario: str
+    mode: str
+    success: bool
+    feasible: bool
+    final_error_mm: float
+    pos_err_mean_mm: float
+    pos_err_max_mm: float
+    rot_err_mean_deg: float
+    object_lift_mm: float
+    steps: int
+    control_steps: int
+    qp_fallbacks: int
+    divergences: int
+    wall_s: float
+    sim_s: float
+    control_s: float
+    grasp_residual_mm: float
+    trace: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def rtf(self) -> float:
+        return self.sim_s / self.wall_s if self.wall_s > 0 else math.inf
+
+
+def _angle_deg(qa: np.ndarray, qb: np.ndarray) -> float:
+    return math.degrees(2.0 * math.acos(min(1.0, abs(float(qa @ qb)))))
+
+
+class LockstepRunner:
+    """Run scenarios with the sim and the composite controller in one process.
+
+    Args:
+        spec: the scenario.
+        sim_config: the world's settings (1 ms step, guard).
+        control_config: the controller (``mode="pd_only"`` for the baseline).
+        control_every: physics steps per control step (1 = 1 kHz).
+    """
+
+    def __init__(self, spec: ScenarioSpec, sim_config: SimConfig | None = None,
+                 controller_config: ControllerNodeConfig | None = None,
+                 control_every: int = 1, plan: GraspPlan | None = None) -> None:
+        self.spec = spec
+        self.world, self.obj, self.size = build_world(spec, sim_config)
+        self.controller_config = controller_config or ControllerNodeConfig(
+            scenario=spec.name)
+        self.control_every = max(1, int(control_every))
+        pose = self.world.object_pose(self.obj.name)
+        self.plan = plan or plan_grasp(
+            self.world.model, self.obj.name, self.obj.kind, self.size, pose.position,
+            pose.quaternion, depth=spec.grasp_depth,
+            upright_cylinder=spec.object_kind == "cylinder")
+        self.reference = Reference(spec, self.plan, pose.position, pose.quaternion)
+        body = self.world.objects[self.obj.name]["body"]
+        self.core = ControllerCore(
+            self.world, self.reference, spec.object_mass, self.controller_config,
+            object_inertia=float(self.world.model.body_inertia[body].min()),
+            control_period=self.control_every * self.world.model.opt.timestep)
+        self.controller = self.core.controller
+        self._no_contacts = ContactFrame.empty(0.0)
+        self.world.set_initial_state(self.reference.initial_pose)
+        self.world.set_command(self.reference.initial_pose, np.zeros(self.world.n_hand))
+
+    def feasibility(self, mu: float | None = None, mass: float | None = None) -> bool:
+        """Dynamic feasibility LP (III.10-III.16) of the planned contacts for this object."""
+        mu = self.spec.object_friction if mu is None else mu
+        mass = self.spec.object_mass if mass is None else mass
+        r = dynamic_feasibility(self.plan.contact_set(mu), mass,
+                                self.world.object_pose(self.obj.name).position)
+        return bool(r.feasible)
+
+    def control_step(self, t: float) -> None:
+        """One controller update: references, state, contacts -> servo command."""
+        w = self.world
+        q, qd = w.hand_state()
+        op = w.object_pose(self.obj.name)
+        composite = self.core.needs_contacts(t)
+        cf = w.contacts(self.obj.name, jacobians=True) if composite else self._no_contacts
+        cmd = self.core.step(
+            t, q, qd, (op.position, op.quaternion, op.linear_velocity, op.angular_velocity),
+            cf.body1, cf.points, cf.normals, cf.forces, cf.friction,
+            contact_set=cf.to_contact_set() if composite and len(cf) else None)
+        w.set_command(cmd.positions, cmd.efforts)
+        self.last_command = cmd
+
+    def _events(self, t: float, schedule: list[tuple[float, float]], dropped: list[bool]
+                ) -> None:
+        while schedule and t >= schedule[0][0]:
+            self.world.set_object_friction(self.obj.name, schedule.pop(0)[1])
+        s = self.spec
+        if s.perturb_mass > 0 and not dropped[0] and t >= s.perturb_time:
+            dropped[0] = True
+            p = self.world.object_pose(self.obj.name).position
+            o = self.world.objects[IMPACT_BALL]
+            d = self.world.data
+            top = self.size[2] if self.obj.kind == "box" else self.size[0] if \
+                self.obj.kind == "ball" else self.size[1]
+            d.qpos[o["qpos"]:o["qpos"] + 3] = p + np.array([0.0, 0.0, top + s.perturb_height
+                                                             + s.perturb_radius])
+            d.qpos[o["qpos"] + 3:o["qpos"] + 7] = (1, 0, 0, 0)
+            d.qvel[o["dof"]:o["dof"] + 6] = 0.0
+
+    def run(self, duration: float | None = None, trace: bool = False) -> EpisodeResult:
+        """Run the episode from the initial state; returns the tracking figures.
+
+        Raises:
+            SimulationError: the simulation diverged (with ``on_instability: raise``).
+        """
+        w = self.world
+        w.reset()
+        spec = self.spec
+        duration = self.reference.t_end if duration is None else duration
+        n = int(round(duration / w.model.opt.timestep))
+        fs = spec.friction_schedule
+        schedule = sorted(zip(fs[0::2], fs[1::2], strict=True))
+        dropped = [False]
+        p_init = w.object_pose(self.obj.name).position.copy()
+        errs, rot_errs, tr = [], [], {"t": [], "pos": [], "target": [], "phase": []}
+        t_ctrl = 0.0
+        control_steps = 0
+        t0 = time.perf_counter()
+        for i in range(n):
+            t = w.time
+            self._events(t, schedule, dropped)
+            if i % self.control_every == 0:
+                c0 = time.perf_counter()
+                self.control_step(t)
+                t_ctrl += time.perf_counter() - c0
+                control_steps += 1
+            w.step()
+            if t >= self.reference.t_lift0:
+                ref = self.reference(t)
+                op = w.object_pose(self.obj.name)
+                errs.append(float(np.linalg.norm(op.position - ref.object_position)))
+                rot_errs.append(_angle_deg(op.quaternion, ref.object_quaternion))
+            if trace and i % 10 == 0:
+                ref = self.reference(t)
+                op = w.object_pose(self.obj.name)
+                tr["t"].append(t)
+                tr["pos"].append(op.position)
+                tr["target"].append(ref.object_position)
+                tr["phase"].append(ref.phase)
+        wall = time.perf_counter() - t0
+        op = w.object_pose(self.obj.name)
+        target, _ = self.reference.object_target(w.time)
+        final = float(np.linalg.norm(op.position - target))
+        lifted = float(op.position[2] - p_init[2])
+        success = final < spec.success_tolerance and (
+            spec.lift_height == 0 or lifted > 0.5 * spec.lift_height)
+        e = np.array(errs) if errs else np.array([math.nan])
+        re = np.array(rot_errs) if rot_errs else np.array([math.nan])
+        return EpisodeResult(
+            scenario=spec.name, mode=self.controller_config.mode, success=bool(success),
+            feasible=self.feasibility(), final_error_mm=final * 1e3,
+            pos_err_mean_mm=float(e.mean() * 1e3), pos_err_max_mm=float(e.max() * 1e3),
+            rot_err_mean_deg=float(re.mean()), object_lift_mm=lifted * 1e3, steps=n,
+            control_steps=control_steps, qp_fallbacks=self.core.counters["qp_fallbacks"],
+            divergences=len(w.divergences), wall_s=wall, sim_s=n * w.model.opt.timestep,
+            control_s=t_ctrl, grasp_residual_mm=float(self.plan.residual.max() * 1e3),
+            trace={k: np.asarray(v) for k, v in tr.items()} if trace else {})
+
+
+def run_episode(spec: ScenarioSpec, mode: str = "composite", control_every: int = 1,
+                sim_config: SimConfig | None = None) -> EpisodeResult:
+    """One episode of ``spec`` with the composite controller or PD only.
+
+    Raises:
+        SimulationError: the simulation diverged (``on_instability: raise``).
+    """
+    cfg = ControllerNodeConfig(scenario=spec.name, mode=mode)
+    return LockstepRunner(spec, sim_config, cfg, control_every).run()

@@ -1,0 +1,255 @@
+"""Scenario reference motions: reach, close, lift and carry (or pour) an object.
+
+A scenario file (``config/scenarios/<name>.yaml``, flat keys = the fields of
+:class:`ScenarioSpec`) names an object, its mass and friction, the phase durations and the
+object's target trajectory. :class:`Reference` turns it into the two reference trajectories of
+the composite controller (seed 000 sec. 5; dissertation sec. III.5-III.6):
+
+* the hand's PD targets ``q_target(t)`` (27,): reaching above the object with the fingers open
+  (the pre-grasp), closing onto the grasp pose found by fingertip IK (``grasp.plan_grasp``),
+  then the wrist moving with the object target (lift, carry, rotate) while the fingers hold
+  the grasp pose;
+* the object's target pose (position of its centre of mass, quaternion w, x, y, z).
+
+Phases follow the dissertation's performance interface (reaching, closing, manipulation): the
+grasp torques are off while reaching and closing (sec. III.5.2: "we drop the grasp joint
+torque term for the closing phase") and on from the settle phase.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hand_capture.config import from_mapping, load_yaml, param, validate
+from hand_capture.model.joints import (
+    root_angles_from_matrix,
+    root_rotation_matrix,
+)
+from hand_control.errors import ConfigError
+from hand_control.sim.grasp import GraspPlan
+
+__all__ = ["PHASES", "RefSample", "Reference", "ScenarioSpec", "load_scenario",
+           "scenario_dir", "scenario_names"]
+
+PHASES = ("reaching", "closing", "settling", "lifting", "carrying", "holding")
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    """One reference motion (flat YAML keys)."""
+
+    name: str = param("lift_box", "scenario name")
+    description: str = param("", "one line: what the scenario shows")
+    object_kind: str = param("box", "box | ball | cylinder (an upright stick)",
+                             choices=("box", "ball", "cylinder"))
+    object_size: tuple[float, ...] = param(
+        (), "box half extents (3) | ball radius (1) | cylinder radius, half height (2) [m]; "
+        "empty = the MJCF export's default", lo=0.005, hi=0.2)
+    object_mass: float = param(0.2, "object mass [kg]", lo=0.005, hi=5.0)
+    object_friction: float = param(0.75, "sliding friction of the object (seed 000 sec. 7.2)",
+                                   lo=0.001, hi=3.0)
+    object_xy: tuple[float, ...] = param((0.12, 0.0), "object position on the table [m]")
+    grasp_depth: float = param(0.003, "fingertip pads aimed this far inside the surface [m]",
+                               lo=0.0, hi=0.01)
+    t_reach: float = param(0.5, "reaching phase [s]", lo=0.05)
+    t_close: float = param(0.5, "closing phase [s]", lo=0.05)
+    t_settle: float = param(0.3, "settling phase: grasp on, object still on the table [s]",
+                            lo=0.0)
+    t_lift: float = param(1.0, "lifting phase [s]", lo=0.0)
+    t_carry: float = param(1.0, "carrying / rotating phase [s]", lo=0.0)
+    t_hold: float = param(0.7, "holding phase at the end [s]", lo=0.0)
+    lift_height: float = param(0.10, "lift of the object target [m]", lo=0.0, hi=0.5)
+    carry_offset: tuple[float, ...] = param((0.0, 0.10, 0.0),
+                                            "object target displacement while carrying [m]")
+    carry_rotation: tuple[float, ...] = param(
+        (0.0, 0.0, 0.0), "object target rotation while carrying, rotation vector in the "
+        "world frame about the object's centre [rad] (pouring: a tilt about x)")
+    friction_schedule: tuple[float, ...] = param(
+        (), "object friction changes during the run: t0, mu0, t1, mu1, ... [s, -]")
+    perturb_mass: float = param(0.0, "falling ball that hits the object (0 = none) [kg]",
+                                lo=0.0, hi=2.0)
+    perturb_radius: float = param(0.015, "radius of the falling ball [m]", lo=0.005, hi=0.05)
+    perturb_height: float = param(0.12, "drop height above the object's top [m]", lo=0.0)
+    perturb_time: float = param(3.0, "time the ball is released [s]", lo=0.0)
+    success_tolerance: float = param(
+        0.03, "the object counts as carried when it ends within this of its target [m]",
+        lo=0.001)
+
+    def __post_init__(self) -> None:
+        validate(self)
+        n = {"box": 3, "ball": 1, "cylinder": 2}[self.object_kind]
+        if self.object_size and len(self.object_size) != n:
+            raise ConfigError(f"ScenarioSpec.object_size: a {self.object_kind} needs {n} "
+                              f"values, got {self.object_size}")
+        for name in ("carry_offset", "carry_rotation"):
+            if len(getattr(self, name)) != 3:
+                raise ConfigError(f"ScenarioSpec.{name} needs 3 values")
+        if len(self.object_xy) != 2:
+            raise ConfigError("ScenarioSpec.object_xy needs 2 values")
+        fs = self.friction_schedule
+        if len(fs) % 2 or any(mu <= 0 for mu in fs[1::2]):
+            raise ConfigError("ScenarioSpec.friction_schedule needs pairs t, mu with mu > 0")
+
+    @property
+    def duration(self) -> float:
+        return (self.t_reach + self.t_close + self.t_settle + self.t_lift + self.t_carry
+                + self.t_hold)
+
+    def with_(self, **changes: Any) -> ScenarioSpec:
+        return replace(self, **changes)
+
+
+def scenario_dir() -> Path:
+    """``config/scenarios`` of the source tree (or of the installed share directory)."""
+    here = Path(__file__).resolve().parents[2] / "config" / "scenarios"
+    if here.is_dir():
+        return here
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        return Path(get_package_share_directory("hand_suite")) / "config" / "scenarios"
+    except Exception:
+        return here
+
+
+def scenario_names() -> list[str]:
+    return sorted(p.stem for p in scenario_dir().glob("*.yaml"))
+
+
+def load_scenario(name_or_path: str | Path) -> ScenarioSpec:
+    """A scenario by name (``config/scenarios/<name>.yaml``) or path.
+
+    Raises:
+        ConfigError: missing file, unknown key or bad value (naming it).
+    """
+    p = Path(name_or_path)
+    if not p.suffix:
+        p = scenario_dir() / f"{name_or_path}.yaml"
+    data = load_yaml(p) or {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: a scenario is a mapping of ScenarioSpec fields")
+    return from_mapping(ScenarioSpec, data)
+
+
+def _smooth(x: float) -> float:
+    """Smoothstep on [0, 1] (zero velocity at both ends)."""
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
+    a = float(np.linalg.norm(v))
+    if a < 1e-12:
+        return np.eye(3)
+    k = v / a
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(a) * kx + (1 - math.cos(a)) * kx @ kx
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+
+
+def _rotvec_quat(v: np.ndarray) -> np.ndarray:
+    a = float(np.linalg.norm(v))
+    if a < 1e-12:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.r_[math.cos(a / 2), math.sin(a / 2) * v / a]
+
+
+@dataclass(frozen=True, eq=False)
+class RefSample:
+    """The references at one instant."""
+
+    phase: str
+    q_target: np.ndarray
+    object_position: np.ndarray
+    object_quaternion: np.ndarray
+    grasp: bool
+
+
+class Reference:
+    """Reference trajectories of one scenario (see the module docstring).
+
+    Args:
+        spec: the scenario.
+        plan: the grasp (poses from fingertip IK).
+        object_position, object_quaternion: the object's initial pose (w, x, y, z).
+        approach_height: the wrist starts this far above the pre-grasp [m].
+    """
+
+    def __init__(self, spec: ScenarioSpec, plan: GraspPlan, object_position: np.ndarray,
+                 object_quaternion: np.ndarray, approach_height: float = 0.06) -> None:
+        self.spec = spec
+        self.plan = plan
+        self.p0 = np.asarray(object_position, dtype=np.float64).copy()
+        self.quat0 = np.asarray(object_quaternion, dtype=np.float64).copy()
+        self.q_start = plan.q_pregrasp.copy()
+        self.q_start[2] += approach_height
+        s = spec
+        self.t_close0 = s.t_reach
+        self.t_settle0 = self.t_close0 + s.t_close
+        self.t_lift0 = self.t_settle0 + s.t_settle
+        self.t_carry0 = self.t_lift0 + s.t_lift
+        self.t_hold0 = self.t_carry0 + s.t_carry
+        self.t_end = self.t_hold0 + s.t_hold
+        self._root_rot0 = root_rotation_matrix(plan.q_grasp[3:6])
+        self._rotates = bool(np.any(np.asarray(spec.carry_rotation) != 0.0))
+        self._last_t = math.nan
+        self._last: RefSample | None = None
+
+    @property
+    def initial_pose(self) -> np.ndarray:
+        return self.q_start.copy()
+
+    def object_target(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Target position and quaternion (w, x, y, z) of the object at time ``t``."""
+        s = self.spec
+        lift = s.lift_height * (_smooth((t - self.t_lift0) / s.t_lift) if s.t_lift > 0
+                                else float(t >= self.t_lift0))
+        a = (_smooth((t - self.t_carry0) / s.t_carry) if s.t_carry > 0
+             else float(t >= self.t_carry0))
+        pos = self.p0 + np.array([0.0, 0.0, lift]) + a * np.asarray(s.carry_offset)
+        rv = a * np.asarray(s.carry_rotation, dtype=np.float64)
+        return pos, _quat_mul(_rotvec_quat(rv), self.quat0)
+
+    def __call__(self, t: float) -> RefSample:
+        if t == self._last_t:
+            return self._last
+        self._last = self._sample(t)
+        self._last_t = t
+        return self._last
+
+    def _sample(self, t: float) -> RefSample:
+        s = self.spec
+        if t < self.t_close0:
+            a = _smooth(t / s.t_reach)
+            q = (1 - a) * self.q_start + a * self.plan.q_pregrasp
+            pos, quat = self.p0, self.quat0
+            return RefSample("reaching", q, pos.copy(), quat.copy(), False)
+        if t < self.t_settle0:
+            a = _smooth((t - self.t_close0) / s.t_close)
+            q = (1 - a) * self.plan.q_pregrasp + a * self.plan.q_grasp
+            return RefSample("closing", q, self.p0.copy(), self.quat0.copy(), False)
+        pos, quat = self.object_target(t)
+        # the wrist follows the object target rigidly (rotation about the object's centre)
+        rv = (pos - self.p0)
+        a = (_smooth((t - self.t_carry0) / s.t_carry) if s.t_carry > 0
+             else float(t >= self.t_carry0))
+        q = self.plan.q_grasp.copy()
+        q[0:3] += rv
+        if self._rotates:
+            rot = _rotvec_matrix(a * np.asarray(s.carry_rotation, dtype=np.float64))
+            q[0:3] = self.p0 + rv + rot @ (self.plan.q_grasp[0:3] - self.p0)
+            q[3:6] = root_angles_from_matrix(rot @ self._root_rot0)
+        phase = ("settling" if t < self.t_lift0 else "lifting" if t < self.t_carry0
+                 else "carrying" if t < self.t_hold0 else "holding")
+        return RefSample(phase, q, pos, quat, True)

@@ -1,0 +1,542 @@
+"""The simulated world: a MuJoCo model of the hand and objects, stepped with servo commands.
+
+The hand is driven like hardware: every DoF has a PD servo (eq. 8 of seed 000 / eq. III.20,
+gains of Table 1 = Table III.1) toward the last commanded position target, plus a commanded
+feed-forward effort (the composite controller's grasp torques, eq. 12). The servo runs at
+every physics step, whatever rate the commands arrive at:
+
+* root DoFs with a MuJoCo ``position`` actuator (the exported hand, hand_capture.model.mjcf):
+  ``ctrl`` = target (MuJoCo applies ``kp (target - q) - kv qd`` with the damping integrated
+  implicitly by ``implicitfast``), the effort goes to ``qfrc_applied``;
+* finger DoFs with a ``motor`` actuator: the motor is turned into a position servo with the
+  same gains when the world is built (``gain = kp``, ``bias = -kp q - kd qd``), its torque
+  limit moved to the force range, and the effort folded into the set point
+  (``ctrl = target + effort / kp``): the same torque ``kp (target - q) - kd qd + effort``,
+  clipped to the motor's range, computed inside MuJoCo at every step with implicit damping;
+* DoFs without an actuator: the same torque through ``qfrc_applied``, every step.
+
+Instability guard: after every step the MuJoCo warning counters (``data.warning[mjWARN_*]``)
+and the hand's joint speeds are checked; a divergence is reported with the DoF
+(``warning.lastinfo``) and, by config, raises :class:`SimulationError` or resets the episode
+explicitly to its initial state. MuJoCo's own silent auto-reset is therefore never taken as a
+normal step.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from hand_capture.model.joints import JOINT_NAMES
+from hand_control.errors import ConfigError, InputError, SimulationError
+from hand_control.sim.config import SimConfig
+from hand_control.sim.contacts import ContactFrame
+
+__all__ = ["Divergence", "ObjectPose", "SimWorld"]
+
+_W = mujoco.mjtWarning
+#: warnings that mean the state diverged (MuJoCo resets the data itself after BADQACC)
+DIVERGENCE_WARNINGS: dict[int, str] = {
+    int(_W.mjWARN_BADQACC): "BADQACC",
+    int(_W.mjWARN_BADQPOS): "BADQPOS",
+    int(_W.mjWARN_BADQVEL): "BADQVEL",
+    int(_W.mjWARN_BADCTRL): "BADCTRL",
+}
+#: warnings that only degrade the solution (logged, counted)
+SOFT_WARNINGS: dict[int, str] = {
+    int(_W.mjWARN_CONTACTFULL): "CONTACTFULL",
+    int(_W.mjWARN_CNSTRFULL): "CNSTRFULL",
+    int(_W.mjWARN_INERTIA): "INERTIA",
+}
+_INTEGRATORS = {"Euler": 0, "RK4": 1, "implicit": 2, "implicitfast": 3}
+
+
+@dataclass(frozen=True)
+class Divergence:
+    """One detected divergence: when, which check, which DoF."""
+
+    time: float
+    kind: str
+    dof: int
+    joint: str
+    action: str  # "raise" or "reset"
+
+    def message(self) -> str:
+        return (f"simulation diverged at t={self.time:.4f} s: {self.kind} at DoF {self.dof} "
+                f"(joint {self.joint!r}); action: {self.action}")
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectPose:
+    """Pose and velocity of a free object (world frame, quaternion w, x, y, z)."""
+
+    name: str
+    position: np.ndarray
+    quaternion: np.ndarray
+    linear_velocity: np.ndarray
+    angular_velocity: np.ndarray
+    mass: float
+
+
+class SimWorld:
+    """A MuJoCo world with the hand (joints named as ``JOINT_NAMES``) and free objects.
+
+    Args:
+        xml: MJCF text (e.g. ``hand_capture.model.mjcf.build_scene(...)``).
+        config: stepping, servo-hold and guard settings.
+        kp, kd: (n_hand,) servo gains per hand DoF present in the model (JOINT_NAMES order);
+            by default the papers' Table 1 (``hand_capture.model.mjcf.PDGains``).
+        keyframe: keyframe to start from (``None``: the model's qpos0).
+
+    Raises:
+        ConfigError: the model has no hand joint, or the gains have the wrong length.
+    """
+
+    def __init__(self, xml: str, config: SimConfig | None = None,
+                 kp: Sequence[float] | None = None, kd: Sequence[float] | None = None,
+                 keyframe: str | None = "home") -> None:
+        self.config = config or SimConfig()
+        try:
+            self.model = mujoco.MjModel.from_xml_string(xml)
+        except ValueError as e:
+            raise ConfigError(f"cannot load the MJCF scene: {e}") from e
+        m = self.model
+        m.opt.timestep = self.config.timestep
+        m.opt.integrator = _INTEGRATORS[self.config.integrator]
+        self.data = mujoco.MjData(m)
+        # --- the hand: joints present in the model, in JOINT_NAMES order
+        names, jids = [], []
+        for n in JOINT_NAMES:
+            j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)
+            if j >= 0:
+                names.append(n)
+                jids.append(j)
+        if not names:
+            raise ConfigError("the MJCF has none of the hand's joints (JOINT_NAMES)")
+        self.joint_names: tuple[str, ...] = tuple(names)
+        self._name_index = {n: i for i, n in enumerate(names)}
+        self.n_hand = len(names)
+        self.qpos_adr = m.jnt_qposadr[jids].astype(np.int64)
+        self.dof_adr = m.jnt_dofadr[jids].astype(np.int64)
+        # the hand's DoFs as one slice (a superset when they are not contiguous)
+        self._dof_slice = slice(int(self.dof_adr.min()), int(self.dof_adr.max()) + 1)
+        hand_bodies = set(int(m.jnt_bodyid[j]) for j in jids)
+        # bodies below the hand's bodies (fixed children without joints) belong to the hand too
+        for b in range(1, m.nbody):
+            if int(m.body_parentid[b]) in hand_bodies:
+                hand_bodies.add(b)
+        self.hand_body_ids = np.array(sorted(hand_bodies), dtype=np.int64)
+        self._is_hand_body = np.zeros(m.nbody, dtype=bool)
+        self._is_hand_body[self.hand_body_ids] = True
+        if self.config.hand_gravcomp:
+            m.body_gravcomp[self.hand_body_ids] = 1.0
+        # --- free objects
+        self.objects: dict[str, dict[str, object]] = {}
+        for j in range(m.njnt):
+            if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+                b = int(m.jnt_bodyid[j])
+                name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b)
+                geoms = np.nonzero(m.geom_bodyid == b)[0]
+                self.objects[name] = {"body": b, "qpos": int(m.jnt_qposadr[j]),
+                                      "dof": int(m.jnt_dofadr[j]), "geoms": geoms}
+        # --- servo gains and actuators
+        if kp is None or kd is None:
+            from hand_capture.model.mjcf import PDGains
+
+            g = PDGains()
+            idx = [JOINT_NAMES.index(n) for n in self.joint_names]
+            kp = np.asarray(g.kp)[idx] if kp is None else kp
+            kd = np.asarray(g.kd)[idx] if kd is None else kd
+        self.kp = np.asarray(kp, dtype=np.float64).copy()
+        self.kd = np.asarray(kd, dtype=np.float64).copy()
+        if self.kp.shape != (self.n_hand,) or self.kd.shape != (self.n_hand,):
+            raise ConfigError(f"kp/kd need {self.n_hand} values (hand DoFs {self.joint_names})")
+        self._servo_act = -np.ones(self.n_hand, dtype=np.int64)  # position servos (ctrl=target)
+        self._motor_act = -np.ones(self.n_hand, dtype=np.int64)  # torque motors
+        for a in range(m.nu):
+            if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT:
+                continue
+            j = int(m.actuator_trnid[a, 0])
+            if j not in jids:
+                continue
+            k = jids.index(j)
+            is_servo = m.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE and \
+                m.actuator_biasprm[a, 1] != 0.0
+            if is_servo:
+                self._servo_act[k] = a
+                # the servo gains of the model win: they are what MuJoCo applies
+                self.kp[k] = m.actuator_gainprm[a, 0]
+                self.kd[k] = -m.actuator_biasprm[a, 2]
+            else:
+                self._motor_act[k] = a
+        # Finger motors become MuJoCo position servos with the same gains (eq. 8 computed in C
+        # at every step, the damping integrated implicitly by implicitfast); their torque
+        # limit moves from the control range to the force range. The feed-forward effort is
+        # folded into the servo's set point: ctrl = target + effort / kp.
+        for k in np.nonzero(self._motor_act >= 0)[0]:
+            a = self._motor_act[k]
+            if self.kp[k] <= 0.0:
+                self._motor_act[k] = -1  # no stiffness: driven through qfrc_applied
+                continue
+            lo, hi = m.actuator_ctrlrange[a]
+            if m.actuator_ctrllimited[a]:
+                m.actuator_forcerange[a] = (lo, hi)
+                m.actuator_forcelimited[a] = 1
+            m.actuator_ctrllimited[a] = 0
+            m.actuator_gaintype[a] = mujoco.mjtGain.mjGAIN_FIXED
+            m.actuator_gainprm[a, :3] = (self.kp[k], 0.0, 0.0)
+            m.actuator_biastype[a] = mujoco.mjtBias.mjBIAS_AFFINE
+            m.actuator_biasprm[a, :3] = (0.0, -self.kp[k], -self.kd[k])
+            self._servo_act[k] = a
+            self._motor_act[k] = -1
+        self._servo_k = np.nonzero(self._servo_act >= 0)[0]
+        self._servo_a = self._servo_act[self._servo_k]
+        self._servo_dof = self.dof_adr[self._servo_k]
+        self._free_k = np.nonzero(self._servo_act < 0)[0]
+        lo = m.actuator_ctrlrange[self._servo_a, 0].copy()
+        hi = m.actuator_ctrlrange[self._servo_a, 1].copy()
+        lim = m.actuator_ctrllimited[self._servo_a].astype(bool)
+        self._servo_lo = np.where(lim, lo, -np.inf)
+        self._servo_hi = np.where(lim, hi, np.inf)
+        # root servos (ctrl-limited position actuators) take the effort through qfrc_applied
+        self._ff_applied = lim
+        self._force_lo = np.where(m.actuator_forcelimited[self._servo_a].astype(bool),
+                                  m.actuator_forcerange[self._servo_a, 0], -np.inf)
+        self._force_hi = np.where(m.actuator_forcelimited[self._servo_a].astype(bool),
+                                  m.actuator_forcerange[self._servo_a, 1], np.inf)
+        # --- episode state
+        self._keyframe = -1
+        if keyframe is not None:
+            self._keyframe = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, keyframe)
+        self._body_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or f"body{b}"
+                            for b in range(m.nbody)]
+        self._geom_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "world"
+                            for g in range(m.ngeom)]
+        self._geom_body = m.geom_bodyid.tolist()
+        self._is_hand_list = self._is_hand_body.tolist()
+        self._jacp = np.zeros((3, m.nv))
+        self._jacr = np.zeros((3, m.nv))
+        self._f6 = np.zeros(6)
+        self.resets = 0
+        self.divergences: list[Divergence] = []
+        self.soft_warnings: dict[str, int] = {v: 0 for v in SOFT_WARNINGS.values()}
+        self.saturated_steps = 0  # steps that ended with a servo at its force limit (counted
+        # only when ``count_saturation`` is set: it costs a check per step)
+        self.count_saturation = False
+        self.steps = 0
+        self._initial: tuple[np.ndarray, ...] | None = None
+        self.reset()
+
+    # ------------------------------------------------------------------------------- state
+    def reset(self) -> None:
+        """Back to the initial state (the keyframe, or what :meth:`set_initial_state` saved)."""
+        m, d = self.model, self.data
+        if self._initial is not None:
+            mujoco.mj_resetData(m, d)
+            d.qpos[:], d.qvel[:], d.act[:] = self._initial
+        elif self._keyframe >= 0:
+            mujoco.mj_resetDataKeyframe(m, d, self._keyframe)
+        else:
+            mujoco.mj_resetData(m, d)
+        d.qfrc_applied[:] = 0.0
+        mujoco.mj_forward(m, d)
+        self.target = d.qpos[self.qpos_adr].copy()
+        self.effort = np.zeros(self.n_hand)
+        self.last_command_time = d.time
+        self.timed_out = False
+        self._write_command()
+        self._warn_seen = np.array(d.warning.number, dtype=np.int64)
+        self._warn_list = self._warn_seen.tolist()
+
+    def set_initial_state(self, hand_q: np.ndarray | None = None,
+                          object_poses: dict[str, tuple[Sequence[float], Sequence[float]]]
+                          | None = None) -> None:
+        """Place the hand and objects, zero every velocity and make this the reset state."""
+        d = self.data
+        mujoco.mj_resetData(self.model, d)
+        if self._keyframe >= 0:
+            mujoco.mj_resetDataKeyframe(self.model, d, self._keyframe)
+        if hand_q is not None:
+            d.qpos[self.qpos_adr] = np.asarray(hand_q, dtype=np.float64)
+        for name, (pos, quat) in (object_poses or {}).items():
+            a = self._object(name)["qpos"]
+            d.qpos[a:a + 3] = pos
+            d.qpos[a + 3:a + 7] = np.asarray(quat) / np.linalg.norm(quat)
+        d.qvel[:] = 0.0
+        self._initial = (d.qpos.copy(), d.qvel.copy(), d.act.copy())
+        self.reset()
+
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    def hand_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(q, qd)`` of the hand DoFs, (n_hand,) each, ``joint_names`` order."""
+        return self.data.qpos[self.qpos_adr].copy(), self.data.qvel[self.dof_adr].copy()
+
+    def _object(self, name: str) -> dict[str, object]:
+        try:
+            return self.objects[name]
+        except KeyError:
+            raise InputError(f"no free object {name!r}; objects: {sorted(self.objects)}") from None
+
+    def object_pose(self, name: str) -> ObjectPose:
+        o = self._object(name)
+        d, b = self.data, o["body"]
+        v = d.qvel[o["dof"]:o["dof"] + 6]
+        rot = d.xmat[b].reshape(3, 3)
+        return ObjectPose(name, d.xipos[b].copy(), d.xquat[b].copy(),
+                          v[:3].copy(), rot @ v[3:6], float(self.model.body_mass[b]))
+
+    # --------------------------------------------------------------------- scene changes
+    def set_object_friction(self, name: str, mu: float) -> None:
+        """Sliding friction of every geom of an object (it wins over the hand's: priority)."""
+        if not (np.isfinite(mu) and mu > 0):
+            raise InputError(f"friction must be > 0, got {mu}")
+        self.model.geom_friction[self._object(name)["geoms"], 0] = mu
+
+    def set_object_mass(self, name: str, mass: float) -> None:
+        """Scale an object's mass and inertia to ``mass`` [kg]."""
+        if not (np.isfinite(mass) and mass > 0):
+            raise InputError(f"mass must be > 0, got {mass}")
+        b = self._object(name)["body"]
+        s = mass / self.model.body_mass[b]
+        self.model.body_mass[b] = mass
+        self.model.body_inertia[b] *= s
+        mujoco.mj_setConst(self.model, self.data)
+
+    # --------------------------------------------------------------------------- commands
+    def set_command(self, target: Sequence[float] | None = None,
+                    effort: Sequence[float] | None = None) -> None:
+        """New servo targets and feed-forward efforts for the hand DoFs (``joint_names`` order).
+
+        Raises:
+            InputError: wrong length or a NaN/Inf entry (nothing is applied then).
+        """
+        if target is not None:
+            t = np.asarray(target, dtype=np.float64)
+            if t.shape != (self.n_hand,) or not np.isfinite(t).all():
+                raise InputError(f"target must be {self.n_hand} finite values, got {t.shape}")
+        if effort is not None:
+            e = np.asarray(effort, dtype=np.float64)
+            if e.shape != (self.n_hand,) or not np.isfinite(e).all():
+                raise InputError(f"effort must be {self.n_hand} finite values, got {e.shape}")
+        if target is not None:
+            self.target = t.copy()
+        if effort is not None:
+            self.effort = e.copy()
+        self.last_command_time = self.data.time
+        self.timed_out = False
+        self._write_command()
+
+    def command_by_name(self, names: Sequence[str], positions: Sequence[float] = (),
+                        efforts: Sequence[float] = ()) -> None:
+        """Apply a command carried by joint name (``hand_msgs/JointCommand``).
+
+        Empty ``positions`` / ``efforts`` leave those unchanged; joints not named keep their
+        targets and efforts.
+
+        Raises:
+            InputError: an unknown or duplicate joint name, a length mismatch or a non-finite
+                value; nothing is applied then.
+        """
+        names = list(names)
+        index = self._name_index
+        unknown = [n for n in names if n not in index]
+        if unknown:
+            raise InputError(f"unknown joint name(s) {unknown}")
+        if len(set(names)) != len(names):
+            raise InputError("duplicate joint names in the command")
+        idx = np.array([index[n] for n in names], dtype=np.int64)
+        target, effort = self.target.copy(), self.effort.copy()
+        for label, vals, arr in (("positions", positions, target), ("efforts", efforts, effort)):
+            v = np.asarray(vals, dtype=np.float64)
+            if v.size == 0:
+                continue
+            if v.shape != (len(names),):
+                raise InputError(f"{len(names)} joint names but {v.size} {label}")
+            if not np.isfinite(v).all():
+                raise InputError(f"non-finite {label} in the command")
+            arr[idx] = v
+        self.set_command(target, effort)
+
+    def _write_command(self) -> None:
+        """Servo set points and feed-forward efforts into MuJoCo (once per command)."""
+        d = self.data
+        k = self._servo_k
+        eff = self.effort[k]
+        kp = self.kp[k]
+        setpoint = np.where(self._ff_applied, self.target[k], self.target[k] + eff / kp)
+        d.ctrl[self._servo_a] = np.clip(setpoint, self._servo_lo, self._servo_hi)
+        d.qfrc_applied[self._servo_dof] = np.where(self._ff_applied, eff, 0.0)
+
+    def _apply_free(self) -> None:
+        """PD (eq. 8) + effort through qfrc_applied for DoFs without an actuator."""
+        d = self.data
+        k = self._free_k
+        q = d.qpos[self.qpos_adr[k]]
+        qd = d.qvel[self.dof_adr[k]]
+        d.qfrc_applied[self.dof_adr[k]] = (self.kp[k] * (self.target[k] - q)
+                                           - self.kd[k] * qd + self.effort[k])
+
+    def _check_timeout(self) -> None:
+        if (self.config.command_timeout > 0 and not self.timed_out
+                and self.data.time - self.last_command_time > self.config.command_timeout):
+            self.timed_out = True  # hold the last targets
+            if self.config.timeout_effort == "zero":
+                self.effort = np.zeros(self.n_hand)
+                self._write_command()
+
+    def saturated(self) -> np.ndarray:
+        """(n_hand,) whether each servo's force is at its limit in the current state."""
+        out = np.zeros(self.n_hand, dtype=bool)
+        f = self.data.actuator_force[self._servo_a]
+        out[self._servo_k] = (f <= self._force_lo + 1e-9) | (f >= self._force_hi - 1e-9)
+        return out
+
+    # ------------------------------------------------------------------------------ step
+    def step(self, n: int = 1) -> None:
+        """Advance ``n`` physics steps (servo update + ``mj_step`` + guard each)."""
+        m, d = self.model, self.data
+        free = self._free_k.size > 0
+        for _ in range(n):
+            self._check_timeout()
+            if free:
+                self._apply_free()
+            t_before = d.time
+            mujoco.mj_step(m, d)
+            self.steps += 1
+            self._check(t_before)
+            if self.count_saturation:
+                self.saturated_steps += int(self.saturated().any())
+
+    def _check(self, t_before: float) -> None:
+        d = self.data
+        counts = d.warning.number  # (mjNWARNING,) view; the per-item accessors are slow
+        kind = dof = None
+        if counts.tolist() != self._warn_list:  # cheaper than numpy on 8 entries
+            new = counts > self._warn_seen
+            for i in np.nonzero(new)[0]:
+                if int(i) in DIVERGENCE_WARNINGS and kind is None:
+                    kind, dof = DIVERGENCE_WARNINGS[int(i)], int(d.warning.lastinfo[i])
+                elif int(i) in SOFT_WARNINGS:
+                    self.soft_warnings[SOFT_WARNINGS[int(i)]] += 1
+            self._warn_seen = np.array(counts, dtype=np.int64)
+            self._warn_list = self._warn_seen.tolist()
+        if kind is None and d.time < t_before:  # MuJoCo reset the data by itself
+            kind, dof = "AUTO_RESET", -1
+        if kind is None and not (abs(d.qvel[self._dof_slice]).max()
+                                 <= self.config.max_joint_speed):  # False for NaN too
+            qd = d.qvel[self.dof_adr]
+            fast = np.abs(qd) > self.config.max_joint_speed
+            if fast.any() or not np.isfinite(qd).all():
+                kind = "JOINT_SPEED"
+                dof = int(self.dof_adr[np.nonzero(fast | ~np.isfinite(qd))[0][0]])
+        if kind is None:
+            return
+        joint = "?"
+        if 0 <= dof < self.model.nv:
+            joint = mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_JOINT,
+                                      int(self.model.dof_jntid[dof])) or "?"
+        div = Divergence(t_before, kind, dof, joint, self.config.on_instability)
+        self.divergences.append(div)
+        if self.config.on_instability == "raise":
+            raise SimulationError(div.message())
+        self.resets += 1
+        self.reset()
+
+    def run_realtime(self, duration: float, on_step=None) -> None:
+        """Step for ``duration`` simulated seconds paced to the wall clock (config)."""
+        n = int(round(duration / self.model.opt.timestep))
+        t0 = _time.perf_counter()
+        sim0 = self.data.time
+        for _ in range(n):
+            if on_step is not None:
+                on_step(self)
+            self.step()
+            if self.config.real_time:
+                ahead = (self.data.time - sim0) / self.config.real_time_factor - (
+                    _time.perf_counter() - t0)
+                if ahead > 0.002:
+                    _time.sleep(ahead)
+
+    # --------------------------------------------------------------------------- contacts
+    def body_name(self, b: int, geom: int) -> str:
+        """A body's name; for the world body, the geom's (e.g. "table")."""
+        return self._geom_names[geom] if b == 0 else self._body_names[b]
+
+    def contacts(self, object_name: str | None = None, hand_only: bool = False,
+                 jacobians: bool = False) -> ContactFrame:
+        """The contacts of the current state.
+
+        Args:
+            object_name: only contacts between the hand and this object (hand = body 1).
+            hand_only: only contacts that involve the hand (hand = body 1).
+            jacobians: add the hand-side Jacobians over the hand DoFs (``mj_jac`` at the
+                contact point of the hand body), for the Jacobian-transpose mapping (eq. 12).
+        """
+        m, d = self.model, self.data
+        n = d.ncon
+        n_jac = self.n_hand if jacobians else None
+        if n == 0:
+            return ContactFrame.empty(d.time, n_jac)
+        con = d.contact
+        # plain-Python filtering: a handful of contacts, where numpy's per-call cost dominates
+        geom = con.geom.tolist()
+        dist = con.dist.tolist()
+        gbody = self._geom_body
+        is_hand = self._is_hand_list
+        margin = self.config.contact_margin_report
+        ob = self._object(object_name)["body"] if object_name is not None else -1
+        sel: list[tuple[int, bool, int, int]] = []  # (contact, flip, geom1, geom2)
+        for i in range(n):
+            if dist[i] > margin:
+                continue
+            g1, g2 = geom[i]
+            b1, b2 = gbody[g1], gbody[g2]
+            h1, h2 = is_hand[b1], is_hand[b2]
+            if object_name is not None:
+                if not ((h1 and b2 == ob) or (h2 and b1 == ob)):
+                    continue
+            elif hand_only and h1 == h2:
+                continue
+            flip = h2 and not h1  # the hand as body 1
+            sel.append((i, flip, g2, g1) if flip else (i, flip, g1, g2))
+        k = len(sel)
+        if k == 0:
+            return ContactFrame.empty(d.time, n_jac)
+        idx = [c[0] for c in sel]
+        frame = con.frame[idx].reshape(k, 3, 3)
+        pos = con.pos[idx]
+        fric = con.friction[idx, 0]
+        f6 = np.empty((k, 6))
+        for r, i in enumerate(idx):
+            mujoco.mj_contactForce(m, d, i, f6[r])
+        sign = np.array([-1.0 if c[1] else 1.0 for c in sel])
+        normals = frame[:, 0, :] * sign[:, None]
+        forces = np.einsum("ki,kij->kj", f6[:, :3], frame) * sign[:, None]  # frame -> world
+        tors = f6[:, 3] * sign
+        g1s = [c[2] for c in sel]
+        g2s = [c[3] for c in sel]
+        bb1 = [gbody[g] for g in g1s]
+        bb2 = [gbody[g] for g in g2s]
+        jacp = jacr = None
+        if jacobians:
+            jacp = np.empty((k, 3, self.n_hand))
+            jacr = np.empty((k, 3, self.n_hand))
+            for r in range(k):
+                mujoco.mj_jac(m, d, self._jacp, self._jacr, pos[r], bb1[r])
+                jacp[r] = self._jacp[:, self.dof_adr]
+                jacr[r] = self._jacr[:, self.dof_adr]
+        names1 = tuple(self._geom_names[g] if b == 0 else self._body_names[b]
+                       for b, g in zip(bb1, g1s, strict=True))
+        names2 = tuple(self._geom_names[g] if b == 0 else self._body_names[b]
+                       for b, g in zip(bb2, g2s, strict=True))
+        return ContactFrame(
+            names1, names2, np.array(bb1, dtype=np.int64), np.array(bb2, dtype=np.int64),
+            pos, normals, -np.array([dist[i] for i in idx]), forces, tors, fric, jacp, jacr,
+            float(d.time))
