@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import shutil
 import sqlite3
+import struct
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -159,6 +160,33 @@ class BagWriter:
         self._writer.close()
 
 
+#: Trailing bytes accepted after a fully decoded CDR message. Fast DDS aligns an empty
+#: 8-byte sequence (e.g. JointCommand.efforts = []) and rounds the buffer up, leaving up to
+#: this many bytes (uninitialised) that rosbags' strict size check would refuse.
+CDR_TRAILING_SLACK = 16
+
+
+def decode_cdr(store: Typestore, data: bytes, msgtype: str) -> object:
+    """Deserialise a CDR message as published by rclpy / Fast DDS.
+
+    Like ``Typestore.deserialize_cdr``, but accepts the alignment slack Fast DDS leaves after
+    trailing empty sequences (:data:`CDR_TRAILING_SLACK`). A payload that does not decode, or
+    leaves more than that undecoded, raises ``ValueError``.
+    """
+    if len(data) < 4 or bytes(data[:2]) not in (b"\x00\x00", b"\x00\x01"):
+        raise ValueError("invalid or unsupported CDR encapsulation")
+    msgdef = store.get_msgdef(msgtype)
+    func = msgdef.deserialize_cdr_le if data[1] else msgdef.deserialize_cdr_be
+    try:
+        message, pos = func(memoryview(data)[4:], 0, msgdef.cls, store)
+    except (struct.error, UnicodeDecodeError, ValueError, IndexError) as e:
+        raise ValueError(f"cannot decode {msgtype}: {e}") from e
+    if pos + 4 > len(data) or len(data) - (pos + 4) > CDR_TRAILING_SLACK:
+        raise ValueError(f"CDR size mismatch for {msgtype}: decoded {pos + 4} of "
+                         f"{len(data)} bytes")
+    return message
+
+
 class BagReader:
     """Read a rosbag2 bag (MCAP or sqlite3) written by us or by ``ros2 bag record``.
 
@@ -251,7 +279,7 @@ class BagReader:
     def check(self, msg: BagMessage) -> object:
         """Deserialise one message; a malformed payload raises BagError (never published)."""
         try:
-            return self._store.deserialize_cdr(msg.data, msg.msgtype)
+            return decode_cdr(self._store, msg.data, msg.msgtype)
         except Exception as e:
             raise BagError(
                 f"corrupt message in {self.path}: {msg.topic} ({msg.msgtype}) at "

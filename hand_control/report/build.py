@@ -41,6 +41,7 @@ LATENCY_STAGES = (
     ("command", "control/joint_command"),
     ("servo write", "servo/goal"),
 )
+_SAME_CLOCK_MS = 60_000.0  # stamps further than this from receive times are another clock
 _SKIP_ALWAYS = ("camera/color/image_raw", "hand/debug_image", "hand/markers", "rosout",
                 "parameter_events")
 
@@ -106,11 +107,21 @@ def _tracking(data: BagData, res: ReportResult, plt, out: Path) -> str:
 
 
 def _latency(data: BagData, res: ReportResult, plt, out: Path) -> str:
-    stages = [(label, topic) for label, topic in LATENCY_STAGES if data.has(topic)]
+    stages, lat = [], []
+    for label, topic in LATENCY_STAGES:
+        if not data.has(topic):
+            continue
+        v = latency_ms(data.topics[topic])
+        if abs(float(np.median(v))) > _SAME_CLOCK_MS:
+            # stamps from another clock (e.g. simulation time) than the recording's
+            res.missing.append(f"latency of {topic} (its stamps are not on the recorder's "
+                               f"clock: median offset {np.median(v) / 1e3:.3g} s)")
+            continue
+        stages.append((label, topic))
+        lat.append(v)
     if not stages:
-        res.missing.append("latency (no stamped pipeline topic recorded)")
+        res.missing.append("latency (no stamped pipeline topic on the recording clock)")
         return ""
-    lat = [latency_ms(data.topics[topic]) for _, topic in stages]
     fig, ax = plt.subplots(figsize=(9, 3.2))
     ax.boxplot(lat, showfliers=True)
     ax.set_xticks(range(1, len(stages) + 1),
