@@ -365,6 +365,18 @@ def test_torque_off_when_an_exception_leaves_the_context(clock) -> None:
     assert b.state is BridgeState.CLOSED
 
 
+def test_torque_off_after_a_transfer_interrupted_by_a_signal(clock) -> None:
+    # A signal raised while a packet is in flight leaves the SDK's port flagged busy and a
+    # half-read reply behind; every later packet would be refused. Closing must recover.
+    b = make("generic_3dof", clock)
+    b.configure()
+    b.activate()
+    b.bus.port.is_using = True  # what an interrupted txRxPacket leaves behind
+    b.bus.port.ser.write(b"\xff\xff\xfd")  # and stray bytes on the line
+    b.close()
+    assert all(b.emulator.servo(i).get("torque_enable") == 0 for i in b.ids)
+
+
 def test_deactivate_switches_torque_off_and_stops_commanding(gen, clock) -> None:
     run(gen, clock, pose(), 3)
     gen.deactivate()

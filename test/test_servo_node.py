@@ -188,7 +188,9 @@ def test_signal_switches_torque_off(sig) -> None:
         finally:
             if proc.poll() is None:
                 proc.kill()
-        assert [emu.value(i, "torque_enable") for i in ids] == [0, 0, 0]
+        # the emulator thread may still be processing the packets the node sent before exiting
+        torque = lambda: [emu.value(i, "torque_enable") for i in ids]
+        assert wait_for(lambda: torque() == [0, 0, 0], 5.0), torque()
 
 
 def test_exception_in_the_control_loop_switches_torque_off() -> None:

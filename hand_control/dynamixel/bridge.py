@@ -441,6 +441,7 @@ class ServoBridge:
         bus = self.bus
         if bus is None or not bus.is_open:
             return False
+        bus.recover()  # an interrupted transfer must not block the torque-off packets
         with contextlib.suppress(Exception):  # one packet all servos obey, then confirmations
             bus.sync_write(ct.ADDR_TORQUE_ENABLE, 1, {i: 0 for i in self.ids})
         failed = []

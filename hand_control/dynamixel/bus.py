@@ -157,6 +157,17 @@ class DynamixelBus:
         if not ok:
             raise ServoError(f"cannot open servo port {self.port_name!r} at {self.baud} baud")
 
+    def recover(self) -> None:
+        """Make the port usable after a transfer was interrupted (a signal raised while a
+        packet was in flight): the SDK leaves its busy flag set, which refuses every later
+        packet, and half a reply may wait in the input buffer. Exit paths call this before
+        switching torque off."""
+        self.port.is_using = False
+        try:
+            self.port.clearPort()
+        except Exception:  # a vanished adapter: the writes that follow will report it
+            pass
+
     def close(self) -> None:
         if self.port.is_open:
             try:
