@@ -160,7 +160,7 @@ def test_grasp_ik_puts_the_fingertip_pads_on_the_surface() -> None:
 
 
 def test_composite_lift_keeps_a_heavy_box_in_hand_while_pd_only_drops_it() -> None:
-    from hand_control.bench.grasp_grid import grid_spec
+    from hand_control.bench._grasp_grid import grid_spec
 
     spec = grid_spec("box", 1.0, 0.3, quick=True)
     results = {}

@@ -177,7 +177,15 @@ def control_section(quick: bool) -> dict[str, Any]:
             float(np.percentile(times["composite"], 99)), "pd_only_step_p50_us": p50}
 
 
-SECTIONS: tuple[Callable[[bool], dict[str, Any]], ...] = (qp_section, control_section)
+def grid_section(quick: bool) -> dict[str, Any]:
+    """Lift-and-carry grid in simulation, composite vs PD-only (see ``_grasp_grid``)."""
+    from hand_control.bench._grasp_grid import run_grid
+
+    return run_grid(quick)
+
+
+SECTIONS: tuple[Callable[[bool], dict[str, Any]], ...] = (qp_section, control_section,
+                                                          grid_section)
 
 
 def run(quick: bool = False) -> dict[str, Any]:

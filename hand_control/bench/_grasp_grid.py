@@ -10,8 +10,8 @@ and at least half-way up. Success rates are counted over the cells where the dyn
 feasibility LP (III.10-III.16) says the planned contacts can hold the object; the object
 tracking error (mm, deg) is averaged over lifting, carrying and holding.
 
-This module is the grid part of ``hand-suite bench contact`` (merged by its owner); it can run
-alone: ``python -m hand_control.bench.grasp_grid [--quick]``.
+This module is the grid section of ``hand-suite bench contact``; it can run alone:
+``python -m hand_control.bench._grasp_grid [--quick]``.
 """
 
 from __future__ import annotations
@@ -125,10 +125,6 @@ def run_grid(quick: bool = False) -> dict[str, Any]:
          out["composite_err_deg"]],
         ["PD-only", out["pd_only_success"], out["pd_only_err_mm"], out["pd_only_err_deg"]]])
     return out
-
-
-def run(quick: bool = False) -> dict[str, Any]:
-    return run_grid(quick)
 
 
 if __name__ == "__main__":
