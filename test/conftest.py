@@ -17,3 +17,52 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+
+
+import time  # noqa: E402  (after the environment set-up above)
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def ros():
+    """An in-process ROS graph: yields ``(peer, add, spin_until)``.
+
+    ``peer`` is a node for test publishers/subscribers; ``add(node)`` spins a node under test
+    (its ``on_shutdown()`` hook, if any, and ``destroy_node()`` run at teardown, as in
+    run_node); ``spin_until(cond, timeout, tick=None)`` spins until ``cond()`` holds or
+    ``timeout`` [s] passes, calling ``tick()`` before every spin.
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    rclpy.init()
+    peer = rclpy.create_node("test_peer")
+    ex = SingleThreadedExecutor()
+    ex.add_node(peer)
+    nodes = []
+
+    def spin_until(cond, timeout: float, tick=None) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if tick is not None:
+                tick()
+            ex.spin_once(timeout_sec=0.005)
+            if cond():
+                return True
+        return cond()
+
+    def add(node):
+        nodes.append(node)
+        ex.add_node(node)
+        return node
+
+    yield peer, add, spin_until
+    for n in nodes:
+        hook = getattr(n, "on_shutdown", None)
+        if callable(hook):
+            hook()
+        ex.remove_node(n)
+        n.destroy_node()
+    peer.destroy_node()
+    rclpy.shutdown()

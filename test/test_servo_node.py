@@ -7,13 +7,10 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from hand_msgs.msg import HandPose, JointCommand
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from ros_helpers import ROOT, wait_for
 from sensor_msgs.msg import JointState
@@ -32,37 +29,6 @@ def params(**kw) -> list[Parameter]:
     kw.setdefault("servo_map", "generic_3dof")
     kw.setdefault("packet_timeout_ms", 100.0)
     return [Parameter(k, value=v) for k, v in kw.items()]
-
-
-@pytest.fixture
-def ros():
-    rclpy.init()
-    peer = rclpy.create_node("servo_test_peer")
-    ex = SingleThreadedExecutor()
-    ex.add_node(peer)
-    nodes = []
-
-    def spin_until(cond, timeout: float, tick=None) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if tick is not None:
-                tick()
-            ex.spin_once(timeout_sec=0.005)
-            if cond():
-                return True
-        return cond()
-
-    def add(node):
-        nodes.append(node)
-        ex.add_node(node)
-        return node
-
-    yield peer, add, spin_until
-    for n in nodes:
-        n.on_shutdown()
-        n.destroy_node()
-    peer.destroy_node()
-    rclpy.shutdown()
 
 
 def hand_pose(**angles: float) -> HandPose:

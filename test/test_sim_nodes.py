@@ -5,11 +5,8 @@ from __future__ import annotations
 
 import time
 
-import pytest
-import rclpy
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from hand_msgs.msg import ContactArray, JointCommand
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -17,35 +14,6 @@ from visualization_msgs.msg import MarkerArray
 
 from hand_control.nodes.controller import ControllerNode
 from hand_control.nodes.sim import SimNode
-
-
-@pytest.fixture
-def ros():
-    rclpy.init()
-    peer = rclpy.create_node("sim_test_peer")
-    ex = SingleThreadedExecutor()
-    ex.add_node(peer)
-    nodes = []
-
-    def spin_until(cond, timeout: float) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            ex.spin_once(timeout_sec=0.002)
-            if cond():
-                return True
-        return cond()
-
-    def add(node):
-        nodes.append(node)
-        ex.add_node(node)
-        return node
-
-    yield peer, add, spin_until
-    for n in nodes:
-        ex.remove_node(n)
-        n.destroy_node()
-    peer.destroy_node()
-    rclpy.shutdown()
 
 
 def _collect(peer, topics: dict) -> dict[str, list]:
