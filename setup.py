@@ -19,6 +19,7 @@ NODES = {
     "touch_encoder": "hand_capture.nodes.touch_encoder:main",
     "sim": "hand_control.nodes.sim:main",
     "controller": "hand_control.nodes.controller:main",
+    "tracker": "hand_capture.nodes.tracker:main",
 }
 
 setup(
@@ -35,6 +36,7 @@ setup(
         (f"share/{PACKAGE}/config/servo_maps", glob("config/servo_maps/*.yaml")),
         (f"share/{PACKAGE}/config/scenarios", glob("config/scenarios/*.yaml")),
         (f"share/{PACKAGE}/data/touch", glob("data/touch/*.npz")),
+        (f"share/{PACKAGE}/data/tracker", glob("data/tracker/*.npz")),
     ],
     install_requires=["setuptools"],
     extras_require={"realsense": ["pyrealsense2"]},

@@ -24,3 +24,8 @@ def share_dir() -> Path:
 def config_dir() -> Path:
     """``config/``: parameter files, graph descriptions, servo maps."""
     return share_dir() / "config"
+
+
+def data_dir() -> Path:
+    """``data/``: shipped models (touch encodings, tracker forest) and the sample capture."""
+    return share_dir() / "data"

@@ -6,7 +6,7 @@
     hand-suite bag info DIR | bag recover DIR [-o OUT]
     hand-suite bench NAME [--quick] | bench --list
     hand-suite capture [-o DIR] [--clip C] [--seconds S] [--fps F] [--shape-seed N]
-    hand-suite train touch [ARGS]        fit the multi-touch encodings (data/touch)
+    hand-suite train touch|tracker [ARGS] fit the touch encodings / the tracker's forest
     hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
     hand-suite demo [--out DIR]          the README's main job
@@ -159,7 +159,7 @@ def cmd_capture(a: argparse.Namespace) -> int:
     return 0
 
 
-TRAINERS = {"touch": "hand_capture.touch.train"}
+TRAINERS = {"touch": "hand_capture.touch.train", "tracker": "hand_capture.tracking.train"}
 
 
 def cmd_train(a: argparse.Namespace) -> int:
@@ -252,7 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--noise-seed", type=int, default=0)
     cp.set_defaults(func=cmd_capture)
 
-    tr = sub.add_parser("train", help="train a learned component (touch, ...)")
+    tr = sub.add_parser("train", help="train a learned component (touch, tracker)")
     tr.add_argument("what")
     tr.add_argument("train_args", nargs=argparse.REMAINDER)
     tr.set_defaults(func=cmd_train)

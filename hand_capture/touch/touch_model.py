@@ -23,9 +23,9 @@ MAX_REFERENCE = 4000
 
 def default_model_path() -> Path:
     """``data/touch/touch_model.npz`` in the source tree or the installed share folder."""
-    from hand_capture.paths import share_dir
+    from hand_capture.paths import data_dir
 
-    return share_dir() / MODEL_FILE
+    return data_dir() / MODEL_FILE.relative_to("data")
 
 
 @dataclass

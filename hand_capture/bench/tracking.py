@@ -1,0 +1,259 @@
+"""``hand-suite bench tracking``: depth hand tracking accuracy and speed (ch. II.6).
+
+Synthetic sequences from the project's synthetic camera (320x240, its sensor noise model):
+five motions (finger counting, fist, wrist rotation, translation, pinch) for three random
+hand shapes different from the default. Each shape is first calibrated automatically from
+three rendered frames of the predefined calibration poses (II.3.6), and tracking uses the
+calibrated model. In the same run and on the same frames:
+
+* **hybrid** tracking (II.5.1, the product);
+* **ICP only**: model-based tracking initialised with the hybrid's first frame (II.6.3);
+* **regressor only**: per-frame regression, best mode by E_d.
+
+Figures: mean / median joint position error over the 21 keypoints [mm], success rate (share
+of frames whose largest joint error is under 10..50 mm, Figure II.17), frames per second
+(wall clock and CPU time of the tracking call alone) and a per-stage time profile. Recovery:
+a sequence with a gap of blank frames; the number of frames after the gap until the success
+flag is back and until the largest joint error is under 20 mm again.
+``--quick`` runs the same on one shape and short excerpts (under a minute).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from hand_capture.bench import print_table
+
+MOTIONS = ("finger_counting", "fist", "wrist_rotation", "translation", "pinch")
+SHAPE_SEEDS = (11, 12, 13)
+THRESHOLDS_MM = (10, 20, 30, 40, 50)
+MODES = ("hybrid", "icp", "regressor")
+
+
+def _calibration_frames(model, intr, rng):
+    """Three noisy frames of the predefined calibration poses, palm towards the camera."""
+    from hand_capture.cameras.noise import DepthNoiseConfig, DepthNoiseModel
+    from hand_capture.cameras.render import Mesh, make_renderer
+    from hand_capture.cameras.transforms import rotvec_to_matrix
+    from hand_capture.model.joints import root_angles_from_matrix
+    from hand_capture.tracking.calibration import CALIBRATION_POSES
+    from hand_capture.tracking.train import _R_PALM_TO_CAMERA
+
+    ren = make_renderer("zbuffer")
+    nm = DepthNoiseModel(DepthNoiseConfig())
+    frames = []
+    for i, qd in enumerate(CALIBRATION_POSES.values()):
+        q = qd.copy()
+        R = _R_PALM_TO_CAMERA @ rotvec_to_matrix(np.array([0.25 * (i - 1), 0.2 * (i - 1), 0]))
+        q[3:6] = root_angles_from_matrix(R)
+        q[0:3] = (0.0, 0.07, 0.42)
+        res = ren.render([Mesh(model.vertices(q), model.faces, 1, closed=True)], intr)
+        frames.append((nm.apply_mm(res.depth, res.cos_incidence, intr, rng), intr))
+    return frames
+
+
+def _hand_length(model) -> float:
+    kp = model.joint_positions(np.zeros(27))
+    return float(np.linalg.norm(kp[12] - kp[0]))
+
+
+def _run_mode(tracker, frames, truth_kp, mode_first=None):
+    """Track a pre-rendered sequence; per-frame errors (N, 21) [mm], timings, flags."""
+    errs, wall, cpu, flags = [], [], [], []
+    stages: dict[str, float] = {}
+    if mode_first is not None:
+        tracker.reset(mode_first)
+    else:
+        tracker.reset()
+    for (depth, intr), kp in zip(frames, truth_kp, strict=True):
+        t0, c0 = time.perf_counter(), time.process_time()
+        r = tracker.process(depth, intr)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+        errs.append(np.linalg.norm(tracker.model.joint_positions(r.pose) - kp, axis=1) * 1e3)
+        flags.append(r.success)
+        for k, v in r.timing.items():
+            stages[k] = stages.get(k, 0.0) + v
+    return np.array(errs), np.array(wall), np.array(cpu), np.array(flags), stages
+
+
+def _summary(errs: np.ndarray) -> dict[str, float]:
+    mx = errs.max(axis=1)
+    out = {"mean": float(errs.mean()), "median": float(np.median(errs))}
+    for t in THRESHOLDS_MM:
+        out[f"s{t}"] = float(np.mean(mx < t))
+    return out
+
+
+def run(quick: bool = False) -> dict:
+    from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
+    from hand_capture.cameras.threads import limit_blas_threads
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import calibrate
+    from hand_capture.tracking.config import TrackerConfig
+    from hand_capture.tracking.hybrid import HybridTracker, default_model_path
+    from hand_capture.tracking.regressor import HandRegressor
+    from hand_capture.tracking.train import train_tracker
+
+    limit_blas_threads(1)
+    path = default_model_path()
+    if path.exists():
+        reg = HandRegressor.load(path)
+        reg_src = str(path.name)
+    else:  # no shipped model: a small one trained here (reproducible)
+        reg = train_tracker(None, seed=0, n_samples=600 if quick else 2000, n_shapes=20)
+        reg_src = "trained in-run"
+    shape_seeds = SHAPE_SEEDS[:1] if quick else SHAPE_SEEDS
+    step = 4 if quick else 1
+    max_frames = 16 if quick else 10 ** 6
+    base = HandModel()
+    rng = np.random.default_rng(0)
+
+    all_err = {m: [] for m in MODES}
+    all_wall = {m: [] for m in MODES}
+    all_cpu = {m: [] for m in MODES}
+    all_stage = {m: {} for m in MODES}
+    rows_seq = []
+    rows_cal = []
+    for seed in shape_seeds:
+        cam0 = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed))
+        cam0.open()
+        true_model = cam0.model
+        intr = cam0.intrinsics
+        t0 = time.perf_counter()
+        cal = calibrate(_calibration_frames(true_model, intr, rng), model=base,
+                        subject_id=f"bench{seed}")
+        cal_s = time.perf_counter() - t0
+        model = base.with_shape(cal.shape)
+        ratio_true = _hand_length(true_model) / _hand_length(base)
+        ratio_fit = _hand_length(model) / _hand_length(base)
+        kp_rest_err = float(np.linalg.norm(model.joint_positions(np.zeros(27))
+                                           - true_model.joint_positions(np.zeros(27)),
+                                           axis=1).mean() * 1e3)
+        kp_rest_err0 = float(np.linalg.norm(base.joint_positions(np.zeros(27))
+                                            - true_model.joint_positions(np.zeros(27)),
+                                            axis=1).mean() * 1e3)
+        rows_cal.append([seed, f"{true_model.shape.global_scale:.3f}",
+                         f"{ratio_true:.3f}", f"{ratio_fit:.3f}", kp_rest_err0, kp_rest_err,
+                         cal.residual_mm, cal_s])
+        trackers = {m: HybridTracker(model, TrackerConfig(mode=m), reg) for m in MODES}
+        for clip in MOTIONS:
+            cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed,
+                                                        clip=clip, noise_seed=seed),
+                                  model=true_model)
+            cam.open()
+            n = int(math.floor(cam.motion.duration * 30)) + 1
+            idx = list(range(0, n, step))[:max_frames]
+            rendered = [cam.render(i / 30.0) for i in idx]
+            frames = [(f.depth, f.depth_intrinsics) for f in rendered]
+            truth = [true_model.joint_positions(f.pose) for f in rendered]
+            first = None
+            for m in MODES:
+                e, w, c, fl, st = _run_mode(trackers[m], frames, truth,
+                                            first if m == "icp" else None)
+                if m == "hybrid":
+                    trackers[m].reset()
+                    first = trackers[m].process(*frames[0]).pose
+                all_err[m].append(e)
+                all_wall[m].append(w)
+                all_cpu[m].append(c)
+                for k, v in st.items():
+                    all_stage[m][k] = all_stage[m].get(k, 0.0) + v
+                s = _summary(e)
+                rows_seq.append([seed, clip, m, len(frames), s["mean"], s["median"], s["s20"],
+                                 float(np.mean(fl)), 1.0 / np.mean(w)])
+    print_table("calibration (II.3.6): hand length ratio to the template, mean rest-pose "
+                "keypoint error [mm]",
+                ["shape", "s_g", "true ratio", "fit ratio", "kp err default", "kp err fit",
+                 "resid mm", "time s"], rows_cal)
+    print_table("per sequence", ["shape", "motion", "mode", "frames", "mean mm", "median mm",
+                                 "succ@20", "flag rate", "fps"], rows_seq)
+    summ = {}
+    rows = []
+    for m in MODES:
+        e = np.concatenate(all_err[m])
+        s = _summary(e)
+        w = np.concatenate(all_wall[m])
+        c = np.concatenate(all_cpu[m])
+        s["fps"] = 1.0 / float(np.mean(w))
+        s["fps_cpu"] = 1.0 / float(np.mean(c))
+        s["frames"] = len(e)
+        summ[m] = s
+        rows.append([m, len(e), s["mean"], s["median"]] + [s[f"s{t}"] for t in THRESHOLDS_MM]
+                    + [s["fps"], s["fps_cpu"]])
+    print_table("summary (success = share of frames whose largest joint error < t mm)",
+                ["mode", "frames", "mean mm", "median mm"] + [f"<{t}mm" for t in THRESHOLDS_MM]
+                + ["fps wall", "fps cpu"], rows)
+    prof_rows = []
+    for m in MODES:
+        nfr = summ[m]["frames"]
+        prof_rows.append([m] + [1e3 * all_stage[m].get(k, 0.0) / nfr
+                                for k in ("preprocess", "regression", "icp", "selection")])
+    print_table("time per frame by stage [ms] (wall clock)",
+                ["mode", "preprocess", "regression", "ICP", "selection"], prof_rows)
+
+    # ---------------------------------------------------------------- recovery after a gap
+    seed = shape_seeds[0]
+    cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed,
+                                                clip="wrist_rotation", noise_seed=7))
+    cam.open()
+    true_model = cam.model
+    gap_start, gap_len, after = (10, 8, 12) if quick else (40, 20, 30)
+    idx = list(range(0, gap_start + gap_len + after))
+    rendered = [cam.render(i / 30.0 + 1.0) for i in idx]
+    frames = []
+    for i, f in enumerate(rendered):
+        d = f.depth if not gap_start <= i < gap_start + gap_len else np.zeros_like(f.depth)
+        frames.append((d, f.depth_intrinsics))
+    truth = [true_model.joint_positions(f.pose) for f in rendered]
+    cal_model = base.with_shape(calibrate(_calibration_frames(true_model, cam.intrinsics, rng),
+                                          model=base).shape)
+    rec_rows = []
+    rec = {}
+    for m in ("hybrid", "icp"):
+        tr = HybridTracker(cal_model, TrackerConfig(mode=m), reg)
+        first = None
+        if m == "icp":
+            t2 = HybridTracker(cal_model, TrackerConfig(mode="hybrid"), reg)
+            first = t2.process(*frames[0]).pose
+        e, _, _, fl, _ = _run_mode(tr, frames, truth, first)
+        post = slice(gap_start + gap_len, len(frames))
+        mx = e[post].max(axis=1)
+        ok_err = np.flatnonzero(mx < 20.0)
+        ok_flag = np.flatnonzero(fl[post])
+        rec[m] = (int(ok_err[0]) if ok_err.size else -1, int(ok_flag[0]) if ok_flag.size
+                  else -1, float(np.mean(mx < 20.0)))
+        gap_flags = fl[gap_start:gap_start + gap_len]
+        rec_rows.append([m, gap_len, rec[m][1], rec[m][0], rec[m][2],
+                         int(np.count_nonzero(gap_flags))])
+    print_table("recovery after a gap of blank frames (frames counted from the first frame "
+                "after the gap, 0 = at once; -1 = never)",
+                ["mode", "gap frames", "flag back after", "err<20mm after",
+                 "succ@20 after gap", "flags during gap"], rec_rows)
+
+    h, i_, r_ = summ["hybrid"], summ["icp"], summ["regressor"]
+    out = {
+        "regressor_model": reg_src,
+        "frames": h["frames"], "n_shapes": len(shape_seeds), "n_motions": len(MOTIONS),
+        "fps": h["fps"], "fps_cpu": h["fps_cpu"],
+        "mean_joint_err_mm": h["mean"], "median_joint_err_mm": h["median"],
+        **{f"success_{t}mm": h[f"s{t}"] for t in THRESHOLDS_MM},
+        "icp_only_mean_joint_err_mm": i_["mean"],
+        **{f"icp_only_success_{t}mm": i_[f"s{t}"] for t in THRESHOLDS_MM},
+        "icp_only_fps": i_["fps"],
+        "regressor_only_mean_joint_err_mm": r_["mean"],
+        **{f"regressor_only_success_{t}mm": r_[f"s{t}"] for t in THRESHOLDS_MM},
+        "regressor_only_fps": r_["fps"],
+        "fps_ratio_vs_icp_only": h["fps"] / i_["fps"],
+        "recovery_frames": rec["hybrid"][0],
+        "recovery_frames_flag": rec["hybrid"][1],
+        "icp_only_recovery_frames": rec["icp"][0],
+        "stage_ms": {k: 1e3 * all_stage["hybrid"].get(k, 0.0) / h["frames"]
+                     for k in ("preprocess", "regression", "icp", "selection")},
+        "calibration_kp_err_mm": float(np.mean([r[5] for r in rows_cal])),
+        "calibration_kp_err_default_mm": float(np.mean([r[4] for r in rows_cal])),
+    }
+    return out

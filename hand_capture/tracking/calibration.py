@@ -1,0 +1,242 @@
+"""Automatic construction of the subject's hand model from a few depth frames (ch. II.3.6).
+
+The subject holds a few predefined poses (:data:`CALIBRATION_POSES`: finger angles; the wrist
+is wherever the hand is). Eq. II.11 is solved by alternation, as in the dissertation:
+
+1. every frame's pose starts at its predefined finger angles, the palm placed by PCA and
+   palm-only ICP, then a few full ICP iterations (default shape);
+2. the shape parameters ``(s_g, alpha, beta)`` take one Gauss-Newton step on all frames'
+   correspondences together (the model's analytic shape Jacobian), with a Gaussian prior
+   on the parameters (the shape model's own spread) to keep the fit well posed;
+3. every frame's pose is refined with the new shape; repeat 2-3 ``rounds`` times.
+
+Shapes are saved per subject as YAML (``<folder>/<subject_id>.yaml``).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hand_capture.cameras.base import Intrinsics
+from hand_capture.config import load_yaml
+from hand_capture.errors import ConfigError, InputError
+from hand_capture.model import N_ALPHA, N_BETA, N_DOF, HandModel, HandShape
+from hand_capture.model.joints import pose_from_dict
+from hand_capture.model.shape import BETA_SD, GLOBAL_SCALE_SD
+from hand_capture.tracking.config import TrackerConfig
+from hand_capture.tracking.icp import ModelTracker
+from hand_capture.tracking.preprocess import segment_hand
+from hand_capture.tracking.regressor import ModelFrames, palm_init_pca
+
+__all__ = ["CALIBRATION_POSES", "CalibrationResult", "calibrate", "load_shape", "save_shape",
+           "shape_path"]
+
+_D = math.radians
+#: Predefined calibration poses (finger angles only): flat spread hand, open hand with the
+#: thumb out, fingers slightly bent.
+CALIBRATION_POSES: dict[str, np.ndarray] = {
+    "flat": np.zeros(N_DOF),
+    "spread": pose_from_dict({**{f"{f}_mcp_abd": _D(a) for f, a in
+                                 (("index", 8), ("ring", -6), ("little", -12))},
+                              "thumb_tm_abd": _D(20)}),
+    "bent": pose_from_dict({**{f"{f}_mcp_flex": _D(25) for f in
+                               ("index", "middle", "ring", "little")},
+                            **{f"{f}_pip_flex": _D(20) for f in
+                               ("index", "middle", "ring", "little")}}),
+}
+
+
+@dataclass
+class CalibrationResult:
+    """The fitted shape, the fitted pose of every frame and the mean residual [mm]."""
+
+    shape: HandShape
+    poses: list[np.ndarray]
+    residual_mm: float
+    rounds: int
+
+
+def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
+              finger_poses: Sequence[np.ndarray] | None = None,
+              model: HandModel | None = None, config: TrackerConfig | None = None, *,
+              rounds: int = 10, pose_iterations: int = 3, prior_weight: float = 300.0,
+              scale_grid: Sequence[float] = (1.0,),
+              subject_id: str = "") -> CalibrationResult:
+    """Fit the subject's shape (eq. II.11) from depth frames of predefined poses.
+
+    Args:
+        frames: (depth image, intrinsics) pairs, one per predefined pose.
+        finger_poses: the predefined poses (27,) (only the finger angles are used); default:
+            the :data:`CALIBRATION_POSES` in order, cycled.
+        model: starting model (default: the template shape, right hand).
+        config: tracker thresholds for segmentation and ICP.
+        rounds: shape/pose alternations.
+        pose_iterations: ICP iterations per frame and round.
+        prior_weight: weight of the shape prior (in squared prior SDs vs squared mm).
+        scale_grid: factors of the starting global scale tried before the joint fit (the
+            best one starts it; a single 1.0 = start from the given model).
+        subject_id: stored in the result's shape.
+
+    Raises:
+        InputError: no frame, or a frame without a hand.
+    """
+    if not frames:
+        raise InputError("calibration needs at least one depth frame")
+    cfg = config or TrackerConfig()
+    model = model or HandModel()
+    presets = list(CALIBRATION_POSES.values())
+    if finger_poses is None:
+        finger_poses = [presets[i % len(presets)] for i in range(len(frames))]
+    if len(finger_poses) != len(frames):
+        raise InputError(f"{len(frames)} frames but {len(finger_poses)} predefined poses")
+    obs_list = []
+    for depth, intr in frames:
+        obs = segment_hand(depth, intr, cfg)
+        if len(obs.points) < 100:
+            raise InputError("a calibration frame shows no hand")
+        obs_list.append(obs)
+    # coarse search of the global scale first: the joint Gauss-Newton below converges slowly
+    # along the scale (sliding correspondences), so it starts from the best scale of a grid
+    best = None
+    for sg in scale_grid:
+        gs = float(np.clip(sg * model.shape.global_scale, 0.6, 1.6))
+        shape_try = model.shape.with_params(global_scale=gs)
+        tracker = ModelTracker(model.with_shape(shape_try), cfg)
+        poses_try, score = _fit_poses(tracker, obs_list, finger_poses, pose_iterations)
+        if best is None or score < best[0]:
+            best = (score, shape_try, tracker, poses_try)
+    _, shape, tracker, poses = best
+    p0 = HandShape().params
+    sd = np.r_[GLOBAL_SCALE_SD, np.ones(N_ALPHA), np.full(N_BETA, BETA_SD)]
+    lo = np.r_[0.6, np.full(N_ALPHA, -3.0), np.full(N_BETA, -0.004)]
+    hi = np.r_[1.6, np.full(N_ALPHA, 3.0), np.full(N_BETA, 0.004)]
+    residual = float("nan")
+    T = len(poses)
+    n = len(p0)
+    q_pre = [q.copy() for q in poses]
+    for _ in range(rounds):
+        p = shape.params
+        m = tracker.model
+        N = T * N_DOF + n
+        A = np.zeros((N, N))
+        g = np.zeros(N)
+        res = []
+        for t, (obs, q) in enumerate(zip(obs_list, poses, strict=True)):
+            pts, pix = obs.subsample(cfg.max_points * 2)
+            V, facing = tracker.posed(q)
+            corr = tracker.correspond(pts, pix, V, facing, obs.intrinsics)
+            if len(corr.vertex) == 0:
+                continue
+            rev = tracker.reverse_correspond(pts, V, facing, obs, stride=2)
+            vidx = np.r_[corr.vertex, rev.vertex]
+            J = np.concatenate([m.jacobian(q, vidx), m.shape_jacobian(q, vidx)], axis=2)
+            J = J.reshape(-1, N_DOF + n) * 1000.0
+            r = np.r_[corr.residual_mm.reshape(-1), rev.residual_mm.reshape(-1)]
+            wr = np.r_[np.ones(3 * len(corr.vertex)),
+                       np.full(3 * len(rev.vertex), max(cfg.reverse_weight, 0.5))]
+            J = J * np.sqrt(wr)[:, None]
+            r = r * np.sqrt(wr)
+            H = J.T @ J
+            gg = J.T @ r
+            sl = slice(t * N_DOF, (t + 1) * N_DOF)
+            ss = slice(T * N_DOF, N)
+            A[sl, sl] += H[:N_DOF, :N_DOF]
+            A[sl, ss] += H[:N_DOF, N_DOF:]
+            A[ss, sl] += H[N_DOF:, :N_DOF]
+            A[ss, ss] += H[N_DOF:, N_DOF:]
+            g[sl] += gg[:N_DOF]
+            g[ss] += gg[N_DOF:]
+            # pose terms: smoothness towards the starting pose, joint limits
+            Ap, gp, _ = tracker.normal_equations(q, type(corr)(corr.points[:0], corr.vertex[:0],
+                                                               corr.model[:0]),
+                                                 q_pre[t], np.arange(N_DOF))
+            A[sl, sl] += Ap
+            g[sl] += gp
+            res.append(np.linalg.norm(corr.residual_mm, axis=1))
+        w = prior_weight / sd ** 2
+        ss = slice(T * N_DOF, N)
+        A[ss, ss][np.diag_indices(n)] += w
+        g[ss] += w * (p - p0)
+        A[np.diag_indices(N)] += cfg.damping * (1.0 + A.diagonal())
+        try:
+            dx = -np.linalg.solve(A, g)
+        except np.linalg.LinAlgError:
+            break
+        poses = [q + dx[t * N_DOF:(t + 1) * N_DOF] for t, q in enumerate(poses)]
+        shape = HandShape.from_params(np.clip(p + dx[ss], lo, hi), subject_id)
+        tracker.set_model(tracker.model.with_shape(shape))
+        residual = float(np.mean(np.concatenate(res))) if res else float("nan")
+    for _ in range(1):
+        poses = [tracker.refine(q, obs, pose_iterations, q_ref=q)
+                 for q, obs in zip(poses, obs_list, strict=True)]
+    return CalibrationResult(shape, poses, residual, rounds)
+
+
+def _fit_poses(tracker: ModelTracker, obs_list: list, finger_poses: Sequence[np.ndarray],
+               iterations: int) -> tuple[list[np.ndarray], float]:
+    """Poses of the calibration frames for the tracker's shape, and the symmetric mean
+    distance [mm] between model and points (data-to-model and model-to-data pairs)."""
+    poses, dists = [], []
+    for obs, qd in zip(obs_list, finger_poses, strict=True):
+        q = palm_init_pca(obs.points, ModelFrames(tracker.model))
+        q[6:] = np.asarray(qd, float)[6:]
+        q = tracker.refine(q, obs, 6, palm_only=True)
+        q = tracker.refine(q, obs, iterations, q_ref=q)
+        pts, pix = obs.subsample(tracker.cfg.max_points)
+        V, facing = tracker.posed(q)
+        c = tracker.correspond(pts, pix, V, facing, obs.intrinsics)
+        r = tracker.reverse_correspond(pts, V, facing, obs, stride=2)
+        d = np.r_[np.linalg.norm(c.residual_mm, axis=1), np.linalg.norm(r.residual_mm, axis=1)]
+        dists.append(float(d.mean()) if d.size else tracker.cfg.outlier_mm)
+        poses.append(q)
+    return poses, float(np.mean(dists))
+
+
+# ------------------------------------------------------------------------------ storage
+_SAFE = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+def shape_path(folder: str | Path, subject_id: str) -> Path:
+    """``<folder>/<subject_id>.yaml``; the id must be a plain file name."""
+    if not subject_id or not _SAFE.match(subject_id) or subject_id.startswith("."):
+        raise ConfigError(f"subject_id {subject_id!r} must be letters, digits, '_', '-', '.'")
+    return Path(folder).expanduser() / f"{subject_id}.yaml"
+
+
+def save_shape(shape: HandShape, folder: str | Path, subject_id: str, side: str = "right",
+               residual_mm: float = float("nan")) -> Path:
+    """Write a subject's calibrated shape as YAML; returns the path."""
+    import yaml
+
+    p = shape_path(folder, subject_id)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    data = {"subject_id": subject_id, "side": side, "global_scale": float(shape.global_scale),
+            "alpha": [float(a) for a in shape.alpha], "beta": [float(b) for b in shape.beta],
+            "residual_mm": None if not math.isfinite(residual_mm) else float(residual_mm)}
+    tmp = p.with_suffix(".yaml.tmp")
+    tmp.write_text(yaml.safe_dump(data, sort_keys=False))
+    tmp.replace(p)
+    return p
+
+
+def load_shape(folder: str | Path, subject_id: str) -> HandShape:
+    """Read a subject's shape saved by :func:`save_shape`.
+
+    Raises:
+        ConfigError: missing or malformed file.
+    """
+    p = shape_path(folder, subject_id)
+    data = load_yaml(p)
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: not a shape file")
+    try:
+        return HandShape(float(data["global_scale"]), tuple(data["alpha"]),
+                         tuple(data["beta"]), str(data.get("subject_id", subject_id)))
+    except (KeyError, TypeError, InputError) as e:
+        raise ConfigError(f"{p}: bad shape file: {e}") from e

@@ -1,0 +1,83 @@
+"""Every weight and threshold of the depth hand tracker (dissertation ch. II.4-II.5).
+
+One frozen dataclass, :class:`TrackerConfig`, filled from ``config/tracker.yaml`` or from the
+tracker node's ROS parameters (the same field names).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from hand_capture.config import param, validate
+from hand_capture.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Parameters of preprocessing, Gauss-Newton ICP, regression and the hybrid scheme."""
+
+    # -- preprocessing -------------------------------------------------------------------
+    near_m: float = param(0.12, "nearest depth considered [m]", lo=0.0, hi=10.0)
+    far_m: float = param(1.2, "farthest depth considered [m]", lo=0.01, hi=20.0)
+    band_m: float = param(0.16, "depth band kept behind the nearest hand pixel [m]", lo=0.01,
+                          hi=2.0)
+    min_hand_pixels: int = param(60, "fewer hand pixels than this = no hand in view", lo=1)
+    wrist_cut_m: float = param(0.0, "drop points farther than this from the cloud centroid; "
+                               "0 = no wrist cut [m]", lo=0.0, hi=1.0)
+    max_points: int = param(160, "observed points used per ICP iteration (subsampled)",
+                            lo=16, hi=20000)
+    # -- model-based tracking (II.5.2) ---------------------------------------------------
+    data_weight: float = param(1.0, "lambda_1, data term weight (eq. II.21; residuals in mm)",
+                               lo=0.0)
+    smooth_weight: float = param(0.2, "lambda_2, smoothness term weight (eq. II.24; "
+                                 "translations in mm, angles in rad)", lo=0.0)
+    limit_weight: float = param(1000.0, "lambda_3, joint-limit term weight (eq. II.25)",
+                                lo=0.0)
+    reverse_weight: float = param(0.5, "weight of the model-to-data pairs (off-silhouette "
+                                  "facing vertices to their nearest point; 0 = eq. II.23 only)",
+                                  lo=0.0)
+    reverse_margin_px: float = param(2.0, "model-to-data pairs only for vertices projecting "
+                                     "farther than this off the hand [px]", lo=0.0)
+    damping: float = param(1e-2, "Levenberg damping added to J^T J (stabilises II.27)",
+                           lo=0.0)
+    window_px: float = param(24.0, "half size of the 2D correspondence window [px] (II.22)",
+                             lo=1.0, hi=1000.0)
+    window_candidates: int = param(8, "vertices examined per observed point in the window",
+                                   lo=1, hi=64)
+    window_fallback: bool = param(True, "a point with no vertex in its window takes the "
+                                  "nearest facing vertex in 3D")
+    outlier_mm: float = param(40.0, "correspondences farther than this are dropped [mm]",
+                              lo=1.0)
+    model_stride: int = param(2, "use every n-th model vertex as correspondence candidate",
+                              lo=1, hi=32)
+    icp_iterations: int = param(2, "Gauss-Newton iterations per candidate (step 4)", lo=0,
+                                hi=50)
+    palm_iterations: int = param(1, "palm-only refinement iterations (steps 1 and 3)", lo=0,
+                                 hi=50)
+    max_step_rad: float = param(0.35, "largest angle change per GN step [rad]", lo=0.01,
+                                hi=3.2)
+    # -- success test and candidate selection (II.5.1) -----------------------------------
+    success_tau_mm: float = param(25.0, "tau of eq. II.19: mean depth error of success [mm]",
+                                  lo=0.1)
+    depth_cap_mm: float = param(60.0, "per-pixel cap of |I_r - I| in E_d [mm]", lo=1.0)
+    cost_downsample: int = param(2, "image downsampling of the E_d evaluation", lo=1, hi=8)
+    cost_data_weight: float = param(1.0, "lambda_1 of the candidate cost (eq. II.20)", lo=0.0)
+    cost_temporal_weight: float = param(0.0, "lambda_2 of the candidate cost (eq. II.20; "
+                                        "mm per rad^2 / m^2 of pose change); 0 measured best "
+                                        "on the synthetic benchmark", lo=0.0)
+    # -- regression (II.4) ---------------------------------------------------------------
+    n_modes: int = param(2, "palm modes kept by clustering the leaves (II.4.3)", lo=1, hi=16)
+    ik_iterations: int = param(2, "finger IK Gauss-Newton steps per finger cascade stage",
+                               lo=1, hi=20)
+    refine_top: int = param(2, "candidates fully refined after screening (step 4)", lo=1,
+                            hi=32)
+    model_file: str = param("", "trained regressor (.npz); empty = data/tracker/"
+                            "regressor.npz when present")
+    mode: str = param("hybrid", "tracking mode", choices=("hybrid", "icp", "regressor"))
+    side: str = param("right", "hand side", choices=("right", "left"))
+
+    def __post_init__(self) -> None:
+        validate(self)
+        if self.far_m <= self.near_m:
+            raise ConfigError(f"TrackerConfig.far_m ({self.far_m}) must exceed near_m "
+                              f"({self.near_m})")

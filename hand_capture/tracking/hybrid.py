@@ -1,0 +1,213 @@
+"""Hybrid tracking (ch. II.5.1): regression candidates + previous pose, ICP, selection.
+
+Per frame (steps 1-6 of the dissertation):
+
+1. segment the hand; the palm regressor (initialised by PCA) gives several palm modes; each
+   is refined by one palm-only Gauss-Newton iteration;
+2. the finger regressor runs on each refined palm -> full candidates;
+3. the previous pose, after one palm-only iteration, joins the pool;
+4. the candidates are refined by Gauss-Newton ICP (``icp_iterations``; to stay real time on a
+   CPU the pool is first screened by its cost and the ``refine_top`` best are refined);
+5. the candidate with the lowest cost ``E_c = l1 E_d + l2 delta ||q - q_prev||^2``
+   (eq. II.20) wins;
+6. the success flag ``delta = E_d < tau`` (eq. II.19) is stored for the next frame.
+
+After a loss (blank or occluded frames, delta = 0) the temporal term is off and the
+regressor's candidates re-initialise the tracker by themselves: no manual reset.
+
+Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
+regression only, best mode by E_d) are the ablations of Figure II.18.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hand_capture.cameras.base import Intrinsics
+from hand_capture.model import N_DOF, HandModel, HandShape
+from hand_capture.model.joints import root_rotation_matrix
+from hand_capture.tracking.config import TrackerConfig
+from hand_capture.tracking.icp import ModelTracker
+from hand_capture.tracking.preprocess import HandObservation, segment_hand
+from hand_capture.tracking.regressor import DepthLookup, HandRegressor, ModelFrames, palm_init_pca
+
+__all__ = ["HybridTracker", "TrackResult", "default_model_path", "STAGES"]
+
+STAGES = ("preprocess", "regression", "icp", "selection")
+
+
+def default_model_path() -> Path:
+    """``data/tracker/regressor.npz`` in the source tree or the installed share folder."""
+    from hand_capture.paths import data_dir
+
+    return data_dir() / "tracker" / "regressor.npz"
+
+
+@dataclass
+class TrackResult:
+    """Outcome of one frame.
+
+    Attributes:
+        pose: (27,) the selected estimate (JOINT_NAMES order, camera frame).
+        success: delta of eq. II.19 for this frame.
+        status: ``tracking`` | ``recovering`` (success right after a loss) | ``lost`` |
+            ``no_hand`` (nothing segmented).
+        cost: E_d of the selected pose [mm] (eq. II.19).
+        confidence: 0..1 derived from E_d.
+        last_good: the last pose that passed the success test (None before the first).
+        n_candidates: size of the pose pool.
+        timing: seconds per stage (``STAGES``).
+    """
+
+    pose: np.ndarray
+    success: bool
+    status: str
+    cost: float
+    confidence: float
+    last_good: np.ndarray | None
+    n_candidates: int
+    timing: dict[str, float] = field(default_factory=dict)
+    observation: HandObservation | None = None
+
+
+def pose_distance_sq(q: np.ndarray, p: np.ndarray) -> float:
+    """``||q - p||^2`` of eq. II.20 with the root rotation compared as a rotation (the
+    squared geodesic angle, so equivalent hinge-angle triples are not far apart); root
+    translation in metres, finger angles in radians."""
+    Rq = root_rotation_matrix(q[3:6])
+    Rp = root_rotation_matrix(p[3:6])
+    c = np.clip((np.trace(Rq @ Rp.T) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.sum((q[0:3] - p[0:3]) ** 2) + np.arccos(c) ** 2
+                 + np.sum((q[6:] - p[6:]) ** 2))
+
+
+class HybridTracker:
+    """Tracks one hand through a depth stream (module docstring).
+
+    Args:
+        model: hand model (the subject's calibrated shape, or the default).
+        config: all weights and thresholds.
+        regressor: trained regressor; required for ``hybrid`` and ``regressor`` modes.
+    """
+
+    def __init__(self, model: HandModel, config: TrackerConfig | None = None,
+                 regressor: HandRegressor | None = None) -> None:
+        self.cfg = config or TrackerConfig()
+        self.regressor = regressor
+        self.icp = ModelTracker(model, self.cfg)
+        self.frames = ModelFrames(model)
+        self.reset()
+
+    @property
+    def model(self) -> HandModel:
+        return self.icp.model
+
+    def set_shape(self, shape: HandShape) -> None:
+        """Track with another subject shape (e.g. from calibration)."""
+        m = self.model.with_shape(shape)
+        self.icp.set_model(m)
+        self.frames = ModelFrames(m)
+
+    def reset(self, initial_pose: np.ndarray | None = None) -> None:
+        """Forget the past; ``initial_pose`` seeds the previous pose (ICP-only mode)."""
+        self.prev: np.ndarray | None = None if initial_pose is None else \
+            np.asarray(initial_pose, float).copy()
+        self.delta = initial_pose is not None
+        self.last_good: np.ndarray | None = self.prev
+        self.frame_count = 0
+
+    # ------------------------------------------------------------------------------ frame
+    def process(self, depth: np.ndarray, intr: Intrinsics) -> TrackResult:
+        """Track one depth frame (uint16 mm or float m)."""
+        cfg = self.cfg
+        timing = dict.fromkeys(STAGES, 0.0)
+        t0 = time.perf_counter()
+        obs = segment_hand(depth, intr, cfg)
+        timing["preprocess"] = time.perf_counter() - t0
+        self.frame_count += 1
+        if not obs.found:
+            self.delta = False
+            pose = self.prev if self.prev is not None else np.zeros(N_DOF)
+            return TrackResult(pose.copy(), False, "no_hand", cfg.depth_cap_mm, 0.0,
+                               self.last_good, 0, timing, obs)
+        pts = obs.subsample(cfg.max_points)
+        ds = cfg.cost_downsample
+        obs_ds = obs.depth_m[::ds, ::ds]
+        lookup = DepthLookup(obs.depth_m, 0, 0, intr)
+
+        pool: list[tuple[np.ndarray, np.ndarray]] = []  # (pose, regression reference)
+        mode = cfg.mode
+        if mode in ("hybrid", "regressor") and self.regressor is not None:
+            t = time.perf_counter()
+            q0 = palm_init_pca(obs.points, self.frames)
+            palms = self.regressor.palm_modes(self.frames, lookup, q0, cfg.n_modes)
+            t_icp = 0.0
+            if mode == "hybrid" and cfg.palm_iterations:
+                ti = time.perf_counter()
+                palms = [self.icp.refine(qp, obs, cfg.palm_iterations, palm_only=True,
+                                         points=pts) for qp in palms]
+                t_icp += time.perf_counter() - ti
+            cands = self.regressor.regress_fingers(self.frames, lookup, np.array(palms),
+                                                   cfg.ik_iterations)
+            pool += [(qc, qc.copy()) for qc in cands]
+            timing["regression"] = time.perf_counter() - t - t_icp
+            timing["icp"] += t_icp
+        if mode in ("hybrid", "icp"):
+            prev = self.prev
+            if prev is None:
+                prev = palm_init_pca(obs.points, self.frames)
+            if mode == "hybrid" and cfg.palm_iterations:
+                t = time.perf_counter()
+                prev = self.icp.refine(prev, obs, cfg.palm_iterations, palm_only=True,
+                                       points=pts)
+                timing["icp"] += time.perf_counter() - t
+            pool.append((prev, prev.copy()))
+        if not pool:  # regressor mode without a regressor
+            q = palm_init_pca(obs.points, self.frames)
+            pool.append((q, q.copy()))
+
+        # step 4: screen by cost, refine the best, select by eq. II.20
+        t = time.perf_counter()
+        costs = [self._cost(q, obs, obs_ds) for q, _ in pool]
+        timing["selection"] += time.perf_counter() - t
+        if mode != "regressor" and cfg.icp_iterations > 0:
+            order = np.argsort([c[0] for c in costs])[:cfg.refine_top]
+            refined = []
+            t = time.perf_counter()
+            for i in order:
+                q, q_reg = pool[i]
+                ref = self.prev if (self.delta and self.prev is not None) else q_reg
+                refined.append(self.icp.refine(q, obs, cfg.icp_iterations, q_ref=ref,
+                                               points=pts))
+            timing["icp"] += time.perf_counter() - t
+            t = time.perf_counter()
+            pool = [(q, q) for q in refined]
+            costs = [self._cost(q, obs, obs_ds) for q in refined]
+            timing["selection"] += time.perf_counter() - t
+        best = int(np.argmin([c[0] for c in costs]))
+        q = pool[best][0]
+        e_d = costs[best][1]
+        success = e_d < cfg.success_tau_mm
+        if success:
+            status = "tracking" if self.delta else "recovering"
+            self.last_good = q.copy()
+        else:
+            status = "lost"
+        self.prev = q.copy()
+        self.delta = success
+        conf = float(np.clip(1.0 - e_d / cfg.depth_cap_mm, 0.0, 1.0))
+        return TrackResult(q.copy(), success, status, e_d, conf, self.last_good, len(costs),
+                           timing, obs)
+
+    def _cost(self, q: np.ndarray, obs: HandObservation, obs_ds: np.ndarray
+              ) -> tuple[float, float]:
+        """(E_c of eq. II.20, E_d of eq. II.19)."""
+        e_d = self.icp.depth_cost(q, obs, obs_ds)
+        e_s = 0.0
+        if self.delta and self.prev is not None:
+            e_s = pose_distance_sq(q, self.prev)
+        return self.cfg.cost_data_weight * e_d + self.cfg.cost_temporal_weight * e_s, e_d

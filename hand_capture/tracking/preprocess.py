@@ -1,0 +1,169 @@
+"""Depth image -> hand point cloud (segmentation by depth band and connected component).
+
+The dissertation's sensor sees the hand as the object nearest the camera (20-50 cm, ch. II.2).
+:func:`segment_hand` keeps the pixels in ``[near, far]``, finds the nearest depth ``z0``
+(a low percentile, robust to flying pixels), keeps the band ``[z0, z0 + band]``, and of the
+connected components of that band keeps the one holding the nearest pixels (ties: the
+largest). An optional wrist cut drops points far from the cloud centroid. Everything is
+vectorised (OpenCV's connected components), about 1 ms at 320x240.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from hand_capture.cameras.base import Intrinsics
+from hand_capture.errors import InputError
+from hand_capture.tracking.config import TrackerConfig
+
+__all__ = ["HandObservation", "segment_hand"]
+
+
+@dataclass
+class HandObservation:
+    """The segmented hand of one frame.
+
+    Attributes:
+        depth_m: (H, W) float32 depth of the hand pixels [m], 0 elsewhere.
+        mask: (H, W) bool hand pixels.
+        points: (N, 3) back-projected hand points in the optical frame [m].
+        pixels: (N, 2) their pixel coordinates (u, v).
+        intrinsics: the image's pinhole.
+    """
+
+    depth_m: np.ndarray
+    mask: np.ndarray
+    points: np.ndarray
+    pixels: np.ndarray
+    intrinsics: Intrinsics
+
+    @property
+    def outside_distance(self) -> np.ndarray:
+        """(H, W) float32 distance [px] of every pixel to the nearest hand pixel (0 on the
+        hand); computed once."""
+        d = getattr(self, "_outside", None)
+        if d is None:
+            d = cv2.distanceTransform((~self.mask).astype(np.uint8), cv2.DIST_L2, 3)
+            self._outside = d
+        return d
+
+    @property
+    def found(self) -> bool:
+        return len(self.points) > 0
+
+    @property
+    def centroid(self) -> np.ndarray:
+        return self.points.mean(axis=0) if self.found else np.zeros(3)
+
+    def subsample(self, n: int, rng: np.random.Generator | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """At most ``n`` points (and pixels), spread evenly (deterministic without rng)."""
+        m = len(self.points)
+        if m <= n:
+            return self.points, self.pixels
+        if rng is None:
+            idx = np.linspace(0, m - 1, n).astype(np.int64)
+        else:
+            idx = rng.choice(m, n, replace=False)
+        return self.points[idx], self.pixels[idx]
+
+
+def _empty(shape: tuple[int, int], intr: Intrinsics) -> HandObservation:
+    return HandObservation(np.zeros(shape, np.float32), np.zeros(shape, bool),
+                           np.zeros((0, 3)), np.zeros((0, 2)), intr)
+
+
+def check_depth(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
+    """Validate a depth image: uint16 mm (or float m) of the intrinsics' size -> float32 m."""
+    d = np.asarray(depth)
+    if d.ndim != 2 or d.size == 0:
+        raise InputError(f"depth image must be a non-empty (H, W) array, got {d.shape}")
+    if d.shape != (intr.height, intr.width):
+        raise InputError(f"depth image {d.shape[1]}x{d.shape[0]} does not match the "
+                         f"intrinsics {intr.width}x{intr.height}")
+    if d.dtype == np.uint16:
+        return d.astype(np.float32) * np.float32(0.001)
+    if np.issubdtype(d.dtype, np.floating):
+        out = d.astype(np.float32)
+        return np.where(np.isfinite(out), out, 0.0).astype(np.float32)
+    raise InputError(f"depth image must be uint16 [mm] or float [m], got {d.dtype}")
+
+
+def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None = None
+                 ) -> HandObservation:
+    """Segment the hand (nearest connected component in a depth band) and back-project it.
+
+    Args:
+        depth: (H, W) uint16 depth [mm] (0 = none) or float32 [m].
+        intr: pinhole of the image.
+        cfg: thresholds (near_m, far_m, band_m, min_hand_pixels, wrist_cut_m).
+
+    Returns:
+        A :class:`HandObservation`; ``found`` is False when no hand is in view.
+
+    Raises:
+        InputError: a malformed image.
+    """
+    cfg = cfg or TrackerConfig()
+    d = check_depth(depth, intr)
+    valid = (d > cfg.near_m) & (d < cfg.far_m)
+    n_valid = int(np.count_nonzero(valid))
+    if n_valid < cfg.min_hand_pixels:
+        return _empty(d.shape, intr)
+    vals = d[valid]
+    z0 = float(np.partition(vals, min(len(vals) - 1, max(3, len(vals) // 200)))[
+        min(len(vals) - 1, max(3, len(vals) // 200))])
+    band = valid & (d <= z0 + cfg.band_m)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(band.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return _empty(d.shape, intr)
+    # the component holding the nearest pixels (those within 1 cm of z0), ties: largest
+    near_lab = lab[band & (d <= z0 + 0.01)]
+    counts = np.bincount(near_lab, minlength=n)
+    counts[0] = 0
+    score = counts * 1e6 + stats[:, cv2.CC_STAT_AREA]
+    score[0] = -1
+    best = int(np.argmax(score))
+    mask = lab == best
+    if int(stats[best, cv2.CC_STAT_AREA]) < cfg.min_hand_pixels:
+        return _empty(d.shape, intr)
+    v, u = np.nonzero(mask)
+    z = d[v, u].astype(np.float64)
+    pts = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
+    pix = np.stack([u, v], axis=1).astype(np.float64)
+    if cfg.wrist_cut_m > 0:
+        keep = np.linalg.norm(pts - pts.mean(axis=0), axis=1) <= cfg.wrist_cut_m
+        pts, pix = pts[keep], pix[keep]
+        mask = np.zeros_like(mask)
+        mask[pix[:, 1].astype(int), pix[:, 0].astype(int)] = True
+        if len(pts) < cfg.min_hand_pixels:
+            return _empty(d.shape, intr)
+    depth_hand = np.where(mask, d, 0.0).astype(np.float32)
+    return HandObservation(depth_hand, mask, pts, pix, intr)
+
+
+def depth_normals(obs: HandObservation) -> np.ndarray:
+    """Unit normals (N, 3) of the observed points from depth gradients (towards the camera)."""
+    d = obs.depth_m.astype(np.float64)
+    intr = obs.intrinsics
+    u = obs.pixels[:, 0].astype(int)
+    v = obs.pixels[:, 1].astype(int)
+    H, W = d.shape
+    ur, ul = np.minimum(u + 1, W - 1), np.maximum(u - 1, 0)
+    vd, vu = np.minimum(v + 1, H - 1), np.maximum(v - 1, 0)
+    z = d[v, u]
+    dzdu = np.where((d[v, ur] > 0) & (d[v, ul] > 0), (d[v, ur] - d[v, ul]) / (ur - ul + 1e-9),
+                    0.0)
+    dzdv = np.where((d[vd, u] > 0) & (d[vu, u] > 0), (d[vd, u] - d[vu, u]) / (vd - vu + 1e-9),
+                    0.0)
+    # tangent vectors of the surface per pixel step
+    tu = np.stack([z / intr.fx, np.zeros_like(z), dzdu], 1)
+    tv = np.stack([np.zeros_like(z), z / intr.fy, dzdv], 1)
+    n = np.cross(tu, tv)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    flip = np.einsum("ij,ij->i", n, obs.points) > 0
+    n[flip] *= -1
+    return n

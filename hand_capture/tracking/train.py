@@ -1,0 +1,307 @@
+"""Training of the shape-indexed cascaded regressor on rendered depth images (ch. II.4.4).
+
+Subject variation: ``n_shapes`` random shapes (``sample_shape``, the dissertation uses 40).
+Pose variation: a library of hand poses (open, fist, pinch, grasp, counting, the zero pose)
+each perturbed at random, plus uniformly random poses inside the joint limits. Viewpoint
+variation: random palm orientations around "palm towards the camera" and random positions
+in front of the camera. Every sample is rendered by the project's CPU renderer and passed
+through the sensor noise model (random and silhouette noise), then segmented like a live
+frame. :func:`train_tracker` is reproducible from its seed.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hand_capture.cameras.base import Intrinsics
+from hand_capture.cameras.motion import FIST, GRASP, OPEN, PINCH
+from hand_capture.cameras.noise import DepthNoiseConfig, DepthNoiseModel
+from hand_capture.cameras.render import Mesh, make_renderer
+from hand_capture.cameras.transforms import rotvec_to_matrix
+from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel, default_shape, sample_shape
+from hand_capture.model.joints import pose_from_dict, root_angles_from_matrix
+from hand_capture.tracking.config import TrackerConfig
+from hand_capture.tracking.forest import RegressionForest
+from hand_capture.tracking.preprocess import segment_hand
+from hand_capture.tracking.regressor import (
+    FINGER_KP,
+    DepthLookup,
+    FeatureSet,
+    HandRegressor,
+    ModelFrames,
+    ik_fingers,
+    palm_init_pca,
+)
+
+__all__ = ["TrainingSample", "default_intrinsics", "random_pose", "render_samples",
+           "train_tracker"]
+
+_R_PALM_TO_CAMERA = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def default_intrinsics() -> Intrinsics:
+    """The synthetic camera's default 320x240 pinhole (70 deg horizontal FOV)."""
+    return Intrinsics.from_fov(320, 240, 70.0)
+
+
+def _library() -> list[np.ndarray]:
+    def hand(ext: tuple[str, ...], thumb_out: bool) -> dict[str, float]:
+        d = math.radians
+        q: dict[str, float] = {}
+        for f in ("index", "middle", "ring", "little"):
+            flex = (0, 0, 0) if f in ext else (85, 100, 60)
+            q.update({f"{f}_mcp_flex": d(flex[0]), f"{f}_pip_flex": d(flex[1]),
+                      f"{f}_dip_flex": d(flex[2])})
+        q.update({"thumb_tm_flex": 0.0, "thumb_mcp_flex": 0.0, "thumb_ip_flex": 0.0}
+                 if thumb_out else {"thumb_tm_abd": d(15), "thumb_tm_flex": d(45),
+                                    "thumb_mcp_flex": d(45), "thumb_ip_flex": d(50)})
+        return q
+
+    lib = [OPEN, FIST, PINCH, GRASP, hand(("index",), False), hand(("index", "middle"), False),
+           hand(("index", "middle", "ring"), False), hand(("index", "middle", "ring", "little"),
+                                                          False), hand(("index",), True), {}]
+    return [pose_from_dict(p) for p in lib]
+
+
+_LIB = _library()
+
+
+def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: float = 60.0,
+                max_roll_deg: float = 45.0) -> np.ndarray:
+    """A random training pose in the camera frame (see the module docstring)."""
+    if rng.random() < 0.75:
+        q = _LIB[rng.integers(len(_LIB))].copy()
+        q[6:] += rng.normal(0.0, 0.18, N_DOF - 6)
+    else:
+        lo, hi = JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1]
+        q = np.zeros(N_DOF)
+        q[6:] = np.maximum(lo, -0.2) + (hi - np.maximum(lo, -0.2)) * rng.random(N_DOF - 6)
+    q[6:] = np.clip(q[6:], JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1])
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    tilt = rotvec_to_matrix(axis * math.radians(max_tilt_deg) * rng.random())
+    roll = rotvec_to_matrix(np.array([0.0, 0.0, 1.0]) * math.radians(max_roll_deg)
+                            * rng.uniform(-1, 1))
+    R = roll @ _R_PALM_TO_CAMERA @ tilt
+    centre = np.array([rng.uniform(-0.06, 0.06), rng.uniform(-0.05, 0.05),
+                       rng.uniform(0.30, 0.55)])
+    mcp = model.joint_positions(np.zeros(N_DOF))[9]
+    q[0:3] = centre - R @ mcp
+    q[3:6] = root_angles_from_matrix(R)
+    return q
+
+
+@dataclass
+class TrainingSample:
+    """One rendered, segmented training frame (hand crop only, to save memory)."""
+
+    crop: np.ndarray      # (h, w) float32 hand depth [m]
+    u0: int
+    v0: int
+    points: np.ndarray    # (N, 3) hand points (subsampled) for the PCA initialisation
+    pose: np.ndarray      # (27,) true pose
+    shape_index: int
+
+
+def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
+                   intr: Intrinsics, noise: DepthNoiseConfig | None = None,
+                   cfg: TrackerConfig | None = None) -> list[TrainingSample]:
+    """Render ``n`` noisy, segmented samples (shapes cycled through ``models``)."""
+    cfg = cfg or TrackerConfig()
+    renderer = make_renderer("zbuffer")
+    nm = DepthNoiseModel(noise or DepthNoiseConfig())
+    out: list[TrainingSample] = []
+    while len(out) < n:
+        k = len(out) % len(models)
+        m = models[k]
+        q = random_pose(rng, m)
+        res = renderer.render([Mesh(m.vertices(q), m.faces, 1, closed=True)], intr)
+        depth = nm.apply_mm(res.depth, res.cos_incidence, intr, rng)
+        obs = segment_hand(depth, intr, cfg)
+        if len(obs.points) < 200:
+            continue
+        v, u = np.nonzero(obs.mask)
+        v0, v1, u0, u1 = v.min(), v.max() + 1, u.min(), u.max() + 1
+        pts, _ = obs.subsample(400)
+        out.append(TrainingSample(obs.depth_m[v0:v1, u0:u1].copy(), int(u0), int(v0),
+                                  pts.copy(), q, k))
+    return out
+
+
+def _batched(models: list[HandModel], samples: list[TrainingSample], Q: np.ndarray,
+             fn: Callable[[HandModel, np.ndarray], np.ndarray]) -> list[np.ndarray]:
+    """``fn(model, Q_group)`` per shape group, results back in sample order."""
+    out: list[np.ndarray | None] = [None] * len(samples)
+    shape_idx = np.array([s.shape_index for s in samples])
+    for k, m in enumerate(models):
+        idx = np.flatnonzero(shape_idx == k)
+        if idx.size == 0:
+            continue
+        res = fn(m, Q[idx])
+        for j, i in enumerate(idx):
+            out[i] = res[j]
+    return out  # type: ignore[return-value]
+
+
+def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2500, *,
+                  n_shapes: int = 40, palm_stages: int = 3, finger_stages: int = 2,
+                  n_trees: int = 6, max_depth: int = 12, min_leaf: int = 5,
+                  n_features: int = 300, leaf_modes: int = 2, augment: int = 2,
+                  intrinsics: Intrinsics | None = None, log: Callable[[str], None] | None = None
+                  ) -> HandRegressor:
+    """Train the cascaded regressor from scratch, reproducibly from ``seed``.
+
+    Args:
+        out_path: where to save the model (``.npz``); None = do not save.
+        seed: seeds shapes, poses, noise, feature sampling and the forests.
+        n_samples: rendered training frames.
+        n_shapes: random subject shapes (the first is the default shape).
+        palm_stages, finger_stages: cascade lengths C of eq. II.17 / II.18.
+        n_trees, max_depth, min_leaf: forest size per stage.
+        n_features: candidate feature pairs per stage (and per finger).
+        leaf_modes: modes stored per palm leaf (II.4.3).
+        augment: initialisations per sample for palm training (PCA + perturbed copies).
+        intrinsics: camera of the training images (default 320x240, 70 deg).
+        log: progress callback (e.g. print).
+
+    Returns:
+        The trained :class:`HandRegressor`.
+    """
+    t_start = time.perf_counter()
+    say = log or (lambda s: None)
+    rng = np.random.default_rng(seed)
+    intr = intrinsics or default_intrinsics()
+    base = HandModel(default_shape())
+    shapes = [default_shape()] + [sample_shape(rng, f"train{k}") for k in range(1, n_shapes)]
+    models = [base.with_shape(s) for s in shapes]
+    frames = [ModelFrames(m) for m in models]
+    samples = render_samples(n_samples, rng, models, intr)
+    say(f"rendered {len(samples)} samples in {time.perf_counter() - t_start:.1f} s")
+    lookups = [DepthLookup(s.crop, s.u0, s.v0, intr) for s in samples]
+    rest = ModelFrames(base).rest_vertices
+    labels = base.vertex_labels
+    q_true = np.array([s.pose for s in samples])
+
+    # ---------------------------------------------------------------- palm (eq. II.17)
+    inst = [(i, a) for i in range(len(samples)) for a in range(augment)]
+    Q = np.empty((len(inst), N_DOF))
+    for j, (i, a) in enumerate(inst):
+        s = samples[i]
+        q0 = palm_init_pca(s.points, frames[s.shape_index])
+        if a > 0:
+            R = rotvec_to_matrix(rng.normal(0, 0.25, 3)) @ \
+                frames[0].palm_pose(q0)[0]
+            q0 = frames[s.shape_index].set_palm(q0, R, q0[0:3] + rng.normal(0, 0.015, 3))
+        Q[j] = q0
+    inst_samples = [samples[i] for i, _ in inst]
+    inst_true = q_true[[i for i, _ in inst]]
+    palm_feats, palm_forests = [], []
+    for s_idx in range(palm_stages):
+        fs = FeatureSet.sample(rest, np.arange(len(rest)), np.eye(3), n_features, 0.035, rng)
+        Vs = _batched(models, inst_samples, Q, lambda m, qq: m.vertices(qq))
+        X = np.empty((len(inst), n_features), np.float32)
+        Y = np.empty((len(inst), 18))
+        for j, (i, _) in enumerate(inst):
+            fr = frames[samples[i].shape_index]
+            R, _ = fr.palm_pose(Q[j])
+            X[j] = fs.evaluate(Vs[j], R, lookups[i])
+            Y[j] = HandRegressor.palm_target(fr, Q[j], inst_true[j], models[samples[i]
+                                                                            .shape_index])
+        last = s_idx == palm_stages - 1
+        forest = RegressionForest.fit(X, Y, n_trees=n_trees, max_depth=max_depth,
+                                      min_leaf=min_leaf, leaf_modes=leaf_modes if last else 1,
+                                      rng=rng)
+        pred = forest.predict(X)
+        for j, (i, _) in enumerate(inst):
+            Q[j] = HandRegressor.palm_update(frames[samples[i].shape_index], Q[j], pred[j])
+        palm_feats.append(fs)
+        palm_forests.append(forest)
+        err = np.linalg.norm((Y - pred).reshape(-1, 6, 3), axis=2).mean() * 1000
+        say(f"palm stage {s_idx + 1}: {forest.value.shape[0]} leaves, residual before "
+            f"{np.linalg.norm(Y.reshape(-1, 6, 3), axis=2).mean() * 1000:.1f} mm, after "
+            f"{err:.1f} mm ({time.perf_counter() - t_start:.0f} s)")
+
+    # ------------------------------------------------------------- fingers (eq. II.18)
+    Qf = q_true.copy()
+    Qf[:, 6:] = 0.0
+    for j, s in enumerate(samples):  # palm as after refinement: true palm + small error
+        fr = frames[s.shape_index]
+        R = rotvec_to_matrix(rng.normal(0, 0.05, 3)) @ fr.palm_pose(Qf[j])[0]
+        Qf[j] = fr.set_palm(Qf[j], R, Qf[j, 0:3] + rng.normal(0, 0.004, 3))
+    kp_true = np.array(_batched(models, samples, q_true, lambda m, qq: m.joint_positions(qq)))
+    finger_feats: list[list[FeatureSet]] = []
+    finger_forests: list[list[RegressionForest]] = []
+    for s_idx in range(finger_stages):
+        Vs = _batched(models, samples, Qf, lambda m, qq: m.vertices(qq))
+        kps = np.array(_batched(models, samples, Qf, lambda m, qq: m.joint_positions(qq)))
+        targets = np.empty((len(samples), 5, 3, 3))
+        feats_s, forests_s = [], []
+        for f in range(5):
+            bones = np.arange(1 + 3 * f, 4 + 3 * f)
+            region = np.flatnonzero(np.isin(labels, bones))
+            fs = FeatureSet.sample(rest, region, frames[0].finger_rot[f], n_features, 0.025,
+                                   rng)
+            X = np.empty((len(samples), n_features), np.float32)
+            Y = np.empty((len(samples), 9))
+            Rfs = []
+            for j, s in enumerate(samples):
+                Rf = HandRegressor.finger_frames(frames[s.shape_index], Qf[j])[f]
+                Rfs.append(Rf)
+                X[j] = fs.evaluate(Vs[j], Rf, lookups[j])
+                Y[j] = ((kp_true[j, FINGER_KP[f]] - kps[j, FINGER_KP[f]]) @ Rf).reshape(-1)
+            forest = RegressionForest.fit(X, Y, n_trees=n_trees, max_depth=max_depth,
+                                          min_leaf=min_leaf, rng=rng)
+            pred = forest.predict(X).reshape(-1, 3, 3)
+            for j in range(len(samples)):
+                targets[j, f] = kps[j, FINGER_KP[f]] + pred[j] @ Rfs[j].T
+            feats_s.append(fs)
+            forests_s.append(forest)
+        T = targets
+        shape_idx = np.array([s.shape_index for s in samples])
+        for k, m in enumerate(models):
+            idx = np.flatnonzero(shape_idx == k)
+            if idx.size:
+                Qf[idx] = ik_fingers(m, Qf[idx], T[idx], 2)
+        kps = np.array(_batched(models, samples, Qf, lambda m, qq: m.joint_positions(qq)))
+        err = np.linalg.norm(kps[:, FINGER_KP.reshape(-1)] - kp_true[:, FINGER_KP.reshape(-1)],
+                             axis=2).mean() * 1000
+        finger_feats.append(feats_s)
+        finger_forests.append(forests_s)
+        say(f"finger stage {s_idx + 1}: finger keypoint error {err:.1f} mm "
+            f"({time.perf_counter() - t_start:.0f} s)")
+    reg = HandRegressor(palm_feats, palm_forests, finger_feats, finger_forests, 2,
+                        {"seed": str(seed), "n_samples": str(n_samples),
+                         "n_shapes": str(n_shapes), "n_trees": str(n_trees),
+                         "max_depth": str(max_depth),
+                         "train_s": f"{time.perf_counter() - t_start:.0f}"})
+    if out_path is not None:
+        reg.save(out_path)
+        say(f"saved {out_path}")
+    return reg
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m hand_capture.tracking.train [--out PATH] [--seed N] [--samples N]``."""
+    import argparse
+
+    from hand_capture.cameras.threads import limit_blas_threads
+
+    ap = argparse.ArgumentParser(description="train the depth tracker's regressor")
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parents[2] / "data"
+                                         / "tracker" / "regressor.npz"))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--samples", type=int, default=3000)
+    a = ap.parse_args(argv)
+    limit_blas_threads(1)
+    train_tracker(a.out, seed=a.seed, n_samples=a.samples, log=print)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
