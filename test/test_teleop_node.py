@@ -1,0 +1,60 @@
+"""grasp_phase node: hand poses and the object pose in, phases and the manipulation target out,
+with the hand pose's stamp."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PoseStamped
+from hand_msgs.msg import GraspPhase, HandPose
+from rclpy.parameter import Parameter
+
+from hand_capture.model import JOINT_INDEX, HandModel, rest_pose
+from hand_capture.posemsg import fill_pose_msg
+from hand_control.nodes.grasp_phase import GraspPhaseNode
+
+FLEX = [j for j in JOINT_INDEX if j.endswith(("_mcp_flex", "_pip_flex", "_dip_flex"))
+        and not j.startswith("thumb")]
+
+
+def _hand(close: float, k: int) -> HandPose:
+    q = rest_pose().copy()
+    for j in FLEX:
+        q[JOINT_INDEX[j]] = close
+    msg = fill_pose_msg(HandPose(), q, status="tracking")
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 100 + k // 30, (k % 30) * 33_000_000
+    return msg
+
+
+def test_phases_and_target_follow_the_hand(ros) -> None:
+    peer, add, spin_until = ros
+    add(GraspPhaseNode(parameter_overrides=[
+        Parameter("camera_pose", value=[0.0] * 6), Parameter("object_name", value="box")]))
+    phases: list[GraspPhase] = []
+    targets: list[PoseStamped] = []
+    peer.create_subscription(GraspPhase, "control/grasp_phase", phases.append, 50)
+    peer.create_subscription(PoseStamped, "control/object_target", targets.append, 50)
+    pub_hand = peer.create_publisher(HandPose, "hand/pose", 50)
+    pub_obj = peer.create_publisher(PoseStamped, "sim/object_pose", 10)
+    kp = HandModel().forward(rest_pose()).joint_positions
+    obj = PoseStamped()
+    obj.pose.position.x, obj.pose.position.y, obj.pose.position.z = (
+        float(v) for v in kp[[0, 5, 9, 13, 17]].mean(axis=0))
+    assert spin_until(lambda: pub_hand.get_subscription_count() > 0, 10.0)
+    seq = [0.0] * 5 + list(np.linspace(0.0, 0.8, 10)) + [0.8] * 25
+    sent = 0
+
+    def tick() -> None:
+        nonlocal sent
+        pub_obj.publish(obj)
+        if sent < len(seq):
+            pub_hand.publish(_hand(seq[sent], sent))
+            sent += 1
+
+    assert spin_until(lambda: targets and phases[-1].phase == GraspPhase.MANIPULATION, 20.0,
+                      tick=tick), [p.phase for p in phases]
+    assert phases[0].phase in (GraspPhase.REACHING, GraspPhase.CLOSING)
+    assert phases[-1].object_name == "box"
+    last = phases[-1].header.stamp
+    assert (last.sec, last.nanosec) != (0, 0)  # the hand pose's stamp, not a new one
+    assert targets[-1].pose.position.x == pytest.approx(obj.pose.position.x, abs=1e-6)
