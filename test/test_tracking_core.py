@@ -6,17 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hand_capture.cameras.render import Mesh, make_renderer
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
 from hand_capture.cameras.threads import limit_blas_threads
-from hand_capture.cameras.transforms import rotvec_to_matrix
 from hand_capture.errors import ConfigError, InputError
 from hand_capture.model import N_DOF, HandModel, HandShape
-from hand_capture.model.joints import root_angles_from_matrix
 from hand_capture.tracking.calibration import (
-    CALIBRATION_POSES,
     calibrate,
     load_shape,
+    render_calibration_frames,
     save_shape,
 )
 from hand_capture.tracking.config import TrackerConfig
@@ -25,7 +22,7 @@ from hand_capture.tracking.hybrid import HybridTracker
 from hand_capture.tracking.icp import Correspondences, ModelTracker
 from hand_capture.tracking.preprocess import segment_hand
 from hand_capture.tracking.regressor import HandRegressor
-from hand_capture.tracking.train import _R_PALM_TO_CAMERA, default_intrinsics, train_tracker
+from hand_capture.tracking.train import default_intrinsics, train_tracker
 
 limit_blas_threads(1)
 
@@ -195,17 +192,7 @@ def test_hybrid_recovers_after_a_blank_gap(small_regressor):
 
 
 def _calibration_frames(model):
-    intr = default_intrinsics()
-    ren = make_renderer("zbuffer")
-    frames = []
-    for i, qd in enumerate(CALIBRATION_POSES.values()):
-        q = qd.copy()
-        R = _R_PALM_TO_CAMERA @ rotvec_to_matrix(np.array([0.25 * (i - 1), 0.2 * (i - 1), 0]))
-        q[3:6] = root_angles_from_matrix(R)
-        q[0:3] = (0.0, 0.07, 0.42)
-        res = ren.render([Mesh(model.vertices(q), model.faces, 1, closed=True)], intr)
-        frames.append((np.rint(res.depth * 1000).astype(np.uint16), intr))
-    return frames
+    return render_calibration_frames(model, default_intrinsics())
 
 
 def test_calibration_recovers_the_scale_of_a_smaller_hand():

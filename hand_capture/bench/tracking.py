@@ -33,28 +33,6 @@ THRESHOLDS_MM = (10, 20, 30, 40, 50)
 MODES = ("hybrid", "icp", "regressor")
 
 
-def _calibration_frames(model, intr, rng):
-    """Three noisy frames of the predefined calibration poses, palm towards the camera."""
-    from hand_capture.cameras.noise import DepthNoiseConfig, DepthNoiseModel
-    from hand_capture.cameras.render import Mesh, make_renderer
-    from hand_capture.cameras.transforms import rotvec_to_matrix
-    from hand_capture.model.joints import root_angles_from_matrix
-    from hand_capture.tracking.calibration import CALIBRATION_POSES
-    from hand_capture.tracking.train import _R_PALM_TO_CAMERA
-
-    ren = make_renderer("zbuffer")
-    nm = DepthNoiseModel(DepthNoiseConfig())
-    frames = []
-    for i, qd in enumerate(CALIBRATION_POSES.values()):
-        q = qd.copy()
-        R = _R_PALM_TO_CAMERA @ rotvec_to_matrix(np.array([0.25 * (i - 1), 0.2 * (i - 1), 0]))
-        q[3:6] = root_angles_from_matrix(R)
-        q[0:3] = (0.0, 0.07, 0.42)
-        res = ren.render([Mesh(model.vertices(q), model.faces, 1, closed=True)], intr)
-        frames.append((nm.apply_mm(res.depth, res.cos_incidence, intr, rng), intr))
-    return frames
-
-
 def _hand_length(model) -> float:
     kp = model.joint_positions(np.zeros(27))
     return float(np.linalg.norm(kp[12] - kp[0]))
@@ -92,7 +70,7 @@ def run(quick: bool = False) -> dict:
     from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
     from hand_capture.cameras.threads import limit_blas_threads
     from hand_capture.model import HandModel
-    from hand_capture.tracking.calibration import calibrate
+    from hand_capture.tracking.calibration import calibrate, render_calibration_frames
     from hand_capture.tracking.config import TrackerConfig
     from hand_capture.tracking.hybrid import HybridTracker, default_model_path
     from hand_capture.tracking.regressor import HandRegressor
@@ -124,7 +102,7 @@ def run(quick: bool = False) -> dict:
         true_model = cam0.model
         intr = cam0.intrinsics
         t0 = time.perf_counter()
-        cal = calibrate(_calibration_frames(true_model, intr, rng), model=base,
+        cal = calibrate(render_calibration_frames(true_model, intr, rng), model=base,
                         subject_id=f"bench{seed}")
         cal_s = time.perf_counter() - t0
         model = base.with_shape(cal.shape)
@@ -209,7 +187,8 @@ def run(quick: bool = False) -> dict:
         d = f.depth if not gap_start <= i < gap_start + gap_len else np.zeros_like(f.depth)
         frames.append((d, f.depth_intrinsics))
     truth = [true_model.joint_positions(f.pose) for f in rendered]
-    cal_model = base.with_shape(calibrate(_calibration_frames(true_model, cam.intrinsics, rng),
+    cal_model = base.with_shape(calibrate(render_calibration_frames(true_model, cam.intrinsics,
+                                                                    rng),
                                           model=base).shape)
     rec_rows = []
     rec = {}

@@ -240,3 +240,38 @@ def load_shape(folder: str | Path, subject_id: str) -> HandShape:
                          tuple(data["beta"]), str(data.get("subject_id", subject_id)))
     except (KeyError, TypeError, InputError) as e:
         raise ConfigError(f"{p}: bad shape file: {e}") from e
+
+
+def render_calibration_frames(model: object, intr: Intrinsics,
+                              rng: np.random.Generator | None = None
+                              ) -> list[tuple[np.ndarray, Intrinsics]]:
+    """Depth frames (uint16 mm) of a hand model holding the predefined calibration poses.
+
+    The palm faces the camera 0.42 m away, turned slightly differently in each frame, as a
+    subject would hold them. With ``rng`` the sensor noise model is applied (benchmarks),
+    without it the depth is exact (tests).
+
+    Args:
+        model: the (true) hand model to render, e.g. ``HandModel(shape)``.
+        intr: camera intrinsics.
+        rng: noise generator, or None for clean depth.
+    """
+    from hand_capture.cameras.noise import DepthNoiseConfig, DepthNoiseModel
+    from hand_capture.cameras.render import Mesh, make_renderer
+    from hand_capture.cameras.transforms import rotvec_to_matrix
+    from hand_capture.model.joints import root_angles_from_matrix
+    from hand_capture.tracking.train import _R_PALM_TO_CAMERA
+
+    ren = make_renderer("zbuffer")
+    noise = DepthNoiseModel(DepthNoiseConfig()) if rng is not None else None
+    frames = []
+    for i, qd in enumerate(CALIBRATION_POSES.values()):
+        q = qd.copy()
+        R = _R_PALM_TO_CAMERA @ rotvec_to_matrix(np.array([0.25 * (i - 1), 0.2 * (i - 1), 0]))
+        q[3:6] = root_angles_from_matrix(R)
+        q[0:3] = (0.0, 0.07, 0.42)
+        res = ren.render([Mesh(model.vertices(q), model.faces, 1, closed=True)], intr)
+        depth = (noise.apply_mm(res.depth, res.cos_incidence, intr, rng) if noise is not None
+                 else np.rint(res.depth * 1000).astype(np.uint16))
+        frames.append((depth, intr))
+    return frames
