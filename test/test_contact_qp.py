@@ -265,3 +265,40 @@ def test_control_path_loads_no_cvxpy():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, cwd=Path(__file__).resolve().parents[1])
     assert out.stdout.strip() == "False"
+
+
+@pytest.mark.parametrize("name", ["dissertation", "torsion_bound"])
+def test_warm_start_on_a_slowly_varying_sequence_gives_the_cold_solution(name):
+    """The control loop's case: the problem drifts a little per step, the warm start (last
+    passive set) answers most solves, and every answer is the cold solver's and cvxpy's."""
+    cfg = CONFIGS[name]
+    warm, ref = ContactForceQP(cfg), ReferenceContactQP(cfg)
+    contacts, com, tf, tt = random_problems(seed=5, n=1)[0]
+    rng = np.random.default_rng(8)
+    dp, dn = rng.standard_normal((2, len(contacts), 3))
+    for step in range(30):
+        drift = 2e-4 * step  # a smooth motion, as between two 1 ms steps
+        moved = ContactSet(contacts.points + drift * dp, contacts.normals + drift * dn,
+                           contacts.mu)
+        target_f = tf + drift * np.array([0.0, 0.0, 1.0])
+        a = warm.solve(moved, com, target_f, tt)
+        b = ContactForceQP(cfg).solve(moved, com, target_f, tt)  # cold: no passive set yet
+        assert a.found and b.found and a.status == "optimal"
+        np.testing.assert_allclose(a.forces, b.forces, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(a.torsion, b.torsion, rtol=0, atol=1e-9)
+        assert a.objective == pytest.approx(b.objective, rel=1e-9, abs=1e-12)
+        if step % 10 == 0:
+            c = ref.solve(moved, com, target_f, tt)
+            np.testing.assert_allclose(a.forces, c.forces, rtol=0, atol=1e-6)
+            np.testing.assert_allclose(a.torsion, c.torsion, rtol=0, atol=1e-6)
+    assert warm.warm_hits >= 20  # the warm start did the work
+
+
+def test_trusted_solve_skips_only_the_checks():
+    contacts, com, tf, tt = random_problems(seed=6, n=1)[0]
+    qp = ContactForceQP(CONFIGS["torsion_bound"])
+    a = qp.solve(contacts, com, tf, tt)
+    fast = ContactSet.trusted(contacts.points, contacts.normals, contacts.mu)
+    b = ContactForceQP(CONFIGS["torsion_bound"]).solve(fast, com, tf, tt, check=False)
+    np.testing.assert_array_equal(a.forces, b.forces)
+    np.testing.assert_array_equal(a.torsion, b.torsion)

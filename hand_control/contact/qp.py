@@ -31,16 +31,16 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import lru_cache
 from typing import Any
 
 import numpy as np
+from scipy.linalg.lapack import dposv as _dposv
 from scipy.optimize import nnls
 
 from hand_capture.config import param, validate
 from hand_control.contact.friction import (
-    contact_frames,
     cross,
     cross_matrices,
     edge_directions,
@@ -159,21 +159,34 @@ def _net_wrench_error(
 def _result(
     status: str, contacts: ContactSet, r: np.ndarray, targets: tuple[np.ndarray, np.ndarray],
     t0: float, method: str, solution: tuple[np.ndarray, np.ndarray, float] | None = None,
-    wrench_error: np.ndarray | None = None,
+    wrench_error: np.ndarray | None = None, residual: float | None = None,
 ) -> ContactForceResult:
-    """The result of a solve; ``solution = (forces, torsion, objective)``, None if not found."""
+    """The result of a solve; ``solution = (forces, torsion, objective)``, None if not found.
+
+    ``residual``: the norm of ``wrench_error`` when the caller has it already.
+    """
     if solution is None:
         forces, torsion, objective = np.zeros((len(r), 3)), np.zeros(len(r)), math.inf
-        wrench_error = None
+        wrench_error = residual = None
     else:
         forces, torsion, objective = solution
     if wrench_error is None:
         wrench_error = _net_wrench_error(contacts, r, forces, torsion, *targets)
-    return ContactForceResult(
-        found=solution is not None, status=status, forces=forces, torsion=torsion,
-        wrench_error=wrench_error, residual=math.sqrt(float(wrench_error @ wrench_error)),
-        objective=float(objective), solve_time_s=time.perf_counter() - t0, method=method,
-    )
+    if residual is None:
+        residual = math.sqrt(float(wrench_error @ wrench_error))
+    return _new_result(solution is not None, status, forces, torsion, wrench_error, residual,
+                       float(objective), time.perf_counter() - t0, method)
+
+
+_RESULT_FIELDS = tuple(f.name for f in fields(ContactForceResult))
+
+
+def _new_result(*values: Any) -> ContactForceResult:
+    """A :class:`ContactForceResult` from its field values in order, without the
+    frozen-dataclass ``__init__`` (one per control step)."""
+    res = object.__new__(ContactForceResult)
+    res.__dict__.update(zip(_RESULT_FIELDS, values, strict=True))
+    return res
 
 
 @lru_cache(maxsize=64)
@@ -214,7 +227,8 @@ class _ContactForceSolver:
     config: ContactQPConfig
 
     def solve(
-        self, contacts: ContactSet, com: Any, force_target: Any, torque_target: Any
+        self, contacts: ContactSet, com: Any, force_target: Any, torque_target: Any,
+        check: bool = True,
     ) -> ContactForceResult:
         """Contact forces/torsions whose net wrench about ``com`` approaches the target.
 
@@ -223,12 +237,17 @@ class _ContactForceSolver:
             com: (3,) object centre of mass [m]; ``r_k = p_k - com``.
             force_target: (3,) net force the contacts must apply [N] (``f_v - G``).
             torque_target: (3,) net torque about ``com`` [N m] (``tau_v``).
+            check: validate the targets (the API boundary). ``False``: the caller vouches
+                for (3,) finite float64 arrays (the controller's fast path).
 
         Raises:
             InputError: NaN/Inf or wrong shapes, or ``seed000`` without contact forces.
         """
         t0 = time.perf_counter()
-        com, tf, tt = _check_targets(contacts, com, force_target, torque_target)
+        if check:
+            com, tf, tt = _check_targets(contacts, com, force_target, torque_target)
+        else:
+            tf, tt = force_target, torque_target
         method = self.config.method
         r = contacts.points - com
         if len(contacts) == 0:
@@ -250,6 +269,61 @@ class _ContactForceSolver:
         raise NotImplementedError
 
 
+class _Layout:
+    """Buffers of one problem shape: K contacts with given friction coefficients.
+
+    The generators and the regularisation rows of the stacked matrix depend on ``mu`` only;
+    the six wrench rows are rewritten in place at every solve.
+    """
+
+    __slots__ = ("a", "a6", "b", "hb")
+
+    def __init__(self, h: np.ndarray, reg_weights: np.ndarray) -> None:
+        k, _, g = h.shape
+        # (4K, K G) block diagonal: column k G + j is generator j of contact k in the local
+        # coordinates (f_t1, f_t2, f_n, l) of contact k
+        self.hb = (h[:, :, None, :] * _block_eye(k)).reshape(4 * k, k * g)
+        self.a = np.zeros((6 + 4 * k, k * g))
+        # sqrt(a3) f_k and sqrt(a4) l_k rows: diag(reg_1..reg_K)
+        self.a[6:] = np.tile(reg_weights[0], (k, 1)) * self.hb
+        self.a6 = self.a[0:6]  # the six weighted wrench rows (a contiguous view)
+        self.b = np.zeros(6 + 4 * k)
+
+
+def _contact_maps(
+    normals: list[list[float]], r: list[list[float]], wf: float, wt: float
+) -> tuple[list[list[float]], list[tuple[float, ...]]]:
+    """The map from every contact's local ``(f_t1, f_t2, f_n, l)`` to the weighted wrench on
+    the object about its COM, ``[wf R_k, 0; wt [r_k]x R_k, wt n_k]``, as the six rows of a
+    (6, 4K) matrix, and each contact's frame ``R_k``.
+
+    ``R = [t1 t2 n]`` is :func:`contact_frames`'s Householder frame, written out on floats:
+    for a few contacts, plain arithmetic costs less than numpy's per-call overhead.
+    """
+    rows: list[list[float]] = [[], [], [], [], [], []]
+    r0, r1, r2, r3, r4, r5 = rows
+    frames = []
+    for (nx, ny, nz), (rx, ry, rz) in zip(normals, r, strict=True):
+        sg = math.copysign(1.0, nz)
+        vz = nz + sg
+        c = 2.0 / (nx * nx + ny * ny + vz * vz)
+        # I - c v v^T with v = n + sign(n_z) e_z; first column times the sign (handedness)
+        ax, ay, az = (1.0 - c * (nx * nx)) * sg, -(c * (ny * nx)) * sg, -(c * (vz * nx)) * sg
+        bx, by, bz = -(c * (nx * ny)), 1.0 - c * (ny * ny), -(c * (vz * ny))
+        frames.append((ax, ay, az, bx, by, bz, nx, ny, nz))
+        # force rows wf R, torque rows wt [r x t1, r x t2, r x n, n]
+        r0 += (wf * ax, wf * bx, wf * nx, 0.0)
+        r1 += (wf * ay, wf * by, wf * ny, 0.0)
+        r2 += (wf * az, wf * bz, wf * nz, 0.0)
+        r3 += (wt * (ry * az - rz * ay), wt * (ry * bz - rz * by), wt * (ry * nz - rz * ny),
+               wt * nx)
+        r4 += (wt * (rz * ax - rx * az), wt * (rz * bx - rx * bz), wt * (rz * nx - rx * nz),
+               wt * ny)
+        r5 += (wt * (rx * ay - ry * ax), wt * (rx * by - ry * bx), wt * (rx * ny - ry * nx),
+               wt * nz)
+    return rows, frames
+
+
 class ContactForceQP(_ContactForceSolver):
     """Fast contact-force solver for the control loop (exact active-set NNLS).
 
@@ -259,52 +333,83 @@ class ContactForceQP(_ContactForceSolver):
     |l| <= mu_t n.f}``). Every term of eq. (III.23) is linear in the generator coefficients, so
     the problem is ``min |A x - b|^2, x >= 0``, solved by Lawson-Hanson (exact up to rounding)
     and accepted only if it passes a KKT check.
+
+    Warm start: in a control loop the set of generators in use (the passive set) rarely
+    changes between steps. The solver first solves the least-squares problem on the last
+    passive set of the same contact count; that is the exact optimum whenever the KKT check
+    passes (all coefficients positive, gradient >= 0 elsewhere). Otherwise the full
+    Lawson-Hanson solve runs, so the result is the same either way.
     """
+
+    _MAX_LAYOUTS = 32
 
     def __init__(self, config: ContactQPConfig | None = None) -> None:
         self.config = cfg = config or ContactQPConfig()
         s1, s2, s3, s4 = (math.sqrt(a) for a in (cfg.alpha1, cfg.alpha2, cfg.alpha3, cfg.alpha4))
-        self._wrench_weights = np.array([s1, s1, s1, s2, s2, s2])
+        self._s12 = (s1, s2)
         self._reg_weights = np.array([s3, s3, s3, s4])[None, :, None]
         self._basis = _local_generator_basis(
             cfg.friction_edges, cfg.torsion_bound, cfg.torsional_friction
         )
         self._n_gen = self._basis.shape[1] // 4
         self._maxiter = cfg.max_iter or None
+        self._layouts: dict[tuple[int, bytes], _Layout] = {}
+        self._passive: dict[Any, np.ndarray] = {}  # warm start: last passive set per shape
+        self.warm_hits = 0  # solves the warm start answered (diagnostics)
+
+    def _layout(self, mu: np.ndarray) -> _Layout:
+        key = (mu.shape[0], mu.tobytes())
+        lay = self._layouts.get(key)
+        if lay is None:
+            k, g = mu.shape[0], self._n_gen
+            inv_s = 1.0 / np.sqrt(1.0 + mu * mu)
+            coef = np.empty((k, 3))
+            coef[:, 0], coef[:, 1], coef[:, 2] = mu * inv_s, inv_s, 1.0
+            h = (coef @ self._basis).reshape(k, 4, g)  # generators in the contact frames
+            if len(self._layouts) >= self._MAX_LAYOUTS:
+                self._layouts.clear()
+            lay = self._layouts[key] = _Layout(h, self._reg_weights)
+        return lay
 
     # -- eq. (III.23) ---------------------------------------------------------------------
     def _solve_dissertation(
         self, contacts: ContactSet, r: np.ndarray, tf: np.ndarray, tt: np.ndarray, t0: float
     ) -> ContactForceResult:
-        k, g = len(contacts), self._n_gen
-        mu, normals = contacts.mu, contacts.normals
-        inv_s = 1.0 / np.sqrt(1.0 + mu * mu)
-        coef = np.empty((k, 3))
-        coef[:, 0], coef[:, 1], coef[:, 2] = mu * inv_s, inv_s, 1.0
-        h = (coef @ self._basis).reshape(k, 4, g)  # generators in the contact frames
-        # Wrench on the object about the COM of each generator: [R 0; [r]x R n] h -> (K, 6, G)
-        frames = contact_frames(normals)
-        to_world = np.zeros((k, 6, 4))
-        to_world[:, 0:3, 0:3] = frames
-        to_world[:, 3:6, 0:3] = cross_matrices(r) @ frames
-        to_world[:, 3:6, 3] = normals
-        wrench = to_world @ h
-        w6 = wrench.transpose(1, 0, 2).reshape(6, k * g)
-        # Least-squares rows: sqrt(a1) net force, sqrt(a2) net torque, then per contact
-        # sqrt(a3) f_k and sqrt(a4) l_k (|f_k| is frame-invariant: local coordinates serve).
-        reg = (self._reg_weights * h)[:, :, None, :] * _block_eye(k)  # diag(reg_1..reg_K)
-        a = np.concatenate((self._wrench_weights[:, None] * w6, reg.reshape(4 * k, k * g)))
-        target = np.concatenate((tf, tt))
-        b = np.zeros(6 + 4 * k)
-        b[0:6] = self._wrench_weights * target
-        x, status, objective = self._nnls(a, b)
+        k = len(contacts)
+        lay = self._layout(contacts.mu)
+        s1, s2 = self._s12
+        rl = r.tolist()
+        maps, frames = _contact_maps(contacts.normals.tolist(), rl, s1, s2)
+        # Least-squares rows: sqrt(a1) net force, sqrt(a2) net torque (the wrench of every
+        # generator about the COM: maps @ generators), then per contact sqrt(a3) f_k and
+        # sqrt(a4) l_k (|f_k| is frame-invariant: local coordinates serve; constant rows).
+        np.array(maps).dot(lay.hb, out=lay.a6)
+        tfl, ttl = tf.tolist(), tt.tolist()
+        a, b = lay.a, lay.b
+        b[0:6] = [s1 * tfl[0], s1 * tfl[1], s1 * tfl[2], s2 * ttl[0], s2 * ttl[1], s2 * ttl[2]]
+        x, status, objective = self._nnls(a, b, k)
         if x is None:
             return _result(status, contacts, r, (tf, tt), t0, "dissertation")
-        xk = x.reshape(k, g, 1)
-        forces = (wrench[:, 0:3] @ xk).reshape(k, 3)
-        torsion = (h[:, 3:4] @ xk).reshape(k)
+        # local (f_t1, f_t2, f_n, l) of every contact, then world forces f = R f_local
+        y = lay.hb.dot(x).tolist()
+        forces, torsion = [], []
+        fx = fy = fz = mx = my = mz = 0.0  # net wrench
+        for i, ((ax, ay, az, bx, by, bz, nx, ny, nz), (rx, ry, rz)) in enumerate(
+                zip(frames, rl, strict=True)):
+            y0, y1, y2, y3 = y[4 * i:4 * i + 4]
+            f0 = ax * y0 + bx * y1 + nx * y2
+            f1 = ay * y0 + by * y1 + ny * y2
+            f2 = az * y0 + bz * y1 + nz * y2
+            forces.append((f0, f1, f2))
+            torsion.append(y3)
+            fx, fy, fz = fx + f0, fy + f1, fz + f2
+            mx += ry * f2 - rz * f1 + y3 * nx
+            my += rz * f0 - rx * f2 + y3 * ny
+            mz += rx * f1 - ry * f0 + y3 * nz
+        err = [fx - tfl[0], fy - tfl[1], fz - tfl[2], mx - ttl[0], my - ttl[1], mz - ttl[2]]
         return _result(status, contacts, r, (tf, tt), t0, "dissertation",
-                       (forces, torsion, objective), w6 @ x - target)
+                       (np.array(forces), np.array(torsion), objective), np.array(err),
+                       math.hypot(*err))
 
     # -- eq. (10) then eq. (11) -----------------------------------------------------------
     def _solve_seed000(
@@ -336,30 +441,81 @@ class ContactForceQP(_ContactForceSolver):
         return _result(status, contacts, r, (tf, tt), t0, "seed000",
                        (forces, torsion, objective), err)
 
-    def _nnls(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray | None, str, float]:
+    def _nnls(
+        self, a: np.ndarray, b: np.ndarray, warm_key: Any = None
+    ) -> tuple[np.ndarray | None, str, float]:
         """``argmin |a x - b|^2, x >= 0`` and its objective, checked against the KKT conditions.
 
-        Returns ``(None, status, inf)`` when the solver fails or the check does not pass.
+        ``warm_key`` names the problem shape whose last passive set is tried first (``None``:
+        no warm start). Returns ``(None, status, inf)`` when the solver fails or the check does
+        not pass.
         """
+        if warm_key is not None:
+            passive = self._passive.get(warm_key)
+            if passive is not None:
+                x = _ls_on_passive_set(a, b, passive)
+                if x is not None:
+                    status, objective = self._kkt(a, b, x, passive)
+                    if status == "optimal":
+                        self.warm_hits += 1
+                        return x, status, objective
         try:
             x, _ = nnls(a, b, maxiter=self._maxiter)
         except RuntimeError:
             return None, "max_iter", math.inf
         except ValueError:  # NaN/Inf in the data (e.g. an overflow while building it)
             return None, "non_finite", math.inf
-        res = a @ x - b
-        grad = a.T @ res
-        objective = float(res @ res)
-        # KKT of min |a x - b|^2, x >= 0: gradient >= 0 everywhere and = 0 where x > 0.
-        violation = float(np.where(x > 0.0, np.abs(grad), -grad).max())
+        passive = np.flatnonzero(x > 0.0)
+        status, objective = self._kkt(a, b, x, passive)
+        if status != "optimal":
+            return None, status, math.inf
+        if warm_key is not None:
+            self._passive[warm_key] = passive
+        return x, "optimal", objective
+
+    def _kkt(
+        self, a: np.ndarray, b: np.ndarray, x: np.ndarray, passive: np.ndarray
+    ) -> tuple[str, float]:
+        """``("optimal", |a x - b|^2)`` if ``x`` passes the KKT check, else the failure.
+
+        ``passive``: the indices where ``x > 0``.
+        """
+        res = a.dot(x)
+        res -= b
+        grad = res.dot(a).tolist()
+        objective = float(res.dot(res))
+        # KKT of min |a x - b|^2, x >= 0: gradient >= 0 everywhere and = 0 where x > 0, i.e.
+        # max(|grad_i| for x_i > 0, -grad_i for x_i = 0) = max(-min(grad), max(grad_passive))
+        violation = -min(grad)
+        if passive.size:
+            violation = max(violation, max([grad[i] for i in passive.tolist()]))
         # |grad| <= |a| |b| at the optimum, and the entries of a are O(1) (unit generators,
         # lever arms well under 1 m): scale the tolerance with |b|^2 (>= |b| when |b| >= 1).
-        tol = self.config.kkt_tol * max(1.0, float(b @ b))
+        tol = self.config.kkt_tol * max(1.0, float(b.dot(b)))
         if not (math.isfinite(objective) and math.isfinite(violation) and math.isfinite(tol)):
-            return None, "non_finite", math.inf
+            return "non_finite", math.inf
         if violation > tol:
-            return None, "inaccurate", math.inf
-        return x, "optimal", objective
+            return "inaccurate", math.inf
+        return "optimal", objective
+
+
+def _ls_on_passive_set(a: np.ndarray, b: np.ndarray, passive: np.ndarray) -> np.ndarray | None:
+    """Least squares on the columns ``passive`` (normal equations, Cholesky), others zero.
+
+    ``None`` unless every coefficient on the passive set comes out positive and finite (then
+    the caller's KKT check decides whether this is the optimum).
+    """
+    if passive.size == 0:
+        return None
+    ap = a.take(passive, axis=1)
+    apt = ap.T
+    _, z, info = _dposv(apt.dot(ap), apt.dot(b))
+    zl = z.tolist()
+    if info != 0 or not (min(zl) > 0.0 and math.isfinite(sum(zl))):
+        return None
+    x = np.zeros(a.shape[1])
+    x[passive] = z
+    return x
 
 
 class ReferenceContactQP(_ContactForceSolver):

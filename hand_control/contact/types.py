@@ -86,6 +86,25 @@ class ContactSet:
             nv = jac.shape[2]
             set_(self, name, jac)
 
+    @classmethod
+    def trusted(
+        cls, points: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+        forces: np.ndarray | None = None, jacp: np.ndarray | None = None,
+        jacr: np.ndarray | None = None,
+    ) -> ContactSet:
+        """Without the checks, for arrays a simulator produced (the hot path of the control
+        loop): the caller vouches for float64, finite, matching shapes, unit normals and
+        ``mu`` (K,) >= 0. Nothing is copied."""
+        self = object.__new__(cls)
+        set_ = object.__setattr__
+        set_(self, "points", points)
+        set_(self, "normals", normals)
+        set_(self, "mu", mu)
+        set_(self, "forces", forces)
+        set_(self, "jacp", jacp)
+        set_(self, "jacr", jacr)
+        return self
+
     def __len__(self) -> int:
         return self.points.shape[0]
 

@@ -16,6 +16,7 @@ fallback is counted. Everything is arrays in, arrays out: no ROS, no simulator.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -23,7 +24,6 @@ from typing import Any
 import numpy as np
 
 from hand_capture.model.joints import JOINT_NAMES
-from hand_control.contact.friction import cross
 from hand_control.contact.qp import ContactForceQP, ContactForceResult, ContactQPConfig
 from hand_control.contact.types import ContactSet, as_finite_array
 from hand_control.control.gains import CompositeControlConfig, joint_gains
@@ -80,6 +80,20 @@ class ObjectState:
             raise InputError(f"object mass must be > 0, got {mass}")
         set_(self, "mass", mass)
 
+    @classmethod
+    def trusted(cls, position: np.ndarray, quaternion: np.ndarray, linear_velocity: np.ndarray,
+                angular_velocity: np.ndarray, mass: float) -> ObjectState:
+        """Without the checks, for arrays a simulator produced: (3,) / unit (4,) float64,
+        finite, ``mass > 0`` (the caller vouches; nothing is copied or normalised)."""
+        self = object.__new__(cls)
+        set_ = object.__setattr__
+        set_(self, "position", position)
+        set_(self, "quaternion", quaternion)
+        set_(self, "linear_velocity", linear_velocity)
+        set_(self, "angular_velocity", angular_velocity)
+        set_(self, "mass", mass)
+        return self
+
 
 @dataclass(frozen=True, eq=False)
 class ObjectTarget:
@@ -94,6 +108,14 @@ class ObjectTarget:
         object.__setattr__(
             self, "quaternion", _unit_quaternion("object target quaternion", self.quaternion))
 
+    @classmethod
+    def trusted(cls, position: np.ndarray, quaternion: np.ndarray) -> ObjectTarget:
+        """Without the checks: (3,) finite and unit (4,) float64 (the caller vouches)."""
+        self = object.__new__(cls)
+        object.__setattr__(self, "position", position)
+        object.__setattr__(self, "quaternion", quaternion)
+        return self
+
 
 def quaternion_error(q_target: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Rotation vector (world frame) that turns unit quaternion ``q`` into ``q_target``.
@@ -101,16 +123,25 @@ def quaternion_error(q_target: np.ndarray, q: np.ndarray) -> np.ndarray:
     This is the orientation difference ``o_r_target - o_r`` of eq. (III.22): the rotation
     ``R_target R^T`` as axis * angle, with the angle in [0, pi].
     """
-    w1, v1 = q_target[0], q_target[1:]
-    w0, v0 = q[0], -q[1:]  # conjugate of q
-    w = w1 * w0 - v1 @ v0
-    v = w1 * v0 + w0 * v1 + cross(v1, v0)
+    qt = np.asarray(q_target, dtype=np.float64).tolist()
+    return np.array(_quaternion_error(*qt, *np.asarray(q, dtype=np.float64).tolist()))
+
+
+def _quaternion_error(
+    w1: float, x1: float, y1: float, z1: float, w0: float, x0: float, y0: float, z0: float
+) -> tuple[float, float, float]:
+    """:func:`quaternion_error` on plain floats (a handful of products: numpy costs more)."""
+    x0, y0, z0 = -x0, -y0, -z0  # conjugate of q
+    # q_target * conj(q)
+    w = w1 * w0 - (x1 * x0 + y1 * y0 + z1 * z0)
+    x = w1 * x0 + w0 * x1 + (y1 * z0 - z1 * y0)
+    y = w1 * y0 + w0 * y1 + (z1 * x0 - x1 * z0)
+    z = w1 * z0 + w0 * z1 + (x1 * y0 - y1 * x0)
     if w < 0.0:  # the shorter way round
-        w, v = -w, -v
-    s = float(np.sqrt(v @ v))
-    if s < 1e-12:
-        return 2.0 * v  # small-angle limit
-    return (2.0 * np.arctan2(s, w) / s) * v
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    c = 2.0 if s < 1e-12 else 2.0 * math.atan2(s, w) / s  # small-angle limit: 2 v
+    return c * x, c * y, c * z
 
 
 def pd_torques(
@@ -127,11 +158,26 @@ def object_virtual_wrench(
 
     Returns ``(f_v, tau_v)`` without the weight: the contacts must apply ``f_v - m g``.
     """
-    f_v = (config.object_kp_translate * (target.position - state.position)
-           - config.object_kd_translate * state.linear_velocity)
-    tau_v = (config.object_kp_rotate * quaternion_error(target.quaternion, state.quaternion)
-             - config.object_kd_rotate * state.angular_velocity)
-    return f_v, tau_v
+    w = _virtual_wrench(config, state, target, (0.0, 0.0, 0.0))
+    return np.array(w[0:3]), np.array(w[3:6])
+
+
+def _virtual_wrench(
+    config: CompositeControlConfig, state: ObjectState, target: ObjectTarget,
+    weight: tuple[float, float, float],
+) -> list[float]:
+    """``f_v - weight`` and ``tau_v`` (eq. 9 / III.22) as six floats (tiny vectors: no numpy)."""
+    kp_t, kd_t = config.object_kp_translate, config.object_kd_translate
+    kp_r, kd_r = config.object_kp_rotate, config.object_kd_rotate
+    px, py, pz = state.position.tolist()
+    tx, ty, tz = target.position.tolist()
+    vx, vy, vz = state.linear_velocity.tolist()
+    wx, wy, wz = state.angular_velocity.tolist()
+    ex, ey, ez = _quaternion_error(*target.quaternion.tolist(), *state.quaternion.tolist())
+    gx, gy, gz = weight
+    return [kp_t * (tx - px) - kd_t * vx - gx, kp_t * (ty - py) - kd_t * vy - gy,
+            kp_t * (tz - pz) - kd_t * vz - gz,
+            kp_r * ex - kd_r * wx, kp_r * ey - kd_r * wy, kp_r * ez - kd_r * wz]
 
 
 def grasp_torques(
@@ -150,9 +196,20 @@ def grasp_torques(
     k = len(contacts)
     forces = as_finite_array("contact forces", forces, (k, 3))
     torsion = as_finite_array("torsional torques", torsion, (k,))
-    torques = torsion[:, None] * contacts.normals
-    return (np.einsum("kin,ki->n", contacts.jacp, forces)
-            + np.einsum("kin,ki->n", contacts.jacr, torques))
+    return _grasp_torques(contacts, forces, torsion)
+
+
+def _grasp_torques(contacts: ContactSet, forces: np.ndarray, torsion: np.ndarray) -> np.ndarray:
+    """:func:`grasp_torques` without the checks (eq. 12 / III.21).
+
+    ``sum_k Jp_k^T f_k`` is one vector-matrix product over the stacked (3K, nv) Jacobians
+    (a reshape, a view for the simulator's Jacobians), likewise the torsion term.
+    """
+    k3 = 3 * forces.shape[0]
+    jacp, jacr = contacts.jacp, contacts.jacr
+    tau = forces.reshape(k3).dot(jacp.reshape(k3, jacp.shape[2]))
+    tau += (torsion[:, None] * contacts.normals).reshape(k3).dot(jacr.reshape(k3, jacr.shape[2]))
+    return tau
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,6 +263,7 @@ class CompositeController:
         self.joint_names = tuple(joint_names)
         self.kp, self.kd = joint_gains(self.config, self.joint_names)
         self._gravity = np.asarray(self.config.gravity, dtype=np.float64)
+        self._g = tuple(float(v) for v in self._gravity)
         self.steps = 0
         self.grasp_steps = 0
         self.fallbacks = 0
@@ -224,6 +282,7 @@ class CompositeController:
         contacts: ContactSet | None = None,
         gravity_torques: Any = None,
         grasp: bool = True,
+        check: bool = True,
     ) -> ControlOutput:
         """Joint torques for one step.
 
@@ -235,44 +294,67 @@ class CompositeController:
             gravity_torques: (nv,) torques that cancel gravity on the hand, ``h(q)`` of
                 eq. (III.18); used when ``config.gravity_compensation``.
             grasp: ``False`` drops ``tau_grasp`` (the dissertation does so while closing).
+            check: validate the joint arrays and the contacts' Jacobians (the API boundary).
+                ``False`` is the simulator's fast path: the caller vouches for (nv,) finite
+                float64 arrays and contacts with both Jacobians over the ``nv`` DoFs; the
+                equations and the result are the same.
 
         Raises:
             InputError: NaN/Inf, wrong lengths, or contacts without matching Jacobians.
         """
         nv = self.nv
-        q = as_finite_array("q", q, (nv,))
-        qd = as_finite_array("qd", qd, (nv,))
-        q_target = as_finite_array("q_target", q_target, (nv,))
+        if check:
+            q = as_finite_array("q", q, (nv,))
+            qd = as_finite_array("qd", qd, (nv,))
+            q_target = as_finite_array("q_target", q_target, (nv,))
         tau_pd = pd_torques(self.kp, self.kd, q, qd, q_target)
-        tau_gravity = np.zeros(nv)
+        tau_gravity = None
         if self.config.gravity_compensation and gravity_torques is not None:
             tau_gravity = as_finite_array("gravity torques", gravity_torques, (nv,))
         attempt = (
             grasp and self.config.mode == "composite" and obj is not None
             and target is not None and contacts is not None and len(contacts) > 0
         )
-        tau_grasp = np.zeros(nv)
-        force_target = torque_target = np.zeros(3)
+        tau_grasp = None
+        force_target = torque_target = None
         qp_result = None
         if attempt:
-            if contacts.jacp is None or contacts.jacr is None or contacts.nv != nv:
+            if check and (contacts.jacp is None or contacts.jacr is None
+                          or contacts.nv != nv):
                 raise InputError(
                     f"contacts need both Jacobians (jacp, jacr) over the {nv} hand DoFs; got "
                     f"jacp={'absent' if contacts.jacp is None else contacts.jacp.shape}, "
                     f"jacr={'absent' if contacts.jacr is None else contacts.jacr.shape}"
                 )
-            f_v, torque_target = object_virtual_wrench(self.config, obj, target)
-            force_target = f_v - obj.mass * self._gravity  # weight compensated, eq. (9)
-            qp_result = self.qp.solve(contacts, obj.position, force_target, torque_target)
+            # f_v - m g (weight compensated, eq. 9) and tau_v (eq. III.22)
+            m = obj.mass
+            wrench = np.array(_virtual_wrench(self.config, obj, target, (
+                m * self._g[0], m * self._g[1], m * self._g[2])))
+            force_target, torque_target = wrench[0:3], wrench[3:6]
+            qp_result = self.qp.solve(contacts, obj.position, force_target, torque_target,
+                                      check=check)
             if qp_result.found:
-                tau_grasp = grasp_torques(contacts, qp_result.forces, qp_result.torsion)
+                tau_grasp = _grasp_torques(contacts, qp_result.forces, qp_result.torsion)
         self.steps += 1
         fallback = attempt and not qp_result.found
         self.fallbacks += int(fallback)
         self.grasp_steps += int(attempt and not fallback)
-        return ControlOutput(
-            tau=tau_pd + tau_gravity + tau_grasp,  # eq. (13) / (III.19)
-            tau_pd=tau_pd, tau_gravity=tau_gravity, tau_grasp=tau_grasp,
+        # eq. (13) / (III.19): tau = tau_pd + tau_gravity + tau_grasp
+        if tau_gravity is None:
+            tau_gravity = np.zeros(nv)
+            tau = tau_pd.copy() if tau_grasp is None else tau_pd + tau_grasp
+        else:
+            tau = tau_pd + tau_gravity
+            if tau_grasp is not None:
+                tau += tau_grasp
+        if tau_grasp is None:
+            tau_grasp = np.zeros(nv)
+        if force_target is None:
+            force_target = torque_target = np.zeros(3)
+        out = object.__new__(ControlOutput)  # the frozen dataclass without its __init__
+        out.__dict__.update(
+            tau=tau, tau_pd=tau_pd, tau_gravity=tau_gravity, tau_grasp=tau_grasp,
             force_target=force_target, torque_target=torque_target, qp=qp_result,
             grasp_active=attempt and not fallback, fallback=fallback,
         )
+        return out

@@ -10,7 +10,7 @@ on the object (``hand_control.contact.types.ContactSet``'s convention).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -69,6 +69,14 @@ class ContactFrame:
         return len(self.body1)
 
     @classmethod
+    def trusted(cls, *values: object) -> ContactFrame:
+        """The frame from its field values in order, without the frozen-dataclass ``__init__``
+        (the simulator's hot path builds one per control step)."""
+        self = object.__new__(cls)
+        self.__dict__.update(zip(_FIELDS, values, strict=True))
+        return self
+
+    @classmethod
     def empty(cls, time: float = 0.0, n_dof: int | None = None) -> ContactFrame:
         z3 = np.zeros((0, 3))
         jac = None if n_dof is None else np.zeros((0, 3, n_dof))
@@ -98,7 +106,18 @@ class ContactFrame:
         on1 = self.forces[self.body1_id == body_id].sum(axis=0)
         return on2 - on1
 
-    def to_contact_set(self) -> ContactSet:
-        """The contacts as the controller's :class:`ContactSet` (forces, Jacobians included)."""
+    def to_contact_set(self, trusted: bool = False) -> ContactSet:
+        """The contacts as the controller's :class:`ContactSet` (forces, Jacobians included).
+
+        ``trusted``: skip the checks, for a frame that :meth:`SimWorld.contacts` produced in
+        this process (finite float64 arrays, unit normals; the guard stops the simulation
+        before a non-finite state is read).
+        """
+        if trusted:
+            return ContactSet.trusted(self.points, self.normals, self.friction,
+                                      forces=self.forces, jacp=self.jacp, jacr=self.jacr)
         return ContactSet(self.points, self.normals, self.friction, forces=self.forces,
                           jacp=self.jacp, jacr=self.jacr)
+
+
+_FIELDS = tuple(f.name for f in fields(ContactFrame))

@@ -132,6 +132,14 @@ class LockstepRunner:
             control_period=self.control_every * self.world.model.opt.timestep)
         self.controller = self.core.controller
         self._no_contacts = ContactFrame.empty(0.0)
+        # Live views into MjData (its arrays never move), read at every step: the object's
+        # state and the hand's joints. The controller uses them within the step only.
+        w = self.world
+        self._obj_views = w.object_state_views(self.obj.name)
+        self._obj_pos, self._obj_quat = self._obj_views[0], self._obj_views[1]
+        self._hand_views = None
+        if isinstance(w._qpos_idx, slice) and isinstance(w._dof_idx, slice):
+            self._hand_views = (w.data.qpos[w._qpos_idx], w.data.qvel[w._dof_idx])
         self.world.set_initial_state(self.reference.initial_pose)
         self.world.set_command(self.reference.initial_pose, np.zeros(self.world.n_hand))
 
@@ -146,15 +154,18 @@ class LockstepRunner:
     def control_step(self, t: float) -> None:
         """One controller update: references, state, contacts -> servo command."""
         w = self.world
-        q, qd = w.hand_state()
-        op = w.object_pose(self.obj.name)
+        q, qd = w.hand_state() if self._hand_views is None else self._hand_views
+        pos, quat, vel, omega_body, rot = self._obj_views
         composite = self.core.needs_contacts(t)
         cf = w.contacts(self.obj.name, jacobians=True) if composite else self._no_contacts
+        # everything comes from the world in this process: the controller's fast path
+        # (no re-validation of the simulator's arrays; its output is still checked)
         cmd = self.core.step(
-            t, q, qd, (op.position, op.quaternion, op.linear_velocity, op.angular_velocity),
+            t, q, qd, (pos, quat, vel, rot.dot(omega_body)),  # angular velocity, world frame
             cf.body1, cf.points, cf.normals, cf.forces, cf.friction,
-            contact_set=cf.to_contact_set() if composite and len(cf) else None)
-        w.set_command(cmd.positions, cmd.efforts)
+            contact_set=cf.to_contact_set(trusted=True) if composite and len(cf) else None,
+            trusted=True)
+        w.set_command(cmd.positions, cmd.efforts, check=False)  # fresh, finite (n_hand,)
         self.last_command = cmd
 
     def _events(self, t: float, schedule: list[tuple[float, float]], dropped: list[bool]
@@ -192,6 +203,8 @@ class LockstepRunner:
         errs, rot_errs, tr = [], [], {"t": [], "pos": [], "target": [], "phase": []}
         t_ctrl = 0.0
         control_steps = 0
+        t_lift0 = self.reference.t_lift0
+        obj_pos, obj_quat = self._obj_pos, self._obj_quat  # live views
         t0 = time.perf_counter()
         for i in range(n):
             t = w.time
@@ -202,11 +215,10 @@ class LockstepRunner:
                 t_ctrl += time.perf_counter() - c0
                 control_steps += 1
             w.step()
-            if t >= self.reference.t_lift0:
+            if t >= t_lift0:
                 ref = self.reference(t)
-                op = w.object_pose(self.obj.name)
-                errs.append(float(np.linalg.norm(op.position - ref.object_position)))
-                rot_errs.append(_angle_deg(op.quaternion, ref.object_quaternion))
+                errs.append(math.dist(obj_pos.tolist(), ref.object_position.tolist()))
+                rot_errs.append(_angle_deg(obj_quat, ref.object_quaternion))
             if trace and i % 10 == 0:
                 ref = self.reference(t)
                 op = w.object_pose(self.obj.name)

@@ -55,6 +55,13 @@ SOFT_WARNINGS: dict[int, str] = {
 _INTEGRATORS = {"Euler": 0, "RK4": 1, "implicit": 2, "implicitfast": 3}
 
 
+def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
+    """``idx`` as a slice when it is a run of consecutive integers (a view, no gather)."""
+    if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+        return slice(int(idx[0]), int(idx[0]) + idx.size)
+    return idx
+
+
 @dataclass(frozen=True)
 class Divergence:
     """One detected divergence: when, which check, which DoF."""
@@ -124,6 +131,13 @@ class SimWorld:
         self.dof_adr = m.jnt_dofadr[jids].astype(np.int64)
         # the hand's DoFs as one slice (a superset when they are not contiguous)
         self._dof_slice = slice(int(self.dof_adr.min()), int(self.dof_adr.max()) + 1)
+        self._qpos_idx, self._dof_idx = _as_slice(self.qpos_adr), _as_slice(self.dof_adr)
+        self._qpos_view = isinstance(self._qpos_idx, slice)
+        self._dof_view = isinstance(self._dof_idx, slice)
+        contiguous = np.array_equal(self.dof_adr, np.arange(self._dof_slice.start,
+                                                            self._dof_slice.stop))
+        # the hand's columns of a Jacobian: a view (slice) when its DoFs are contiguous
+        self._dof_cols: slice | np.ndarray = self._dof_slice if contiguous else self.dof_adr
         hand_bodies = set(int(m.jnt_bodyid[j]) for j in jids)
         # bodies below the hand's bodies (fixed children without joints) belong to the hand too
         for b in range(1, m.nbody):
@@ -208,6 +222,14 @@ class SimWorld:
                                   m.actuator_forcerange[self._servo_a, 0], -np.inf)
         self._force_hi = np.where(m.actuator_forcelimited[self._servo_a].astype(bool),
                                   m.actuator_forcerange[self._servo_a, 1], np.inf)
+        # _write_command's terms, once: set point = target + effort / kp_fold with
+        # kp_fold = inf where the effort goes to qfrc_applied (effort / inf = 0 exactly)
+        kp_servo = self.kp[self._servo_k]
+        self._kp_fold = np.where(self._ff_applied, np.inf, kp_servo)
+        self._ff_mask = self._ff_applied.astype(np.float64)
+        self._all_servo = bool(np.array_equal(self._servo_k, np.arange(self.n_hand)))
+        self._servo_a_idx = _as_slice(self._servo_a)
+        self._servo_dof_idx = _as_slice(self._servo_dof)
         # --- episode state
         self._keyframe = -1
         if keyframe is not None:
@@ -217,10 +239,22 @@ class SimWorld:
         self._geom_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "world"
                             for g in range(m.ngeom)]
         self._geom_body = m.geom_bodyid.tolist()
+        # the name a contact reports for each geom's side: its body, or for the world body
+        # the geom itself (e.g. "table")
+        self._contact_names = [self._geom_names[g] if b == 0 else self._body_names[b]
+                               for g, b in enumerate(self._geom_body)]
         self._is_hand_list = self._is_hand_body.tolist()
         self._jacp = np.zeros((3, m.nv))
         self._jacr = np.zeros((3, m.nv))
         self._f6 = np.zeros(6)
+        # views into MjData (its arrays never move): the guard reads them every step
+        self._warn_number = self.data.warning.number
+        self._ctrl_view = self._qfrc_view = None  # the servos' ctrl / qfrc_applied entries
+        if isinstance(self._servo_a_idx, slice) and isinstance(self._servo_dof_idx, slice):
+            self._ctrl_view = self.data.ctrl[self._servo_a_idx]
+            self._qfrc_view = self.data.qfrc_applied[self._servo_dof_idx]
+        self._qvel_hand = self.data.qvel[self._dof_slice]
+        self._max_speed_sq = self.config.max_joint_speed ** 2
         self.resets = 0
         self.divergences: list[Divergence] = []
         self.soft_warnings: dict[str, int] = {v: 0 for v in SOFT_WARNINGS.values()}
@@ -275,14 +309,26 @@ class SimWorld:
         return float(self.data.time)
 
     def hand_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(q, qd)`` of the hand DoFs, (n_hand,) each, ``joint_names`` order."""
-        return self.data.qpos[self.qpos_adr].copy(), self.data.qvel[self.dof_adr].copy()
+        """``(q, qd)`` of the hand DoFs, (n_hand,) each, ``joint_names`` order (copies)."""
+        q, qd = self.data.qpos[self._qpos_idx], self.data.qvel[self._dof_idx]
+        # a slice is a view (copy it); an index array already gathered a copy
+        return (q.copy() if self._qpos_view else q), (qd.copy() if self._dof_view else qd)
 
     def _object(self, name: str) -> dict[str, object]:
         try:
             return self.objects[name]
         except KeyError:
             raise InputError(f"no free object {name!r}; objects: {sorted(self.objects)}") from None
+
+    def object_state_views(self, name: str) -> tuple[np.ndarray, ...]:
+        """Live views into MjData of a free object's state, for a loop that reads them every
+        step: ``(position, quaternion, linear velocity, angular velocity in the body frame,
+        rotation matrix (3, 3))``. They change with every step; :meth:`object_pose` gives
+        copies (world-frame angular velocity = ``rotation @ angular velocity``)."""
+        o = self._object(name)
+        d, b, v = self.data, o["body"], o["dof"]
+        return (d.xipos[b], d.xquat[b], d.qvel[v:v + 3], d.qvel[v + 3:v + 6],
+                d.xmat[b].reshape(3, 3))
 
     def object_pose(self, name: str) -> ObjectPose:
         o = self._object(name)
@@ -311,12 +357,24 @@ class SimWorld:
 
     # --------------------------------------------------------------------------- commands
     def set_command(self, target: Sequence[float] | None = None,
-                    effort: Sequence[float] | None = None) -> None:
+                    effort: Sequence[float] | None = None, check: bool = True) -> None:
         """New servo targets and feed-forward efforts for the hand DoFs (``joint_names`` order).
+
+        ``check=False`` (the in-process controller's fast path) skips the checks: the caller
+        vouches for (n_hand,) finite float64 arrays, which the world then owns (not copied).
 
         Raises:
             InputError: wrong length or a NaN/Inf entry (nothing is applied then).
         """
+        if not check:
+            if target is not None:
+                self.target = target
+            if effort is not None:
+                self.effort = effort
+            self.last_command_time = self.data.time
+            self.timed_out = False
+            self._write_command()
+            return
         if target is not None:
             t = np.asarray(target, dtype=np.float64)
             if t.shape != (self.n_hand,) or not np.isfinite(t).all():
@@ -366,13 +424,22 @@ class SimWorld:
 
     def _write_command(self) -> None:
         """Servo set points and feed-forward efforts into MuJoCo (once per command)."""
-        d = self.data
-        k = self._servo_k
-        eff = self.effort[k]
-        kp = self.kp[k]
-        setpoint = np.where(self._ff_applied, self.target[k], self.target[k] + eff / kp)
-        d.ctrl[self._servo_a] = np.clip(setpoint, self._servo_lo, self._servo_hi)
-        d.qfrc_applied[self._servo_dof] = np.where(self._ff_applied, eff, 0.0)
+        if self._all_servo:
+            target, eff = self.target, self.effort
+        else:
+            target, eff = self.target[self._servo_k], self.effort[self._servo_k]
+        # ctrl = target + effort / kp for the motors, target for the root servos (clipped to
+        # the control range); the root servos' effort through qfrc_applied
+        setpoint = eff / self._kp_fold
+        setpoint += target
+        np.maximum(setpoint, self._servo_lo, out=setpoint)
+        if self._ctrl_view is not None:
+            np.minimum(setpoint, self._servo_hi, out=self._ctrl_view)
+            np.multiply(eff, self._ff_mask, out=self._qfrc_view)
+        else:
+            d = self.data
+            d.ctrl[self._servo_a_idx] = np.minimum(setpoint, self._servo_hi)
+            d.qfrc_applied[self._servo_dof_idx] = eff * self._ff_mask
 
     def _apply_free(self) -> None:
         """PD (eq. 8) + effort through qfrc_applied for DoFs without an actuator."""
@@ -403,18 +470,34 @@ class SimWorld:
         """Advance ``n`` physics steps (servo update + ``mj_step`` + guard each)."""
         m, d = self.model, self.data
         free = self._free_k.size > 0
+        timeout = self.config.command_timeout
+        warn, v, speed_sq = self._warn_number, self._qvel_hand, self._max_speed_sq
         for _ in range(n):
-            self._check_timeout()
+            if (timeout > 0 and not self.timed_out
+                    and d.time - self.last_command_time > timeout):
+                self._check_timeout()
             if free:
                 self._apply_free()
             t_before = d.time
             mujoco.mj_step(m, d)
             self.steps += 1
-            self._check(t_before)
+            # the guard (see _check), its usual case inline
+            if not (warn.tolist() == self._warn_list and d.time >= t_before
+                    and v.dot(v) <= speed_sq):
+                self._check_full(t_before)
             if self.count_saturation:
                 self.saturated_steps += int(self.saturated().any())
 
     def _check(self, t_before: float) -> None:
+        # the usual case in three cheap tests: no new warning, time went on, and no hand
+        # joint faster than the limit (|qd|_2 <= limit bounds every |qd_i|; False for NaN)
+        v = self._qvel_hand
+        if (self._warn_number.tolist() == self._warn_list and self.data.time >= t_before
+                and v.dot(v) <= self._max_speed_sq):
+            return
+        self._check_full(t_before)
+
+    def _check_full(self, t_before: float) -> None:
         d = self.data
         counts = d.warning.number  # (mjNWARNING,) view; the per-item accessors are slow
         kind = dof = None
@@ -509,34 +592,43 @@ class SimWorld:
         k = len(sel)
         if k == 0:
             return ContactFrame.empty(d.time, n_jac)
-        idx = [c[0] for c in sel]
-        frame = con.frame[idx].reshape(k, 3, 3)
-        pos = con.pos[idx]
-        fric = con.friction[idx, 0]
+        i0 = sel[0][0]
+        # the selected rows: a slice when consecutive (the usual case), else an index array
+        idx = slice(i0, i0 + k) if sel[-1][0] == i0 + k - 1 else np.array([c[0] for c in sel])
+        frame = con.frame[idx].tolist()  # (K, 9): rows normal, tangent 1, tangent 2
+        pos = np.array(con.pos[idx])  # copies: MjData is rewritten at the next step
+        fric = np.array(con.friction[idx, 0])
         f6 = np.empty((k, 6))
-        for r, i in enumerate(idx):
-            mujoco.mj_contactForce(m, d, i, f6[r])
-        sign = np.array([-1.0 if c[1] else 1.0 for c in sel])
-        normals = frame[:, 0, :] * sign[:, None]
-        forces = np.einsum("ki,kij->kj", f6[:, :3], frame) * sign[:, None]  # frame -> world
-        tors = f6[:, 3] * sign
-        g1s = [c[2] for c in sel]
-        g2s = [c[3] for c in sel]
-        bb1 = [gbody[g] for g in g1s]
-        bb2 = [gbody[g] for g in g2s]
+        for r, c in enumerate(sel):
+            mujoco.mj_contactForce(m, d, c[0], f6[r])
+        # contact frame -> world (plain floats: a few contacts), the sign flipped where the
+        # hand was geom 2 (its side: the force it applies, its normal)
+        nrm, frc, tors = [], [], []
+        for (fn, ft1, ft2, tn, _, _), (e0, e1, e2, e3, e4, e5, e6, e7, e8), c in zip(
+                f6.tolist(), frame, sel, strict=True):
+            if c[1]:  # -(f R) = (-f) R; the normal row -e_0
+                fn, ft1, ft2, tn = -fn, -ft1, -ft2, -tn
+                nrm.append((-e0, -e1, -e2))
+            else:
+                nrm.append((e0, e1, e2))
+            frc.append((fn * e0 + ft1 * e3 + ft2 * e6, fn * e1 + ft1 * e4 + ft2 * e7,
+                        fn * e2 + ft1 * e5 + ft2 * e8))
+            tors.append(tn)
+        normals, forces = np.array(nrm), np.array(frc)
+        bodies = np.array([[gbody[c[2]] for c in sel], [gbody[c[3]] for c in sel]],
+                          dtype=np.int64)
         jacp = jacr = None
         if jacobians:
-            jacp = np.empty((k, 3, self.n_hand))
-            jacr = np.empty((k, 3, self.n_hand))
-            for r in range(k):
-                mujoco.mj_jac(m, d, self._jacp, self._jacr, pos[r], bb1[r])
-                jacp[r] = self._jacp[:, self.dof_adr]
-                jacr[r] = self._jacr[:, self.dof_adr]
-        names1 = tuple(self._geom_names[g] if b == 0 else self._body_names[b]
-                       for b, g in zip(bb1, g1s, strict=True))
-        names2 = tuple(self._geom_names[g] if b == 0 else self._body_names[b]
-                       for b, g in zip(bb2, g2s, strict=True))
-        return ContactFrame(
-            names1, names2, np.array(bb1, dtype=np.int64), np.array(bb2, dtype=np.int64),
-            pos, normals, -np.array([dist[i] for i in idx]), forces, tors, fric, jacp, jacr,
-            float(d.time))
+            # mj_jac writes each contact's (3, nv) rows straight into the buffers; the hand's
+            # columns are then a view (no per-contact copies)
+            jac = np.empty((2, k, 3, m.nv))
+            jp, jr = jac[0], jac[1]
+            for r, b in enumerate(bodies[0].tolist()):
+                mujoco.mj_jac(m, d, jp[r], jr[r], pos[r], b)
+            cols = self._dof_cols
+            jacp, jacr = jp[:, :, cols], jr[:, :, cols]
+        names = self._contact_names
+        return ContactFrame.trusted(
+            tuple([names[c[2]] for c in sel]), tuple([names[c[3]] for c in sel]),
+            bodies[0], bodies[1], pos, normals, np.array([-dist[c[0]] for c in sel]), forces,
+            np.array(tors), fric, jacp, jacr, float(d.time))
