@@ -37,6 +37,15 @@ def as_finite_array(name: str, value: Any, shape: tuple[int | None, ...]) -> np.
     return arr
 
 
+
+def unchecked(cls: type, **fields: object) -> object:
+    """An instance of the frozen dataclass ``cls`` built without ``__init__`` and its checks:
+    the ``trusted`` constructors of the control loop's hot path use it."""
+    obj = object.__new__(cls)
+    for name, value in fields.items():
+        object.__setattr__(obj, name, value)
+    return obj
+
 @dataclass(frozen=True, eq=False)
 class ContactSet:
     """K contacts between the hand and one object.
@@ -95,15 +104,8 @@ class ContactSet:
         """Without the checks, for arrays a simulator produced (the hot path of the control
         loop): the caller vouches for float64, finite, matching shapes, unit normals and
         ``mu`` (K,) >= 0. Nothing is copied."""
-        self = object.__new__(cls)
-        set_ = object.__setattr__
-        set_(self, "points", points)
-        set_(self, "normals", normals)
-        set_(self, "mu", mu)
-        set_(self, "forces", forces)
-        set_(self, "jacp", jacp)
-        set_(self, "jacr", jacr)
-        return self
+        return unchecked(cls, points=points, normals=normals, mu=mu, forces=forces,
+                         jacp=jacp, jacr=jacr)
 
     def __len__(self) -> int:
         return self.points.shape[0]

@@ -25,7 +25,7 @@ import numpy as np
 
 from hand_capture.model.joints import JOINT_NAMES
 from hand_control.contact.qp import ContactForceQP, ContactForceResult, ContactQPConfig
-from hand_control.contact.types import ContactSet, as_finite_array
+from hand_control.contact.types import ContactSet, as_finite_array, unchecked
 from hand_control.control.gains import CompositeControlConfig, joint_gains
 from hand_control.errors import InputError
 
@@ -85,14 +85,9 @@ class ObjectState:
                 angular_velocity: np.ndarray, mass: float) -> ObjectState:
         """Without the checks, for arrays a simulator produced: (3,) / unit (4,) float64,
         finite, ``mass > 0`` (the caller vouches; nothing is copied or normalised)."""
-        self = object.__new__(cls)
-        set_ = object.__setattr__
-        set_(self, "position", position)
-        set_(self, "quaternion", quaternion)
-        set_(self, "linear_velocity", linear_velocity)
-        set_(self, "angular_velocity", angular_velocity)
-        set_(self, "mass", mass)
-        return self
+        return unchecked(cls, position=position, quaternion=quaternion,
+                         linear_velocity=linear_velocity, angular_velocity=angular_velocity,
+                         mass=mass)
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,10 +106,7 @@ class ObjectTarget:
     @classmethod
     def trusted(cls, position: np.ndarray, quaternion: np.ndarray) -> ObjectTarget:
         """Without the checks: (3,) finite and unit (4,) float64 (the caller vouches)."""
-        self = object.__new__(cls)
-        object.__setattr__(self, "position", position)
-        object.__setattr__(self, "quaternion", quaternion)
-        return self
+        return unchecked(cls, position=position, quaternion=quaternion)
 
 
 def quaternion_error(q_target: np.ndarray, q: np.ndarray) -> np.ndarray:
