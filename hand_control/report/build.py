@@ -160,15 +160,16 @@ def _object(data: BagData, res: ReportResult, plt, out: Path) -> str:
     po, to = positions(obj.msgs), data.rel_s(obj.t_ns)
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.0), sharex=True)
     tgt = data.topics.get("control/object_target")
+    has_tgt = tgt is not None and bool(tgt.msgs)
+    pt = positions(tgt.msgs) if has_tgt else None
     for k, ax in enumerate(axes):
         ax.plot(to, po[:, k], label="object")
-        if tgt is not None and tgt.msgs:
-            ax.plot(data.rel_s(tgt.t_ns), positions(tgt.msgs)[:, k], "--", label="target")
+        if has_tgt:
+            ax.plot(data.rel_s(tgt.t_ns), pt[:, k], "--", label="target")
         ax.set_title("xyz"[k] + " [m]")
         ax.set_xlabel("time [s]")
     axes[0].legend()
-    if tgt is not None and tgt.msgs:
-        pt = positions(tgt.msgs)
+    if has_tgt:
         idx = np.clip(np.searchsorted(np.asarray(tgt.t_ns), np.asarray(obj.t_ns)) - 1, 0, None)
         valid = np.asarray(obj.t_ns) >= tgt.t_ns[0]
         if valid.any():
@@ -186,10 +187,11 @@ def _servo(data: BagData, res: ReportResult, plt, out: Path) -> str:
     fig, ax = plt.subplots(figsize=(9, 3.2))
     pos = joint_series(js.msgs, "name", "position", names)
     goal = data.topics.get("servo/goal")
+    g = (joint_series(goal.msgs, "joint_names", "positions", names)
+         if goal is not None and goal.msgs else None)
     for k, n in enumerate(names):
         line, = ax.plot(data.rel_s(js.t_ns), pos[:, k], label=f"{n} measured")
-        if goal is not None and goal.msgs:
-            g = joint_series(goal.msgs, "joint_names", "positions", names)
+        if g is not None:
             ax.plot(data.rel_s(goal.t_ns), g[:, k], "--", color=line.get_color(),
                     label=f"{n} goal")
     ax.set_xlabel("time [s]")
