@@ -10,6 +10,7 @@ import pytest
 from hand_capture.errors import ConfigError, InputError
 from hand_capture.touch.encoding import (
     INCH,
+    PREDICT_BLOCK,
     PolynomialEncoder,
     PolynomialFeatures,
     absolute_pose,
@@ -55,6 +56,18 @@ def test_fit_reproduces_a_known_quadratic_exactly():
     # a linear encoder cannot: its residual stays large
     lin = PolynomialEncoder.fit(u, y, degree=1)
     assert np.abs(lin.predict(u) - y).mean() > 1.0
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3])
+def test_blocked_batch_evaluation_equals_one_product(degree):
+    rng = np.random.default_rng(2)
+    enc = PolynomialEncoder(degree, rng.normal(size=(n_features(degree), 27)))
+    u = rng.normal(size=(2 * PREDICT_BLOCK + 37, 15))
+    whole = PolynomialFeatures(degree)(u) @ enc.coef
+    np.testing.assert_allclose(enc.predict(u), whole, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(enc.predict(u[:5]), whole[:5], rtol=1e-12, atol=1e-9)
+    with pytest.raises(InputError):
+        enc.predict(u[0])
 
 
 def test_fit_rejects_bad_data():

@@ -113,7 +113,7 @@ class TouchEncoder:
         enc = self.encoder
         u, origin = encode_input(fingertips, contact, enc.input_scale, enc.lifted_value)
         rel = enc.predict(u[None])[0]  # eq. (1), root relative to the leftmost contact
-        distance = float(self.labeller.tree.query(rel * self.labeller.weights)[0])
+        distance = float(self.labeller.nearest_distance(rel)[0])
         pose = absolute_pose(rel, origin)
         self.last_pose = pose
         return EncodedPose(pose, "tracking", dict(self.labeller.labels), searched,

@@ -46,6 +46,8 @@ INPUT_SCALE = 1.0 / INCH
 #: Coordinate value of a finger that does not touch (sec. 4).
 LIFTED_VALUE = -1.0
 DEGREES = {"linear": 1, "quadratic": 2, "cubic": 3}
+#: Rows per block of a batched evaluation (:meth:`PolynomialEncoder.predict`).
+PREDICT_BLOCK = 1024
 #: Rotation taking table-frame vectors to the surface frame (its own inverse).
 TABLE_TO_SURFACE = np.diag([1.0, -1.0, -1.0])
 TABLE_TO_SURFACE.setflags(write=False)
@@ -180,8 +182,19 @@ class PolynomialEncoder:
         return {v: k for k, v in DEGREES.items()}[self.degree]
 
     def predict(self, u: np.ndarray) -> np.ndarray:
-        """(B, 15) inputs -> (B, 27) poses (root position relative to the leftmost contact)."""
-        return (self._coef_t @ self.features.transposed(u)).T
+        """(B, 15) inputs -> (B, 27) poses (root position relative to the leftmost contact).
+
+        Large batches go in blocks of :data:`PREDICT_BLOCK` rows, so that the monomials of a
+        block (136 x block for eq. 1) stay in cache between being made and multiplied.
+        """
+        u = np.asarray(u, dtype=np.float64)
+        if u.ndim != 2 or len(u) <= PREDICT_BLOCK:
+            return (self._coef_t @ self.features.transposed(u)).T
+        out = np.empty((POSE_DIM, len(u)))
+        for s in range(0, len(u), PREDICT_BLOCK):
+            np.matmul(self._coef_t, self.features.transposed(u[s:s + PREDICT_BLOCK]),
+                      out=out[:, s:s + PREDICT_BLOCK])
+        return out.T
 
     def reconstruct(self, positions: np.ndarray, contact: np.ndarray) -> np.ndarray:
         """Labelled fingertips (..., 5, 2) [m] + flags (..., 5) -> absolute poses (..., 27)."""
