@@ -29,3 +29,13 @@ def config_dir() -> Path:
 def data_dir() -> Path:
     """``data/``: shipped models (touch encodings, tracker forest) and the sample capture."""
     return share_dir() / "data"
+
+
+def resolve_path(path: str | Path) -> Path:
+    """``path`` as given, or, when it is relative and missing from the working directory, the
+    same path under :func:`share_dir` (so ``data/sample_capture`` names the shipped file from
+    anywhere)."""
+    p = Path(path).expanduser()
+    if not p.is_absolute() and not p.exists() and (share_dir() / p).exists():
+        return share_dir() / p
+    return p

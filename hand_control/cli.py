@@ -151,8 +151,17 @@ def cmd_capture(a: argparse.Namespace) -> int:
     from hand_capture.cameras.synthetic import SyntheticCameraConfig
     from hand_capture.nodes.capture import SAMPLE_CAPTURE, write_capture
 
-    cfg = SyntheticCameraConfig(clip=a.clip, fps=a.fps, shape_seed=a.shape_seed,
-                                noise_seed=a.noise_seed)
+    if a.params:  # the synthetic_camera section (and /**) of a ROS parameter file
+        from dataclasses import replace
+
+        from hand_capture.config import load_node_params
+
+        cfg = replace(load_node_params(SyntheticCameraConfig, a.params, "synthetic_camera"),
+                      fps=a.fps, shape_seed=a.shape_seed, noise_seed=a.noise_seed,
+                      render_color=True)
+    else:
+        cfg = SyntheticCameraConfig(clip=a.clip, fps=a.fps, shape_seed=a.shape_seed,
+                                    noise_seed=a.noise_seed)
     res = write_capture(a.output or SAMPLE_CAPTURE, cfg, seconds=a.seconds, overwrite=True)
     print(f"wrote {res.frames} frames ({res.messages} messages, {res.size_bytes / 1e6:.2f} MB) "
           f"to {res.path}")
@@ -175,10 +184,12 @@ def cmd_mjcf(a: argparse.Namespace) -> int:
 
 
 def cmd_report(a: argparse.Namespace) -> int:
+    from hand_control.demo import teleop_scenario
     from hand_control.report import build_report
+    from hand_control.report.frames import sim_frame_renderer
 
     out = Path(a.output) if a.output else Path(a.bag).with_name(Path(a.bag).name + "_report")
-    res = build_report(a.bag, out)
+    res = build_report(a.bag, out, frames_fn=sim_frame_renderer(a.scenario or teleop_scenario()))
     print(f"report: {res.html} ({len(res.figures)} figures)")
     for key, value in sorted(res.numbers.items()):
         print(f"  {key:32s} {value:.4g}")
@@ -186,9 +197,9 @@ def cmd_report(a: argparse.Namespace) -> int:
 
 
 def cmd_demo(a: argparse.Namespace) -> int:
-    from hand_control.demo import replay_demo
+    from hand_control.demo import teleop_demo
 
-    return replay_demo(Path(a.out))
+    return teleop_demo(Path(a.out))
 
 
 def cmd_test(a: argparse.Namespace) -> int:
@@ -246,6 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
     cp = sub.add_parser("capture", help="synthetic RGB-D capture with ground truth into a bag")
     cp.add_argument("-o", "--output", default=None, help="bag (default data/sample_capture)")
     cp.add_argument("--clip", default="grasp")
+    cp.add_argument("--params", default=None,
+                    help="camera from a parameter file's synthetic_camera section (e.g. "
+                    "config/teleop.yaml: the teleop performance); replaces --clip")
     cp.add_argument("--seconds", type=float, default=3.0)
     cp.add_argument("--fps", type=float, default=12.0)
     cp.add_argument("--shape-seed", type=int, default=-1, help="-1 = default hand shape")
@@ -265,6 +279,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp = sub.add_parser("report", help="HTML report of a recorded bag")
     rp.add_argument("bag")
     rp.add_argument("-o", "--output", default=None, help="report folder (BAG_report)")
+    rp.add_argument("--scenario", default=None,
+                    help="scenario the sim ran, for the rendered frames (default: teleop's)")
     rp.set_defaults(func=cmd_report)
 
     d = sub.add_parser("demo", help="the main job (README)")

@@ -80,6 +80,8 @@ class GraphRun:
     code: int
     failed: list[str] = field(default_factory=list)
     stopped_by_signal: bool = False
+    cpu_s: dict[str, float] = field(default_factory=dict)  # CPU time per node [s] (last seen)
+    wall_s: float = 0.0  # from the start of the nodes to the stop [s]
 
 
 def _pump(name: str, stream: TextIO, out: TextIO, lock: threading.Lock) -> None:
@@ -96,6 +98,7 @@ def run_graph(
     out: TextIO | None = None,
     install_signal_handlers: bool = True,
     should_stop: Callable[[], bool] | None = None,
+    cpu: dict[str, float] | None = None,
 ) -> GraphRun:
     """Run ``graph`` until it ends, fails or is interrupted; see the module docstring.
 
@@ -106,6 +109,8 @@ def run_graph(
         out: where node output goes (stdout by default).
         install_signal_handlers: handle SIGINT/SIGTERM (main thread only).
         should_stop: polled every 50 ms; True stops the graph like SIGINT.
+        cpu: a dict kept up to date (every 0.5 s) with each node's CPU time [s], e.g. for
+            ``should_stop`` to read; the result's ``cpu_s`` is its last state.
     """
     out = out or sys.stdout
     overrides = overrides or {}
@@ -140,7 +145,10 @@ def run_graph(
         with lock:
             out.write(f"[runner] graph {graph.name}: started "
                       f"{', '.join(c.spec.name for c in children)}\n")
-        result = _supervise(children, stop, should_stop, out, lock)
+        t_start = time.monotonic()
+        result = _supervise(children, stop, should_stop, out, lock,
+                            {} if cpu is None else cpu)
+        result.wall_s = time.monotonic() - t_start
     finally:
         _stop_all(children)
         for c in children:
@@ -153,32 +161,61 @@ def run_graph(
     return result
 
 
+def _sample_cpu(children: list[_Child], cpu: dict[str, float]) -> None:
+    """Record each running node's CPU time (user + system) [s] into ``cpu``."""
+    import psutil
+
+    for c in children:
+        if c.code is None:
+            try:
+                t = psutil.Process(c.proc.pid).cpu_times()
+                cpu[c.spec.name] = t.user + t.system
+            except psutil.Error:  # it just exited: keep its last sample
+                pass
+
+
 def _supervise(children: list[_Child], stop: threading.Event,
                should_stop: Callable[[], bool] | None, out: TextIO,
-               lock: threading.Lock) -> GraphRun:
+               lock: threading.Lock, cpu: dict[str, float]) -> GraphRun:
+    polls = 0
     while True:
-        if stop.is_set() or (should_stop is not None and should_stop()):
-            return GraphRun(code=0, stopped_by_signal=True)
-        running = 0
-        for c in children:
-            if c.code is not None:
-                continue
-            code = c.proc.poll()
-            if code is None:
-                running += 1
-                continue
-            c.code = code
-            if code != 0:
-                with lock:
-                    out.write(f"[runner] node {c.spec.name} failed with exit code {code}\n")
-                return GraphRun(code=1, failed=[c.spec.name])
-            if c.spec.required:
-                with lock:
-                    out.write(f"[runner] required node {c.spec.name} finished\n")
-                return GraphRun(code=0)
-        if running == 0:
-            return GraphRun(code=0)
+        polls += 1
+        if polls % 10 == 0:
+            _sample_cpu(children, cpu)
+        result = _supervise_once(children, stop, should_stop, out, lock)
+        if result is not None:
+            _sample_cpu(children, cpu)
+            result.cpu_s = cpu
+            return result
         time.sleep(0.05)
+
+
+def _supervise_once(children: list[_Child], stop: threading.Event,
+                    should_stop: Callable[[], bool] | None, out: TextIO,
+                    lock: threading.Lock) -> GraphRun | None:
+    """One poll of the nodes: the graph's outcome once it ends, else None."""
+    if stop.is_set() or (should_stop is not None and should_stop()):
+        return GraphRun(code=0, stopped_by_signal=True)
+    running = 0
+    for c in children:
+        if c.code is not None:
+            continue
+        code = c.proc.poll()
+        if code is None:
+            running += 1
+            continue
+        c.code = code
+        if code != 0:
+            with lock:
+                out.write(f"[runner] node {c.spec.name} failed with exit code {code}\n")
+            return GraphRun(code=1, failed=[c.spec.name])
+        if c.spec.required:
+            with lock:
+                out.write(f"[runner] required node {c.spec.name} finished\n")
+            return GraphRun(code=0)
+    if running == 0:
+        return GraphRun(code=0)
+    return None
 
 
 def _stop_all(children: list[_Child]) -> None:

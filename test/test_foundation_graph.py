@@ -97,10 +97,10 @@ def test_ros_args_and_overrides() -> None:
         parse_overrides(["rate:=1"])
 
 
-def test_replay_graph_runs_to_completion_and_round_trips(tmp_path: Path) -> None:
+def test_bag_roundtrip_graph_runs_to_completion_and_round_trips(tmp_path: Path) -> None:
     src, dst = tmp_path / "src", tmp_path / "dst"
     write_sample_bag(src, duration=1.0)
-    p = hand_suite("run", "replay", "-p", f"bag_player.bag:={src}",
+    p = hand_suite("run", "bag_roundtrip", "-p", f"bag_player.bag:={src}",
                    "-p", f"bag_recorder.output:={dst}")
     out, _ = p.communicate(timeout=60)
     assert p.returncode == 0, out
@@ -113,7 +113,7 @@ def test_replay_graph_runs_to_completion_and_round_trips(tmp_path: Path) -> None
 def test_signal_stops_every_node_and_exits_zero(tmp_path: Path, sig: int) -> None:
     src = tmp_path / "src"
     write_sample_bag(src, duration=1.0)
-    p = hand_suite("run", "replay", "-p", f"bag_player.bag:={src}",
+    p = hand_suite("run", "bag_roundtrip", "-p", f"bag_player.bag:={src}",
                    "-p", "bag_player.loop:=true", "-p", f"bag_recorder.output:={tmp_path}/o")
     lines: list[str] = []
     import threading
@@ -129,7 +129,7 @@ def test_signal_stops_every_node_and_exits_zero(tmp_path: Path, sig: int) -> Non
 
 
 def test_failing_node_is_named_with_traceback_and_graph_exits_nonzero(tmp_path: Path) -> None:
-    p = hand_suite("run", "replay", "-p", f"bag_player.bag:={tmp_path}/missing",
+    p = hand_suite("run", "bag_roundtrip", "-p", f"bag_player.bag:={tmp_path}/missing",
                    "-p", f"bag_recorder.output:={tmp_path}/o")
     out, _ = p.communicate(timeout=30)
     assert p.returncode != 0

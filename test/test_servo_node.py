@@ -80,6 +80,37 @@ def test_simulated_source_follows_sim_joint_states(ros) -> None:
                       tick=lambda: pub.publish(msg))
 
 
+def test_commanded_source_follows_the_controller_and_keeps_its_stamp(ros) -> None:
+    peer, add, spin_until = ros
+    node = add(ServoBridgeNode(parameter_overrides=params(source="commanded")))
+    pub = peer.create_publisher(JointCommand, "control/joint_command", 10)
+    goals: list[JointCommand] = []
+    peer.create_subscription(JointCommand, "servo/goal", goals.append, 10)
+    msg = JointCommand(joint_names=["root_tx", *NAMES], positions=[0.1] + [0.0] * len(NAMES),
+                       efforts=[0.0] * (1 + len(NAMES)))
+    msg.positions[1 + NAMES.index("middle_pip_flex")] = 0.5
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 17, 3  # the hand pose's image stamp
+    emu = node.core.emulator
+    want = 2048 + round(1.2 * 0.34 * 0.5 * 651.8986)
+    assert spin_until(lambda: abs(emu.value(3, "goal_position") - want) <= 1, 10.0,
+                      tick=lambda: pub.publish(msg))
+    assert spin_until(lambda: goals, 5.0)
+    assert (goals[-1].header.stamp.sec, goals[-1].header.stamp.nanosec) == (17, 3)
+
+
+def test_autostart_retries_a_failed_configure(ros, tmp_path) -> None:
+    _, add, spin_until = ros
+    port = tmp_path / "ttyUSB_later"  # not there yet: configure fails, then is retried
+    node = add(ServoBridgeNode(parameter_overrides=params(port=str(port),
+                                                          autostart_retry_s=0.2)))
+    assert node._state_machine.current_state[1] == "unconfigured"
+    assert node._retry_timer is not None
+    retries = []
+    node.trigger_configure = lambda: retries.append(1) or ServoBridgeNode.trigger_configure(node)
+    assert spin_until(lambda: len(retries) >= 2, 5.0)
+    assert node._state_machine.current_state[1] == "unconfigured" and node.core is None
+
+
 def test_lifecycle_transitions_switch_torque(ros) -> None:
     _, add, _ = ros
     node = add(ServoBridgeNode(parameter_overrides=params(autostart=False)))

@@ -44,6 +44,7 @@ from hand_capture.model.joints import (
     pose_from_dict,
     root_angles_from_matrix,
 )
+from hand_capture.paths import resolve_path
 
 __all__ = ["BASE_POSE", "CLIPS", "Keyframe", "MotionClip", "builtin_clip", "load_motion",
            "save_pose_sequence"]
@@ -432,9 +433,13 @@ def builtin_clip(name: str) -> MotionClip:
 
 def load_motion(clip: str, pose_file: str = "", *, rate: float = 30.0,
                 loop: bool = True) -> MotionClip:
-    """The built-in ``clip``, or the pose sequence in ``pose_file`` when one is given."""
+    """The built-in ``clip``, or the pose sequence in ``pose_file`` when one is given.
+
+    A relative ``pose_file`` that does not exist from the working directory is looked up in
+    the suite's share folder (``data/teleop/lift_box.npz`` names the shipped performance).
+    """
     if pose_file:
-        return MotionClip.from_file(pose_file, rate=rate, loop=loop)
+        return MotionClip.from_file(resolve_path(pose_file), rate=rate, loop=loop)
     c = builtin_clip(clip)
     c.loop = loop
     return c

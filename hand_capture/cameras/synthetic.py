@@ -31,14 +31,11 @@ from hand_capture.cameras.motion import CLIPS, MotionClip, load_motion
 from hand_capture.cameras.noise import ColorNoise, DepthNoiseConfig, DepthNoiseModel
 from hand_capture.cameras.primitives import SceneObject, scene_objects_from_mapping
 from hand_capture.cameras.render import Mesh, RenderResult, make_renderer
-from hand_capture.cameras.transforms import matrix_to_rotvec, rotvec_to_matrix
+from hand_capture.cameras.transforms import matrix_to_rotvec, pose_in_camera, rotvec_to_matrix
 from hand_capture.config import load_yaml, param, validate
 from hand_capture.errors import ConfigError, DeviceError, InputError
 from hand_capture.model.joints import (
     N_DOF,
-    root_angles_from_matrix,
-    root_rotation_matrix,
-    validate_pose,
 )
 
 __all__ = ["HAND_LABEL", "HandMeshModel", "SyntheticCamera", "SyntheticCameraConfig",
@@ -142,19 +139,6 @@ class SyntheticFrame(Frame):
         if self.labels is None:
             raise InputError("this frame has no labels")
         return self.labels == HAND_LABEL
-
-
-def pose_in_camera(pose: np.ndarray, R_wc: np.ndarray, t_wc: np.ndarray) -> np.ndarray:
-    """A world-frame pose (27,) expressed in the camera frame whose world pose is (R_wc, t_wc).
-
-    Only the root changes: its position becomes ``R_wc^T (p - t_wc)`` and its rotation
-    ``R_wc^T R_root``, converted back to the root's hinge angles.
-    """
-    q = validate_pose(pose).copy()
-    R_cw = R_wc.T
-    q[0:3] = R_cw @ (q[0:3] - t_wc)
-    q[3:6] = root_angles_from_matrix(R_cw @ root_rotation_matrix(q[3:6]))
-    return q
 
 
 def _default_model(side: str, shape_seed: int) -> HandMeshModel:

@@ -26,6 +26,7 @@ from hand_capture.errors import BagError, ConfigError
 from hand_capture.nodes.msgtypes import message_class
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
+from hand_capture.paths import resolve_path
 
 _SPIN_WAIT = 0.002  # below this remaining time [s], busy-wait for precise timing
 
@@ -34,7 +35,8 @@ _SPIN_WAIT = 0.002  # below this remaining time [s], busy-wait for precise timin
 class PlayerConfig:
     """Parameters of bag_player."""
 
-    bag: str = param("", "bag directory to play")
+    bag: str = param("", "bag directory to play (relative: from the working directory, "
+                     "else the suite's share folder, e.g. data/sample_capture)")
     rate: float = param(1.0, "playback speed factor (1.0 = recorded pace)", lo=0.01, hi=1000.0)
     loop: bool = param(False, "start over when the bag ends")
     start: float = param(0.0, "seconds into the bag to start from [s]", lo=0.0)
@@ -59,7 +61,7 @@ class PlayerNode(Node):
     def __init__(self, **kwargs: object) -> None:
         super().__init__("bag_player", **kwargs)
         self.cfg = declare_config(self, PlayerConfig)
-        self.reader = BagReader(self.cfg.bag)
+        self.reader = BagReader(resolve_path(self.cfg.bag))
         wanted = {self.resolve_topic_name(t) for t in self.cfg.topics}
         self.pubs = {}
         for topic, msgtype in self.reader.topics.items():

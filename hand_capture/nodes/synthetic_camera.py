@@ -27,6 +27,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from hand_msgs.msg import HandPose
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.task import Future
 from sensor_msgs.msg import CameraInfo, Image
 
 from hand_capture.cameras.noise import DepthNoiseConfig
@@ -51,6 +52,15 @@ class SyntheticNodeConfig:
     publish_mask: bool = param(False, "also publish camera/hand_mask/image_raw (mono8)")
     blas_threads: int = param(1, "BLAS threads of the process (1 avoids oversubscription)",
                               lo=1, hi=256)
+    wait_for_topics: tuple[str, ...] = param(
+        (), "hold the motion's first pose (publishing it) until each of these topics has a "
+        "publisher, i.e. the graph's other nodes are up; then start the motion")
+    wait_timeout_s: float = param(60.0, "start the motion anyway after waiting this long [s]",
+                                  lo=0.0)
+    end_after_s: float = param(
+        -1.0, "with loop false: end the node this long after the motion's last pose [s] (a "
+        "graph whose camera is required then stops, e.g. the README's main job); "
+        "negative = keep publishing the last pose", lo=-1.0)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -81,6 +91,10 @@ class SyntheticCameraNode(Node):
         self.pub_truth = self.create_publisher(HandPose, "hand/pose_truth", 10)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self._start_ns: int | None = None
+        self._created = time.monotonic()
+        self.done: Future = Future()
+        self._end_t = (self.camera.motion.duration + self.node_cfg.end_after_s
+                       if not self.cfg.loop and self.node_cfg.end_after_s >= 0 else None)
         self.published = 0
         self.render_s = 0.0
         self._diag_count = 0
@@ -93,14 +107,39 @@ class SyntheticCameraNode(Node):
             f"{d['side']} hand, shape seed {d['shape_seed']}, noise "
             f"{'on' if self.noise_cfg.enabled else 'off'}")
 
+    def _waiting(self) -> bool:
+        """Whether the motion still waits for ``wait_for_topics`` (logs what it waits for)."""
+        missing = [t for t in self.node_cfg.wait_for_topics if self.count_publishers(t) == 0]
+        if missing and time.monotonic() - self._created > self.node_cfg.wait_timeout_s:
+            self.get_logger().warning(f"starting the motion without {missing} (waited "
+                                      f"{self.node_cfg.wait_timeout_s:g} s)")
+            missing = []
+        if missing:
+            self.get_logger().info(f"holding the first pose until {missing} have publishers",
+                                   throttle_duration_sec=5.0)
+        elif self._start_ns is None and self.node_cfg.wait_for_topics:
+            self.get_logger().info("every awaited topic has a publisher: motion starts")
+        return bool(missing)
+
     def _tick(self) -> None:
         now = self.get_clock().now()
+        if self._start_ns is None and self._waiting():
+            self._publish(self.camera.frame_at(0.0, stamp_s=now.nanoseconds * 1e-9), now)
+            return
         if self._start_ns is None:
             self._start_ns = now.nanoseconds
         t = (now.nanoseconds - self._start_ns) * 1e-9
+        if self._end_t is not None and t * self.cfg.speed > self._end_t:
+            if not self.done.done():
+                self.get_logger().info(f"end of the motion ({self.published} frames)")
+                self.done.set_result(0)
+            return
         t0 = time.perf_counter()
         frame = self.camera.frame_at(t, stamp_s=now.nanoseconds * 1e-9)
         self.render_s += time.perf_counter() - t0
+        self._publish(frame, now)
+
+    def _publish(self, frame, now) -> None:
         if frame is None:  # dropped by the noise model
             return
         stamp = now.to_msg()

@@ -81,9 +81,10 @@ class BridgeConfig:
                       "/dev/serial/by-id/...; 'emulator' starts an emulated bus on a pty",
                       read_only=True)
     baud: int = param(4_000_000, "baud rate [bit/s]", choices=BAUD_RATES, read_only=True)
-    source: str = param("tracked", "input: tracked (hand/pose, HandPose) or simulated "
-                        "(sim/joint_states, JointState)", choices=("tracked", "simulated"),
-                        read_only=True)
+    source: str = param("tracked", "input: tracked (hand/pose, HandPose), simulated "
+                        "(sim/joint_states, JointState) or commanded (control/joint_command, "
+                        "the controller's position targets)",
+                        choices=("tracked", "simulated", "commanded"), read_only=True)
     control_rate_hz: float = param(200.0, "control loop rate (sync read + sync write) [Hz]",
                                    lo=1.0, hi=2000.0, read_only=True)
     filter_cutoff_hz: float = param(10.0, "low-pass cutoff on servo targets [Hz]; 0 = off",
@@ -119,6 +120,10 @@ class BridgeConfig:
                                       "may change while running", lo=0.0, hi=1.0)
     autostart: bool = param(True, "configure and activate on start (no lifecycle manager "
                             "needed)", read_only=True)
+    autostart_retry_s: float = param(
+        2.0, "with autostart: retry a failed configure (bus not plugged in yet, servos not "
+        "powered) this often [s]; 0 = give up after the first try", lo=0.0, hi=60.0,
+        read_only=True)
     emulator_return_delay_us: float = param(0.0, "return delay of the emulated servos [us] "
                                             "(port: emulator)", lo=0.0, hi=508.0,
                                             read_only=True)
@@ -485,7 +490,8 @@ class ServoBridge:
 
     def handle_joint_state(self, names: Sequence[str], positions: Sequence[float],
                            now: float | None = None) -> bool:
-        """Simulated joint angles (JointState): names outside the vocabulary are ignored."""
+        """Joint angles by name (a simulated JointState or a controller's JointCommand
+        positions): names outside the vocabulary are ignored."""
         return self._set_from(names, positions, False, now)
 
     def _set_from(self, names: Sequence[str], positions: Sequence[float], strict: bool,

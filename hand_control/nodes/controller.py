@@ -6,11 +6,17 @@ Topics:
     in   sim/joint_states (sensor_msgs/JointState): each message triggers one control step
     in   sim/object_pose (geometry_msgs/PoseStamped), sim/object_twist (TwistStamped)
     in   sim/contacts (hand_msgs/ContactArray; hand-object contacts are used)
-    in   hand/pose (hand_msgs/HandPose) when ``reference: hand_pose``; otherwise the
-         scenario's scripted reference at the current (simulation) time
+    in   hand/pose (hand_msgs/HandPose, world frame) when ``reference: hand_pose``; otherwise
+         the scenario's scripted reference at the current (simulation) time. The teleop graph
+         remaps it to control/hand_target (the grasp_phase node's retargeted hand); a pose in
+         another frame than ``world_frame`` (e.g. a tracker's camera frame) is rejected.
+    in   control/grasp_phase (hand_msgs/GraspPhase) when ``reference: hand_pose``: the grasp
+         torques are on in the manipulation phase only (off until a phase arrives)
     in   control/object_target (geometry_msgs/PoseStamped): overrides the object target
     out  control/joint_command (hand_msgs/JointCommand: servo position targets and the grasp
-         torques as feed-forward efforts, by joint name), reliable
+         torques as feed-forward efforts, by joint name), reliable. Its stamp is the stamp of
+         the joint state it answers, or with ``reference: hand_pose`` the stamp of the hand
+         pose it follows (the source image stamp, for per-stage latency).
     out  control/contact_forces (hand_msgs/ContactArray: the planned contact forces on the
          object, eq. III.23), control/contact_markers (visualization_msgs/MarkerArray: arrows),
          both at ``forces_rate`` (50 Hz)
@@ -27,7 +33,7 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PoseStamped, TwistStamped
-from hand_msgs.msg import Contact, ContactArray, HandPose, JointCommand
+from hand_msgs.msg import Contact, ContactArray, GraspPhase, HandPose, JointCommand
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import JointState
@@ -73,9 +79,12 @@ class ControllerNode(Node):
                                  qos_profile_sensor_data)
         self.create_subscription(PoseStamped, "control/object_target", self._on_object_target,
                                  10)
+        self._hand_stamp = None  # stamp of the hand pose followed (reference: hand_pose)
         if self.cfg.reference == "hand_pose":
+            self.core.grasp_override = False
             self.create_subscription(HandPose, "hand/pose", self._on_hand_pose,
                                      qos_profile_sensor_data)
+            self.create_subscription(GraspPhase, "control/grasp_phase", self._on_phase, 10)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.pub_cmd = self.create_publisher(JointCommand, "control/joint_command", reliable)
         self.pub_forces = self.create_publisher(ContactArray, "control/contact_forces", 10)
@@ -112,8 +121,17 @@ class ControllerNode(Node):
             return
         self.core.object_target_override = (pos, quat / np.linalg.norm(quat))
 
+    def _on_phase(self, msg: GraspPhase) -> None:
+        self.core.grasp_override = msg.phase == GraspPhase.MANIPULATION
+
     def _on_hand_pose(self, msg: HandPose) -> None:
         if msg.status in (HandPose.STATUS_UNKNOWN, HandPose.STATUS_LOST):
+            return
+        if msg.header.frame_id != self.cfg.world_frame:
+            self.core.counters["rejected_inputs"] += 1
+            self._log_throttled(f"hand/pose rejected: frame {msg.header.frame_id!r}, the "
+                                f"controller needs {self.cfg.world_frame!r} (map a camera-frame "
+                                f"pose through grasp_phase's control/hand_target)")
             return
         try:
             pose = pose_from_msg(msg)  # (27,) JOINT_NAMES order, root from wrist_pose
@@ -123,6 +141,7 @@ class ControllerNode(Node):
             self._log_throttled(f"hand/pose rejected: {e}")
             return
         self.core.hand_target_override = q
+        self._hand_stamp = msg.header.stamp
 
     def _on_joint_state(self, msg: JointState) -> None:
         if self._obj is None:
@@ -154,7 +173,7 @@ class ControllerNode(Node):
             self._log_throttled(f"bad contact/state input: PD-only step "
                                 f"({c['rejected_inputs']} so far)")
         out = JointCommand()
-        out.header.stamp = msg.header.stamp
+        out.header.stamp = msg.header.stamp if self._hand_stamp is None else self._hand_stamp
         out.joint_names = list(cmd.joint_names)
         out.positions = cmd.positions.tolist()
         out.efforts = cmd.efforts.tolist()

@@ -1,10 +1,21 @@
 """grasp_phase: the teleoperation performance interface (dissertation III.6) as a node.
 
-Subscribes to the tracked hand (``hand/pose``, camera frame) and the simulated object
-(``sim/object_pose``, world frame); publishes the phase on ``control/grasp_phase`` at every hand
-pose and, during manipulation, the object's target pose (rigidly following the wrist) on
-``control/object_target``. Both keep the hand pose's stamp (the source image stamp).
-The camera's pose in the world is a parameter.
+Thin wrapper around :class:`hand_control.teleop.retarget.PerformanceInterface`.
+
+Topics:
+    in   hand/pose (hand_msgs/HandPose): the operator's tracked hand, in the camera optical
+         frame (any frame_id but ``world_frame``; mapped to the world by the camera pose) or
+         already in ``world_frame``. Lost / unknown poses are skipped.
+    in   sim/object_pose (geometry_msgs/PoseStamped, world): the simulated object
+    out  control/grasp_phase (hand_msgs/GraspPhase) at every hand pose
+    out  control/object_target (geometry_msgs/PoseStamped, world) in manipulation: the object's
+         target, rigidly following the operator's (smoothed) wrist
+    out  control/hand_target (hand_msgs/HandPose, world): the hand's PD target, the tracked
+         hand retargeted onto the scenario's planned grasp while closing and manipulating
+    out  diagnostics (1 Hz: phase, rejected inputs)
+Every output keeps the hand pose's stamp (the source image stamp), for per-stage latency.
+The camera pose (``camera_position``, ``camera_rotation``: the camera optical frame in the
+world, as the synthetic camera takes it) is the mapping from the operator's space to the world.
 """
 
 from __future__ import annotations
@@ -17,86 +28,105 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from hand_msgs.msg import GraspPhase, HandPose
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
+from hand_capture.cameras.transforms import pose_in_world, rotvec_to_matrix
 from hand_capture.config import param, validate
-from hand_capture.errors import InputError
-from hand_capture.model import HandModel, matrix_to_quat, quat_to_matrix, root_rotation_matrix
+from hand_capture.errors import ConfigError, HandSuiteError
+from hand_capture.model import matrix_to_quat
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
-from hand_capture.posemsg import pose_from_msg
-from hand_control.teleop.phases import GraspPhaseDetector, PhaseConfig
+from hand_capture.posemsg import fill_pose_msg, pose_from_msg
+from hand_control.sim.lockstep import LockstepRunner
+from hand_control.sim.scenario import load_scenario
+from hand_control.teleop.offline import object_matrix
+from hand_control.teleop.phases import PhaseConfig
+from hand_control.teleop.retarget import InterfaceConfig, PerformanceInterface
+
+_STATUS = {HandPose.STATUS_TRACKING: "tracking", HandPose.STATUS_RECOVERING: "recovering",
+           HandPose.STATUS_GROUND_TRUTH: "ground_truth"}
 
 
 @dataclass(frozen=True)
 class GraspPhaseNodeConfig:
-    """Node parameters besides the detector thresholds (``phase.*``)."""
+    """Node parameters besides the interface (``wrist_cutoff``) and phase (``phase.*``) ones."""
 
-    camera_pose: tuple[float, ...] = param(
-        (0.0, -0.45, 0.35, -2.2, 0.0, 0.0),
-        "camera optical frame in the world: x, y, z [m], then rx, ry, rz root-style angles [rad]")
-    object_name: str = param("object", "name reported in GraspPhase.object_name")
-    world_frame: str = param("world", "frame of control/object_target")
+    scenario: str = param("lift_box", "scenario file (config/scenarios/<name>.yaml): the "
+                          "object and its planned grasp (the same as the sim's)")
+    camera_position: tuple[float, ...] = param(
+        (0.0, 0.0, 0.0), "camera optical centre in the world [m]")
+    camera_rotation: tuple[float, ...] = param(
+        (0.0, 0.0, 0.0), "camera orientation in the world, rotation vector [rad]")
+    world_frame: str = param("world", "frame of the outputs; a hand pose in it is not mapped")
 
     def __post_init__(self) -> None:
         validate(self)
-
-
-def _transform(xyz: object, angles: object) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = root_rotation_matrix(np.asarray(angles, dtype=float))
-    T[:3, 3] = np.asarray(xyz, dtype=float)
-    return T
+        for name in ("camera_position", "camera_rotation"):
+            if len(getattr(self, name)) != 3:
+                raise ConfigError(f"GraspPhaseNodeConfig.{name} needs 3 values")
 
 
 class GraspPhaseNode(Node):
-    """Publishes grasp phases and the manipulation target; see the module docstring."""
+    """Publishes grasp phases, the manipulation target and the hand target; module docstring."""
 
     def __init__(self, **kwargs: object) -> None:
         super().__init__("grasp_phase", **kwargs)
         self.cfg = declare_config(self, GraspPhaseNodeConfig)
-        if len(self.cfg.camera_pose) != 6:
-            raise InputError("camera_pose needs 6 values: x, y, z, rx, ry, rz")
-        self.detector = GraspPhaseDetector(declare_config(self, PhaseConfig, prefix="phase."))
-        self.model = HandModel()
-        self.T_world_cam = _transform(self.cfg.camera_pose[:3], self.cfg.camera_pose[3:])
+        phase_cfg = declare_config(self, PhaseConfig, prefix="phase.")
+        ui_cfg = declare_config(self, InterfaceConfig)
+        runner = LockstepRunner(load_scenario(self.cfg.scenario))  # the sim's world and plan
+        pose = runner.world.object_pose(runner.obj.name)
+        self.object_name = runner.obj.name
+        self.ui = PerformanceInterface(runner.plan.q_grasp,
+                                       object_matrix(pose.position, pose.quaternion),
+                                       phase_cfg, ui_cfg)
+        self.R_wc = rotvec_to_matrix(np.array(self.cfg.camera_rotation))
+        self.t_wc = np.array(self.cfg.camera_position, dtype=float)
         self.object_T: np.ndarray | None = None
         self.rejected = 0
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.pub_phase = self.create_publisher(GraspPhase, "control/grasp_phase", reliable)
         self.pub_target = self.create_publisher(PoseStamped, "control/object_target", reliable)
+        self.pub_hand = self.create_publisher(HandPose, "control/hand_target", reliable)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.create_subscription(HandPose, "hand/pose", self._on_hand, reliable)
-        self.create_subscription(PoseStamped, "sim/object_pose", self._on_object, 10)
+        self.create_subscription(PoseStamped, "sim/object_pose", self._on_object,
+                                 qos_profile_sensor_data)
         self.create_timer(1.0, self._diagnostics)
 
     def _on_object(self, msg: PoseStamped) -> None:
         p, o = msg.pose.position, msg.pose.orientation
-        T = np.eye(4)
-        T[:3, :3] = quat_to_matrix(np.array([o.x, o.y, o.z, o.w]))
-        T[:3, 3] = (p.x, p.y, p.z)
-        self.object_T = T
+        pos, quat = np.array([p.x, p.y, p.z]), np.array([o.w, o.x, o.y, o.z])
+        if np.isfinite(pos).all() and np.isfinite(quat).all() and np.linalg.norm(quat) > 0.5:
+            self.object_T = object_matrix(pos, quat / np.linalg.norm(quat))
 
     def _on_hand(self, msg: HandPose) -> None:
-        if self.object_T is None or msg.status not in (HandPose.STATUS_TRACKING,
-                                                       HandPose.STATUS_GROUND_TRUTH):
+        if self.object_T is None or msg.status not in _STATUS:
             return
         try:
             q = pose_from_msg(msg)
-            kp_cam = self.model.forward(q).joint_positions
-            kp = kp_cam @ self.T_world_cam[:3, :3].T + self.T_world_cam[:3, 3]
-            wrist = self.T_world_cam @ _transform(q[:3], q[3:6])
+            if msg.header.frame_id != self.cfg.world_frame:
+                q = pose_in_world(q, self.R_wc, self.t_wc)
             t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-            up = self.detector.update(t, kp, wrist, self.object_T)
-        except InputError as e:
+            step = self.ui.update(t, q, self.object_T)
+        except HandSuiteError as e:
             self.rejected += 1
             self.get_logger().warning(f"rejected hand pose: {e}", throttle_duration_sec=1.0)
             return
-        out = GraspPhase(phase=int(up.phase), object_name=self.cfg.object_name)
+        up = step.phase
+        out = GraspPhase(phase=int(up.phase), object_name=self.object_name)
         out.header = msg.header
         self.pub_phase.publish(out)
         if up.changed:
-            self.get_logger().info(f"grasp phase: {up.phase.name.lower()}")
+            self.get_logger().info(f"grasp phase: {up.phase.name.lower()} "
+                                   f"(palm-object {up.distance * 100:.1f} cm, grip "
+                                   f"{up.grip * 100:.1f} cm)")
+        hand = fill_pose_msg(HandPose(), step.hand_target, status=_STATUS[msg.status],
+                             confidence=msg.confidence, source="grasp_phase")
+        hand.handedness = msg.handedness
+        hand.header.stamp = msg.header.stamp
+        hand.header.frame_id = self.cfg.world_frame
+        self.pub_hand.publish(hand)
         if up.object_target is not None:
             tgt = PoseStamped()
             tgt.header.stamp = msg.header.stamp
@@ -108,7 +138,7 @@ class GraspPhaseNode(Node):
 
     def _diagnostics(self) -> None:
         st = DiagnosticStatus(level=DiagnosticStatus.OK, name="grasp_phase",
-                              message=self.detector.phase.name.lower())
+                              message=self.ui.detector.phase.name.lower())
         st.values = [KeyValue(key="rejected", value=str(self.rejected))]
         arr = DiagnosticArray(status=[st])
         arr.header.stamp = self.get_clock().now().to_msg()

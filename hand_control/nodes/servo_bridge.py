@@ -1,10 +1,13 @@
-"""servo_bridge: a lifecycle node that drives a DYNAMIXEL hand from the tracked or simulated hand.
+"""servo_bridge: a lifecycle node that drives a DYNAMIXEL hand from the tracked, simulated or
+commanded hand.
 
 Thin wrapper around :class:`hand_control.dynamixel.bridge.ServoBridge` (all logic lives there).
 
 Topics:
     in   hand/pose (hand_msgs/HandPose, source: tracked) or
-         sim/joint_states (sensor_msgs/JointState, source: simulated), sensor-data QoS
+         sim/joint_states (sensor_msgs/JointState, source: simulated), sensor-data QoS, or
+         control/joint_command (hand_msgs/JointCommand, source: commanded; the controller's
+         position targets, reliable)
     out  servo/joint_states (sensor_msgs/JointState: servo angle [rad], velocity [rad/s],
          effort = motor current [A]; only servos read cleanly in that cycle)
     out  servo/goal (hand_msgs/JointCommand: the goals [rad] written to the bus in a cycle,
@@ -63,8 +66,24 @@ class ServoBridgeNode(LifecycleNode):
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self._diag_timer = self.create_timer(1.0 / self.config.diagnostics_rate_hz,
                                              self._publish_diagnostics)
-        if self.config.autostart and self.trigger_configure() == _SUCCESS:
-            self.trigger_activate()
+        self._retry_timer = None
+        if self.config.autostart and not self._autostart() and self.config.autostart_retry_s:
+            self._retry_timer = self.create_timer(self.config.autostart_retry_s,
+                                                  self._retry_autostart)
+
+    def _autostart(self) -> bool:
+        """Configure and activate; whether it configured."""
+        if self.trigger_configure() != _SUCCESS:
+            return False
+        self.trigger_activate()
+        return True
+
+    def _retry_autostart(self) -> None:
+        self.get_logger().info(f"retrying configure (every {self.config.autostart_retry_s} s)",
+                               throttle_duration_sec=30.0)
+        if self._autostart() and self._retry_timer is not None:
+            self.destroy_timer(self._retry_timer)
+            self._retry_timer = None
 
     # ------------------------------------------------------------------------ transitions
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -84,6 +103,9 @@ class ServoBridgeNode(LifecycleNode):
         if self.config.source == "tracked":
             self._sub = self.create_subscription(HandPose, "hand/pose", self._on_pose,
                                                  qos_profile_sensor_data)
+        elif self.config.source == "commanded":
+            self._sub = self.create_subscription(JointCommand, "control/joint_command",
+                                                 self._on_command, 10)
         else:
             self._sub = self.create_subscription(JointState, "sim/joint_states",
                                                  self._on_joint_state, qos_profile_sensor_data)
@@ -157,6 +179,11 @@ class ServoBridgeNode(LifecycleNode):
 
     def _on_joint_state(self, msg: JointState) -> None:
         if self.core is not None and self.core.handle_joint_state(msg.name, msg.position):
+            self._input_stamp = msg.header.stamp
+
+    def _on_command(self, msg: JointCommand) -> None:
+        if self.core is not None and self.core.handle_joint_state(msg.joint_names,
+                                                                  msg.positions):
             self._input_stamp = msg.header.stamp
 
     def _on_control(self) -> None:

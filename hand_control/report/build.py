@@ -112,11 +112,16 @@ def _latency(data: BagData, res: ReportResult, plt, out: Path) -> str:
         if not data.has(topic):
             continue
         v = latency_ms(data.topics[topic])
-        if abs(float(np.median(v))) > _SAME_CLOCK_MS:
+        same = np.abs(v) <= _SAME_CLOCK_MS
+        if not same.any():
             # stamps from another clock (e.g. simulation time) than the recording's
             res.missing.append(f"latency of {topic} (its stamps are not on the recorder's "
                                f"clock: median offset {np.median(v) / 1e3:.3g} s)")
             continue
+        if not same.all():  # e.g. commands sent before the first hand pose (sim stamps)
+            res.numbers[f"latency_{label.replace(' ', '_')}_other_clock_msgs"] = float(
+                (~same).sum())
+            v = v[same]
         stages.append((label, topic))
         lat.append(v)
     if not stages:
@@ -169,6 +174,7 @@ def _object(data: BagData, res: ReportResult, plt, out: Path) -> str:
         ax.set_title("xyz"[k] + " [m]")
         ax.set_xlabel("time [s]")
     axes[0].legend()
+    res.numbers["object_max_lift_mm"] = float((po[:, 2].max() - po[0, 2]) * 1000.0)
     if has_tgt:
         idx = np.clip(np.searchsorted(np.asarray(tgt.t_ns), np.asarray(obj.t_ns)) - 1, 0, None)
         valid = np.asarray(obj.t_ns) >= tgt.t_ns[0]
@@ -246,7 +252,8 @@ def build_report(
     if frames_fn is not None:
         frames = frames_fn(data, out)
         res.figures += frames
-        frames_html = "".join(f'<img class="frame" src="{p.name}" alt="{p.stem}">'
+        frames_html = "".join(f'<figure class="frame"><img src="{p.name}" alt="{p.stem}">'
+                              f'<figcaption>{html.escape(p.stem)}</figcaption></figure>'
                               for p in frames)
     rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{v:.4g}</td></tr>"
                    for k, v in sorted(res.numbers.items()))
@@ -256,8 +263,9 @@ def build_report(
     page = f"""<!doctype html>
 <html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}
-img{{max-width:100%}} img.frame{{width:32%;margin:2px}} td{{padding:2px 10px}}
-table{{border-collapse:collapse}} tr:nth-child(even){{background:#f2f2f2}}</style></head>
+img{{max-width:100%}} figure.frame{{display:inline-block;width:32%;margin:2px}}
+td{{padding:2px 10px}} table{{border-collapse:collapse}}
+tr:nth-child(even){{background:#f2f2f2}}</style></head>
 <body><h1>{html.escape(title)}</h1>
 <p>Bag: <code>{html.escape(str(Path(bag).resolve()))}</code>. Every figure and number below is
 computed from the messages in this bag.</p>

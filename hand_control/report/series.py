@@ -85,8 +85,16 @@ def stamps_ns(msgs: list[object]) -> np.ndarray:
 
 
 def latency_ms(td: TopicData) -> np.ndarray:
-    """Receive time minus header stamp [ms] of every message of a topic."""
-    return (np.asarray(td.t_ns, dtype=np.int64) - stamps_ns(td.msgs)) * 1e-6
+    """Receive time minus header stamp [ms] of the first message carrying each stamp.
+
+    A stage that runs faster than its source (a 250 Hz controller following 30 Hz hand
+    poses) repeats the source stamp; the stage's latency is when the source first got through.
+    """
+    t = np.asarray(td.t_ns, dtype=np.int64)
+    st = stamps_ns(td.msgs)
+    _, first = np.unique(st, return_index=True)
+    first.sort()
+    return (t[first] - st[first]) * 1e-6
 
 
 def match_by_stamp(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -60,6 +60,8 @@ class ControllerNodeConfig:
         "RViz and recording; 0 = every control step)", lo=0.0)
     marker_scale: float = param(0.01, "arrow length per newton in control/contact_markers "
                                 "[m/N]", lo=0.0)
+    world_frame: str = param("world", "frame of the simulation; hand/pose targets must be in "
+                             "it (reference: hand_pose)")
 
     def __post_init__(self) -> None:
         validate(self)
@@ -158,10 +160,16 @@ class ControllerCore:
         self.last_output = None  # the controller's last ControlOutput (for diagnostics)
         self.object_target_override: tuple[np.ndarray, np.ndarray] | None = None
         self.hand_target_override: np.ndarray | None = None
+        # grasp torques on/off from outside (teleoperation: on in the manipulation phase of
+        # the grasp-phase detector); None = the scenario reference's phases
+        self.grasp_override: bool | None = None
 
     def needs_contacts(self, t: float) -> bool:
         """Whether the step at ``t`` uses contacts (composite mode, grasp torques on)."""
-        return self.controller.config.mode == "composite" and self.reference(t).grasp
+        return self.controller.config.mode == "composite" and self._grasp_on(t)
+
+    def _grasp_on(self, t: float) -> bool:
+        return self.reference(t).grasp if self.grasp_override is None else self.grasp_override
 
     def hand_pose_from_names(self, names: Sequence[str], positions: Sequence[float],
                              default: np.ndarray | None = None) -> np.ndarray:
@@ -206,7 +214,8 @@ class ControllerCore:
         effort = None
         k = len(contact_bodies)
         forces = torsion = None
-        if ref.grasp and self.controller.config.mode == "composite" and k > 0:
+        grasp = ref.grasp if self.grasp_override is None else self.grasp_override
+        if grasp and self.controller.config.mode == "composite" and k > 0:
             try:
                 if contact_set is None:
                     self.kin.update(q)

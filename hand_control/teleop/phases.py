@@ -46,9 +46,16 @@ class PhaseConfig:
     steady_tolerance: float = param(0.004, "largest grip-size change counted as steady [m]",
                                     lo=0.0, hi=0.1)
     min_closing_time: float = param(0.2, "closing lasts at least this long [s]", lo=0.0, hi=5.0)
-    release_time: float = param(0.2, "window in which an opening grip releases [s]",
+    grip_filter: int = param(
+        5, "the grip size is the median of the last n hand poses (tracking jitter of single "
+        "frames would otherwise end a grasp)", lo=1, hi=100)
+    close_decrease: float = param(
+        0.008, "the grip must have shrunk this much since closing began before it can settle "
+        "into a grasp (an open hand held still near the object is not a grasp) [m]",
+        lo=0.0, hi=0.2)
+    release_time: float = param(0.3, "window in which an opening grip releases [s]",
                                 lo=0.01, hi=5.0)
-    release_increase: float = param(0.012, "grip-size increase that releases [m]",
+    release_increase: float = param(0.008, "grip-size increase that releases [m]",
                                     lo=0.0, hi=0.2)
 
     def __post_init__(self) -> None:
@@ -77,7 +84,7 @@ class PhaseUpdate:
     phase: Phase
     changed: bool
     object_target: np.ndarray | None  # (4, 4) object pose to track in MANIPULATION, else None
-    grip: float  # grip size [m]
+    grip: float  # grip size (median of the last grip_filter poses) [m]
     distance: float  # palm-object distance [m]
 
 
@@ -90,6 +97,8 @@ class GraspPhaseDetector:
         self._since = 0.0
         self._grips: deque[tuple[float, float]] = deque()
         self._offset: np.ndarray | None = None  # object pose in the wrist frame, (4, 4)
+        self._open_grip = 0.0  # grip size when closing began [m]
+        self._raw: deque[float] = deque(maxlen=self.cfg.grip_filter)  # unfiltered grip sizes
 
     def reset(self) -> None:
         """Back to reaching, forgetting any grasp."""
@@ -124,7 +133,8 @@ class GraspPhaseDetector:
         if not (np.isfinite(kp).all() and np.isfinite(wrist).all()
                 and np.isfinite(object_pose).all() and np.isfinite(t)):
             raise InputError("non-finite hand or object pose")
-        grip = float(grip_size(kp))
+        self._raw.append(float(grip_size(kp)))
+        grip = float(np.median(self._raw))
         dist = float(np.linalg.norm(palm_center(kp) - object_pose[:3, 3]))
         self._grips.append((t, grip))
         before = self.phase
@@ -132,12 +142,14 @@ class GraspPhaseDetector:
         if self.phase == Phase.REACHING:
             if dist < c.reach_distance:
                 self._enter(Phase.CLOSING, t)
+                self._open_grip = grip
         elif self.phase == Phase.CLOSING:
             w = self._window(t, c.steady_time)
             if dist > c.leave_distance:
                 self._enter(Phase.REACHING, t)
             elif (t - self._since >= max(c.min_closing_time, c.steady_time) and w.size >= 2
-                  and np.ptp(w) <= c.steady_tolerance):
+                  and np.ptp(w) <= c.steady_tolerance
+                  and self._open_grip - grip >= c.close_decrease):
                 self._offset = np.linalg.inv(wrist) @ object_pose
                 self._enter(Phase.MANIPULATION, t)
         elif self.phase == Phase.MANIPULATION:
