@@ -64,6 +64,8 @@ _FLEX15 = BONE_FLEX_DOF[1:]
 _HAS_ABD15 = _ABD15 >= 0
 _ABD15_SAFE = np.where(_HAS_ABD15, _ABD15, 0)
 _ABD_GATE15 = _HAS_ABD15.astype(np.float64)
+#: (21, 1, 27) 1 where a DoF moves a keypoint's bone
+_KP_DOF_MASK = BONE_DOF_MASK[KEYPOINT_BONE][:, None, :].astype(np.float64)
 
 
 @dataclass(frozen=True)
@@ -464,11 +466,15 @@ class HandModel:
         axes = np.zeros((b, N_DOF, 3))
         anchors = np.zeros((b, N_DOF, 3))
         axes[:, 0:3] = np.eye(3)
-        rx = root_rotation_matrix(np.stack([q[:, 3], 0 * q[:, 3], 0 * q[:, 3]], axis=1))
-        rxy = root_rotation_matrix(np.stack([q[:, 3], q[:, 4], 0 * q[:, 3]], axis=1))
+        # columns of Rx(rx) (y) and Rx(rx) Ry(ry) (z), as root_rotation_matrix writes them
+        cx, sx = np.cos(q[:, 3]), np.sin(q[:, 3])
+        cy, sy = np.cos(q[:, 4]), np.sin(q[:, 4])
         axes[:, 3] = (1.0, 0.0, 0.0)
-        axes[:, 4] = rx[:, :, 1]
-        axes[:, 5] = rxy[:, :, 2]
+        axes[:, 4, 1] = cx
+        axes[:, 4, 2] = sx
+        axes[:, 5, 0] = sy
+        axes[:, 5, 1] = -sx * cy
+        axes[:, 5, 2] = cx * cy
         anchors[:, 3:6] = pos[:, None, 0]
         par = BONE_PARENT[_FINGER_BONES]
         abd_axis = np.matmul(rot[:, par], self._rrest_z15[None, :, :, None])[..., 0]
@@ -491,15 +497,13 @@ class HandModel:
         """
         b = q.shape[0]
         axes, anchors = self._dof_axes(q, rot, pos)
-        h = np.zeros((b, N_BONES, 4, 3, N_DOF))
-        ax = np.swapaxes(axes, 1, 2)[:, None, :, :]            # (B, 1, 3, 27)
-        # rows c < 3: a_k x (column c of R_j)
-        for c in range(3):
-            r = rot[:, :, :, c, None]                            # (B, 16, 3, 1)
-            _cross_into(h[:, :, c], ax, r)
-        # row 3: a_k x (t_j - o_k)
-        d = pos[:, :, :, None] - np.swapaxes(anchors, 1, 2)[:, None]  # (B, 16, 3, 27)
-        _cross_into(h[:, :, 3], ax, d)
+        h = np.empty((b, N_BONES, 4, 3, N_DOF))
+        ax = np.swapaxes(axes, 1, 2)[:, None, None, :, :]      # (B, 1, 1, 3, 27)
+        # rows c < 3: a_k x (column c of R_j); row 3: a_k x (t_j - o_k); all four at once
+        v = np.empty((b, N_BONES, 4, 3, N_DOF))
+        v[:, :, :3] = np.swapaxes(rot, 2, 3)[..., None]          # (B, 16, 3 (c), 3, 1)
+        v[:, :, 3] = pos[:, :, :, None] - np.swapaxes(anchors, 1, 2)[:, None]
+        _cross_into(h, ax, v)
         h *= BONE_DOF_MASK[None, :, None, None, :]
         h[..., 0:3] = 0.0
         h[:, :, 3, :, 0:3] = np.eye(3)
@@ -551,6 +555,62 @@ class HandModel:
         pts = out[..., :3]
         jac = out[..., 3:].reshape(b, -1, 3, N_DOF)
         return (pts[0], jac[0]) if single else (pts, jac)
+
+    def skinning_rows(self, vertex_idx: object = None) -> sp.csr_matrix:
+        """Rows (N, 64) of the sparse skinning matrix ``X = [w_ij p_ij, w_ij]_j`` (columns bone
+        major, 4 per bone), for :meth:`bone_basis` (default: all vertices)."""
+        return self._xmat if vertex_idx is None else self._xmat[self._check_idx(vertex_idx)]
+
+    def keypoint_rows(self) -> np.ndarray:
+        """Rows (21, 64) with ``keypoints = keypoint_rows() @ T`` for ``T`` of
+        :meth:`bone_basis` (like :meth:`skinning_rows` for the keypoints)."""
+        return self._kp_x.copy()
+
+    def bone_basis(self, pose: object, jacobian: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+        """One FK pass in the form a Gauss-Newton loop over vertex subsets wants.
+
+        Returns ``(T, H, rot, pos)``: ``T`` (64, 3) the stacked bone transforms, so that the
+        skinned vertices are ``skinning_rows(idx) @ T`` (eq. II.8); ``H`` (64, 81) (only with
+        ``jacobian=True``, else None) so that their pose Jacobian is
+        ``(skinning_rows(idx) @ H).reshape(N, 3, 27)``; the bone rotations (16, 3, 3) and
+        origins (16, 3). A batch of poses gives a leading batch axis. Same values as
+        :meth:`vertices` / :meth:`jacobian`.
+        """
+        q, single = self._batch(pose)
+        rot, pos = self._fk(q)
+        b = q.shape[0]
+        tr = np.empty((b, N_BONES, 4, 3))
+        tr[:, :, :3] = np.swapaxes(rot, 2, 3)
+        tr[:, :, 3] = pos
+        T = tr.reshape(b, 4 * N_BONES, 3)
+        H = self._jac_matrix(q, rot, pos) if jacobian else None
+        if single:
+            return T[0], None if H is None else H[0], rot[0], pos[0]
+        return T, H, rot, pos
+
+    def keypoints_and_jacobian(self, pose: object, keypoints: object = None,
+                               dofs: object = None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`joint_positions` and :meth:`keypoint_jacobian` from one FK pass, optionally
+        only for some ``keypoints`` (rows) and ``dofs`` (columns).
+
+        The Jacobian column of hinge k at keypoint p is ``a_k x (p - o_k)`` when the hinge
+        moves p's bone (what :meth:`keypoint_jacobian` gives through the skinning rows)."""
+        q, single = self._batch(pose)
+        rot, pos = self._fk(q)
+        kp = self._keypoints(rot, pos)
+        axes, anchors = self._dof_axes(q, rot, pos)
+        kr = np.arange(N_KEYPOINTS) if keypoints is None else np.asarray(keypoints)
+        dc = np.arange(N_DOF) if dofs is None else np.asarray(dofs)
+        kp = kp[:, kr]
+        d = kp[:, :, None, :] - anchors[:, None, dc, :]           # (B, K, D, 3)
+        jac = np.empty((q.shape[0], len(kr), 3, len(dc)))
+        _cross_into(jac, np.swapaxes(axes[:, dc], 1, 2)[:, None], np.swapaxes(d, 2, 3))
+        jac *= _KP_DOF_MASK[kr][:, :, dc]
+        slide = np.flatnonzero(dc < 3)
+        if len(slide):
+            jac[..., slide] = np.eye(3)[:, dc[slide]]
+        return (kp[0], jac[0]) if single else (kp, jac)
 
     def keypoint_jacobian(self, pose: object) -> np.ndarray:
         """d(keypoint)/d(pose): (21, 3, 27) or (B, 21, 3, 27)."""

@@ -50,7 +50,7 @@ class TrackerConfig:
                               lo=1.0)
     model_stride: int = param(2, "use every n-th model vertex as correspondence candidate",
                               lo=1, hi=32)
-    icp_iterations: int = param(2, "Gauss-Newton iterations per candidate (step 4)", lo=0,
+    icp_iterations: int = param(3, "Gauss-Newton iterations per candidate (step 4)", lo=0,
                                 hi=50)
     palm_iterations: int = param(1, "palm-only refinement iterations (steps 1 and 3)", lo=0,
                                  hi=50)

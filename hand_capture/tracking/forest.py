@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RegressionForest", "weighted_kmeans"]
+__all__ = ["ForestGroup", "RegressionForest", "weighted_kmeans"]
 
 
 def weighted_kmeans(x: np.ndarray, w: np.ndarray, k: int, iters: int = 8
@@ -34,15 +34,21 @@ def weighted_kmeans(x: np.ndarray, w: np.ndarray, k: int, iters: int = 8
             break
         centres.append(x[int(np.argmax(d * w))])
     c = np.array(centres)
-    for _ in range(iters):
+    ww = w + 1e-12
+    prev = None
+    for _ in range(iters + 1):
         d = np.sum((x[:, None, :] - c[None]) ** 2, axis=2)
         a = np.argmin(d, axis=1)
-        for j in range(len(c)):
-            m = a == j
-            if m.any():
-                c[j] = np.average(x[m], axis=0, weights=w[m] + 1e-12)
-    d = np.sum((x[:, None, :] - c[None]) ** 2, axis=2)
-    a = np.argmin(d, axis=1)
+        if prev is not None and np.array_equal(a, prev):
+            break  # same assignment: the centres are a fixed point
+        if _ == iters:
+            break
+        prev = a
+        # weighted mean of each cluster (one product for all clusters)
+        onehot = (a[:, None] == np.arange(len(c))[None, :]) * ww[:, None]   # (n, k)
+        tot = onehot.sum(axis=0)
+        used = np.bincount(a, minlength=len(c)) > 0
+        c[used] = (onehot.T @ x)[used] / tot[used, None]
     weights = np.bincount(a, weights=w, minlength=len(c))
     keep = weights > 0
     return c[keep], weights[keep]
@@ -233,3 +239,53 @@ def _best_split(X: np.ndarray, Y: np.ndarray, idx: np.ndarray, n_try: int, n_thr
         return None
     ti, fi = divmod(best, len(feats))
     return int(feats[fi]), float(t[ti, fi])
+
+
+class ForestGroup:
+    """Several forests evaluated together (the five finger forests of a cascade stage): one
+    traversal of all their trees at once, each forest reading its own block of columns.
+
+    ``predict(X)`` with X (n, G, F) (forest g reads ``X[:, g]``) gives (n, G, D), the same
+    as ``forests[g].predict(X[:, g])`` for every g (forests of equal tree count and output
+    size)."""
+
+    def __init__(self, forests: list[RegressionForest]) -> None:
+        if len({f.n_trees for f in forests}) != 1 or len({f.value.shape[1] for f in forests}) != 1:
+            raise ValueError("ForestGroup needs forests of equal tree count and output size")
+        self.n_forests = len(forests)
+        self.n_trees = forests[0].n_trees
+        fs, ts, ls, leaves, roots, values = [], [], [], [], [], []
+        node_off = leaf_off = 0
+        self._col_off = []
+        for f in forests:
+            ff, tt, ll = f._walk_tables()
+            fs.append(ff)
+            ts.append(tt)
+            ls.append(ll + node_off)
+            leaves.append(np.where(f.leaf >= 0, f.leaf + leaf_off, -1))
+            roots.append(f.roots.astype(np.intp) + node_off)
+            values.append(f.value)
+            node_off += len(ff)
+            leaf_off += len(f.value)
+        self._f = np.concatenate(fs)
+        self._feat_forest = np.concatenate([np.full(len(x), g, np.intp)
+                                            for g, x in enumerate(fs)])
+        self._t = np.concatenate(ts)
+        self._left = np.concatenate(ls)
+        self._leaf = np.concatenate(leaves)
+        self._roots = np.concatenate(roots)
+        self._value = np.concatenate(values)
+        self.depth = max(f.depth for f in forests)
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        X = np.asarray(X, np.float32)
+        n, G, F = X.shape
+        flat = X.reshape(n, G * F)
+        col = self._f + self._feat_forest * F       # column of every node in ``flat``
+        node = np.broadcast_to(self._roots[None, :], (n, len(self._roots))).copy()
+        rows = np.arange(n)[:, None]
+        t, left = self._t, self._left
+        for _ in range(self.depth):
+            node = left[node] + (flat[rows, col[node]] >= t[node])
+        vals = self._value[self._leaf[node]]         # (n, G * T, D)
+        return vals.reshape(n, G, self.n_trees, -1).mean(axis=2)

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from hand_capture.cameras.base import Intrinsics
@@ -68,6 +69,20 @@ def render_depth(vertices: np.ndarray, intr: Intrinsics, ds: int = 1) -> np.ndar
     """
     W = (intr.width + ds - 1) // ds
     H = (intr.height + ds - 1) // ds
+    out = np.zeros((H, W), np.float32)
+    win, r0, c0 = _render_window(vertices, intr, ds, None)
+    out[r0:r0 + win.shape[0], c0:c0 + win.shape[1]] = win
+    return out
+
+
+def _render_window(vertices: np.ndarray, intr: Intrinsics, ds: int,
+                   box: tuple[int, int, int, int] | None
+                   ) -> tuple[np.ndarray, int, int]:
+    """:func:`render_depth` computed in a window only: ``(image, row0, col0)``. The window
+    holds every splatted pixel with a 2-pixel margin (so the 3x3 closing is the same as on
+    the whole image) and the rows / columns ``box = (r0, r1, c0, c1)`` (end exclusive)."""
+    W = (intr.width + ds - 1) // ds
+    H = (intr.height + ds - 1) // ds
     z = vertices[:, 2]
     ok = z > 1e-3
     v = vertices[ok]
@@ -75,16 +90,27 @@ def render_depth(vertices: np.ndarray, intr: Intrinsics, ds: int = 1) -> np.ndar
     u = np.rint((intr.fx * v[:, 0] / z + intr.cx) / ds).astype(np.int64)
     w = np.rint((intr.fy * v[:, 1] / z + intr.cy) / ds).astype(np.int64)
     inside = (u >= 0) & (u < W) & (w >= 0) & (w < H)
-    buf = np.full(H * W, _FAR, np.float32)
-    np.minimum.at(buf, w[inside] * W + u[inside], z[inside].astype(np.float32))
-    buf = buf.reshape(H, W)
+    u, w, z = u[inside], w[inside], z[inside]
+    rows = [] if box is None else [box[0], box[1] - 1]
+    cols = [] if box is None else [box[2], box[3] - 1]
+    if len(u):
+        rows += [int(w.min()) - 2, int(w.max()) + 2]
+        cols += [int(u.min()) - 2, int(u.max()) + 2]
+    if not rows:
+        return np.zeros((0, 0), np.float32), 0, 0
+    r0, r1 = max(min(rows), 0), min(max(rows) + 1, H)
+    c0, c1 = max(min(cols), 0), min(max(cols) + 1, W)
+    h, wd = r1 - r0, c1 - c0
+    buf = np.full(h * wd, _FAR, np.float32)
+    np.minimum.at(buf, (w - r0) * wd + (u - c0), z.astype(np.float32))
+    buf = buf.reshape(h, wd)
     occ = (buf < _FAR).astype(np.uint8)
     closed = cv2.morphologyEx(occ, cv2.MORPH_CLOSE, _K3)
     holes = (closed > 0) & (occ == 0)
     if holes.any():
         buf[holes] = cv2.erode(buf, _K3)[holes]
     buf[buf >= _FAR] = 0.0
-    return buf
+    return buf, r0, c0
 
 
 def depth_error(rendered_m: np.ndarray, observed_m: np.ndarray, cap_mm: float) -> float:
@@ -116,9 +142,11 @@ def _root_jacobian(q: np.ndarray, points: np.ndarray) -> np.ndarray:
     d = points - q[0:3]
     J = np.empty((len(points), 3, 6))
     J[:, :, 0:3] = np.eye(3)
-    J[:, :, 3] = np.cross(a0, d)
-    J[:, :, 4] = np.cross(a1, d)
-    J[:, :, 5] = np.cross(a2, d)
+    a = np.stack([a0, a1, a2], axis=1)                # (3, 3): axis k in column k
+    dx, dy, dz = d[:, 0:1], d[:, 1:2], d[:, 2:3]
+    J[:, 0, 3:] = a[1] * dz - a[2] * dy               # a_k x d, the three axes at once
+    J[:, 1, 3:] = a[2] * dx - a[0] * dz
+    J[:, 2, 3:] = a[0] * dy - a[1] * dx
     return J
 
 
@@ -140,6 +168,21 @@ class ModelTracker:
         self.rest_normals = model.normals(model.rest_vertices)
         self.labels = model.vertex_labels
         self.cand = np.arange(0, model.n_vertices, self.cfg.model_stride)
+        # fast path of step(): the candidate vertices and their normals from one sparse
+        # product [X_c | N_c] @ [[T, 0], [0, R]] (normals: rest normal turned by the main bone)
+        c = self.cand
+        nc = len(c)
+        lab = self.labels[c]
+        nrm = sp.csr_matrix((self.rest_normals[c].reshape(-1),
+                             (np.repeat(np.arange(nc), 3),
+                              (3 * lab[:, None] + np.arange(3)[None]).reshape(-1))),
+                            shape=(nc, 3 * model.skinning_rows().shape[1] // 4))
+        self._xc = model.skinning_rows(c)
+        self._xcn = sp.hstack([self._xc, nrm], format="csr")
+        self._xc_dense = self._xc.toarray()
+        self._nx = self._xc.shape[1]
+        self._tree_cache: tuple[np.ndarray, cKDTree] | None = None
+        self._box_cache: tuple[np.ndarray, tuple | None] | None = None
 
     # ----------------------------------------------------------------------------- geometry
     def posed(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -163,33 +206,35 @@ class ModelTracker:
             return empty
         Vf = V[facing]
         z = np.maximum(Vf[:, 2], 1e-3)
-        uv = np.stack([intr.fx * Vf[:, 0] / z + intr.cx, intr.fy * Vf[:, 1] / z + intr.cy], 1)
+        uv = np.empty((len(Vf), 2))
+        uv[:, 0] = intr.fx * Vf[:, 0] / z + intr.cx
+        uv[:, 1] = intr.fy * Vf[:, 1] / z + intr.cy
         k = min(cfg.window_candidates, len(facing))
-        tree = cKDTree(uv)
-        dist, idx = tree.query(pixels, k=k, p=np.inf, distance_upper_bound=cfg.window_px)
+        # unbalanced tree: quicker to build, same neighbours
+        tree = cKDTree(uv, balanced_tree=False, compact_nodes=False)
+        _, idx = tree.query(pixels, k=k, p=np.inf, distance_upper_bound=cfg.window_px)
         if k == 1:
-            dist, idx = dist[:, None], idx[:, None]
-        ok = dist < np.inf
-        safe = np.where(ok, idx, 0)
-        diff = Vf[safe] - points[:, None, :]
+            idx = idx[:, None]
+        # a missing neighbour has index len(Vf): it reads a point at infinity
+        Vp = np.concatenate([Vf, np.full((1, 3), np.inf)])
+        diff = Vp[idx] - points[:, None, :]
         d3 = np.einsum("nkc,nkc->nk", diff, diff)
-        d3[~ok] = np.inf
-        best = np.argmin(d3, axis=1)
-        rows = np.arange(len(points))
-        bd = np.sqrt(d3[rows, best])
-        sel = safe[rows, best]
+        flat = np.arange(0, d3.size, k) + d3.argmin(axis=1)   # best of each row
+        bd = np.sqrt(d3.ravel()[flat])
+        sel = idx.ravel()[flat]
         if cfg.window_fallback:
             miss = ~np.isfinite(bd)
             if miss.any():
                 d_fb, i_fb = cKDTree(Vf).query(points[miss])
                 bd[miss] = d_fb
                 sel[miss] = i_fb
-        keep = np.isfinite(bd) & (bd * _MM <= cfg.outlier_mm)
+        keep = bd * _MM <= cfg.outlier_mm            # False for a point with no vertex (inf)
         vi = facing[sel[keep]]
         return Correspondences(points[keep], vi, V[vi])
 
     def reverse_correspond(self, points: np.ndarray, V: np.ndarray, facing: np.ndarray,
-                           obs: HandObservation, stride: int = 3) -> Correspondences:
+                           obs: HandObservation, stride: int = 3,
+                           tree: cKDTree | None = None) -> Correspondences:
         """Model-to-data pairs (an addition to eq. II.23, weight ``reverse_weight``): every
         ``stride``-th facing vertex that projects off the observed hand (farther than
         ``reverse_margin_px`` from it) is paired with its nearest observed point. This
@@ -207,12 +252,11 @@ class ModelTracker:
         inside = (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
         # off the hand by more than reverse_margin_px (silhouette rims are left alone: a
         # vertex on the rim of a finger may round to an empty pixel next to it)
-        out_px = np.full(len(f), np.inf, np.float32)
-        out_px[inside] = obs.outside_distance[v[inside], u[inside]]
-        keep = out_px > self.cfg.reverse_margin_px
+        keep = np.ones(len(f), bool)
+        keep[inside] = obs.off_hand(v[inside], u[inside], self.cfg.reverse_margin_px)
         if not keep.any():
             return empty
-        dist, idx = cKDTree(points).query(Vf[keep])
+        dist, idx = (tree or cKDTree(points)).query(Vf[keep])
         vi = f[keep]
         return Correspondences(points[idx], vi, V[vi])
 
@@ -226,9 +270,7 @@ class ModelTracker:
         ``(Correspondences, weight)``."""
         cfg = self.cfg
         n = len(dofs)
-        A = np.zeros((n, n))
-        g = np.zeros(n)
-        E = 0.0
+        blocks = []
         pairs = [(corr, cfg.data_weight)] if isinstance(corr, Correspondences) else corr
         for c, w in pairs:
             if not len(c.vertex) or w <= 0:
@@ -237,10 +279,28 @@ class ModelTracker:
                 J = _root_jacobian(q, c.model).reshape(-1, 6) * _MM
             else:
                 J = self.model.jacobian(q, c.vertex)[:, :, dofs].reshape(-1, n) * _MM
-            r = c.residual_mm.reshape(-1)
-            A += w * (J.T @ J)
-            g += w * (J.T @ r)
-            E += w * float(r @ r)
+            blocks.append((J, c.residual_mm.reshape(-1), w))
+        return self._assemble(q, blocks, q_ref, dofs)
+
+    def _assemble(self, q: np.ndarray, blocks: list, q_ref: np.ndarray | None,
+                  dofs: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Normal equations of eq. II.27 from data blocks ``(J (3N, n), r (3N,), weight)``
+        plus the smoothness (II.24) and joint-limit (II.25) terms."""
+        cfg = self.cfg
+        n = len(dofs)
+        A = np.zeros((n, n))
+        g = np.zeros(n)
+        E = 0.0
+        for J, r, w in blocks:  # w: a weight, or one per residual row
+            if np.ndim(w):
+                Jw = J.T * w
+                A += Jw @ J
+                g += Jw @ r
+                E += float(r @ (w * r))
+            else:
+                A += w * (J.T @ J)
+                g += w * (J.T @ r)
+                E += w * float(r @ r)
         if q_ref is not None and cfg.smooth_weight > 0:
             s = _SMOOTH_SCALE[dofs]
             d = q[dofs] - q_ref[dofs]
@@ -262,26 +322,79 @@ class ModelTracker:
 
     def step(self, q: np.ndarray, obs: HandObservation, points: np.ndarray, pixels: np.ndarray,
              q_ref: np.ndarray | None, dofs: np.ndarray) -> tuple[np.ndarray, Correspondences]:
-        """One Gauss-Newton iteration (correspondences rebuilt at ``q``)."""
-        V, facing = self.posed(q)
-        corr = self.correspond(points, pixels, V, facing, obs.intrinsics)
-        pairs = [(corr, self.cfg.data_weight)]
-        if self.cfg.reverse_weight > 0:
-            pairs.append((self.reverse_correspond(points, V, facing, obs),
-                          self.cfg.reverse_weight))
-        A, g, _ = self.normal_equations(q, pairs, q_ref, dofs)
-        A[np.diag_indices(len(dofs))] += self.cfg.damping * (1.0 + A.diagonal())
-        try:
-            dq = -np.linalg.solve(A, g)
-        except np.linalg.LinAlgError:
-            return q, corr
-        ang = dofs >= 3
-        big = float(np.max(np.abs(dq[ang]))) if ang.any() else 0.0
-        if big > self.cfg.max_step_rad:
-            dq *= self.cfg.max_step_rad / big
-        out = q.copy()
-        out[dofs] += dq
-        return out, corr
+        """One Gauss-Newton iteration (correspondences rebuilt at ``q``).
+
+        Same as ``normal_equations(q, [(correspond(...), data_weight), (reverse_correspond(...),
+        reverse_weight)], ...)`` on ``posed(q)``, computed on the candidate vertices only, from
+        one FK pass (vertices, normals and the Jacobian rows share it)."""
+        out, corr = self._steps(q[None], obs, points, pixels, [q_ref], dofs)
+        return out[0], corr[0]
+
+    def _steps(self, Q: np.ndarray, obs: HandObservation, points: np.ndarray,
+               pixels: np.ndarray, q_refs: list, dofs: np.ndarray
+               ) -> tuple[np.ndarray, list[Correspondences]]:
+        """:meth:`step` for a batch of poses (B, 27): one FK pass and one skinning product
+        for all of them; correspondences and normal equations per pose."""
+        cfg = self.cfg
+        root = len(dofs) == 6 and dofs[0] == 0 and dofs[-1] == 5
+        T, H, rot, _ = self.model.bone_basis(Q, jacobian=not root)
+        B, nb = rot.shape[0], rot.shape[1]
+        # [X_c | N_c] @ [[T, 0], [0, R^T]] for every pose: columns (pose, 6)
+        rhs = np.zeros((self._xcn.shape[1], B, 6))
+        rhs[:self._nx, :, :3] = np.swapaxes(T, 0, 1)
+        rhs[self._nx:, :, 3:] = np.swapaxes(np.swapaxes(rot, 2, 3).reshape(B, 3 * nb, 3), 0, 1)
+        vn = (self._xcn @ rhs.reshape(-1, 6 * B)).reshape(-1, B, 6)
+        tree = self._point_tree(points) if cfg.reverse_weight > 0 else None
+        out = Q.copy()
+        corrs = []
+        for b in range(B):
+            q = Q[b]
+            Vc = vn[:, b, :3]
+            facing = np.flatnonzero(np.einsum("ij,ij->i", vn[:, b, 3:], Vc) < 0.0)
+            corr = self.correspond(points, pixels, Vc, facing, obs.intrinsics)
+            sets = [(corr, cfg.data_weight)]
+            if cfg.reverse_weight > 0:
+                sets.append((self.reverse_correspond(points, Vc, facing, obs, tree=tree),
+                             cfg.reverse_weight))
+            sets = [(c, w) for c, w in sets if len(c.vertex) and w > 0]
+            blocks = []
+            if sets:  # all pairs in one block, each row with its set's weight
+                if len(sets) == 1:
+                    c, w = sets[0]
+                    Mp, rows, r = c.model, c.vertex, c.residual_mm.reshape(-1)
+                else:
+                    Mp = np.concatenate([c.model for c, _ in sets])
+                    rows = np.concatenate([c.vertex for c, _ in sets])
+                    r = ((Mp - np.concatenate([c.points for c, _ in sets])) * _MM).reshape(-1)
+                    w = np.repeat([w for _, w in sets], [3 * len(c.vertex) for c, _ in sets])
+                if root:
+                    J = _root_jacobian(q, Mp).reshape(-1, 6) * _MM
+                else:
+                    J = ((self._xc_dense[rows] @ H[b]) * _MM).reshape(-1, N_DOF)
+                    if len(dofs) != N_DOF:
+                        J = J[:, dofs]
+                blocks.append((J, r, w))
+            A, g, _ = self._assemble(q, blocks, q_refs[b], dofs)
+            corrs.append(Correspondences(corr.points, self.cand[corr.vertex], corr.model))
+            A[np.diag_indices(len(dofs))] += cfg.damping * (1.0 + A.diagonal())
+            try:
+                dq = -np.linalg.solve(A, g)
+            except np.linalg.LinAlgError:
+                continue
+            ang = dofs >= 3
+            big = float(np.max(np.abs(dq[ang]))) if ang.any() else 0.0
+            if big > cfg.max_step_rad:
+                dq *= cfg.max_step_rad / big
+            out[b, dofs] += dq
+        return out, corrs
+
+    def _point_tree(self, points: np.ndarray) -> cKDTree:
+        """KD-tree of the observed points, kept while the same array is passed."""
+        c = self._tree_cache
+        if c is None or c[0] is not points:
+            c = (points, cKDTree(points))
+            self._tree_cache = c
+        return c[1]
 
     def refine(self, q: np.ndarray, obs: HandObservation, iterations: int,
                q_ref: np.ndarray | None = None, palm_only: bool = False,
@@ -295,11 +408,53 @@ class ModelTracker:
             q, _ = self.step(q, obs, pts, pix, q_ref, dofs)
         return q
 
+    def refine_batch(self, Q: np.ndarray | list, obs: HandObservation, iterations: int,
+                     q_refs: list | None = None, palm_only: bool = False,
+                     points: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """:meth:`refine` of several poses (B, 27) together (same results, shared FK)."""
+        Q = np.array(Q, dtype=np.float64, ndmin=2)
+        if not obs.found or iterations <= 0 or not len(Q):
+            return Q
+        pts, pix = points if points is not None else obs.subsample(self.cfg.max_points)
+        dofs = np.arange(6) if palm_only else np.arange(N_DOF)
+        refs = list(q_refs) if q_refs is not None else [None] * len(Q)
+        for _ in range(iterations):
+            Q, _ = self._steps(Q, obs, pts, pix, refs, dofs)
+        return Q
+
     # ------------------------------------------------------------------------------ cost
     def depth_cost(self, q: np.ndarray, obs: HandObservation,
                    observed_ds: np.ndarray | None = None) -> float:
         """E_d of eq. II.19 for pose ``q`` [mm]."""
+        return float(self.depth_costs(np.asarray(q)[None], obs, observed_ds)[0])
+
+    def depth_costs(self, Q: np.ndarray, obs: HandObservation,
+                    observed_ds: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`depth_cost` of poses (B, 27) (one skinning pass for all)."""
         ds = self.cfg.cost_downsample
         o = observed_ds if observed_ds is not None else obs.depth_m[::ds, ::ds]
-        r = render_depth(self.model.vertices(q), obs.intrinsics, ds)
-        return depth_error(r[:o.shape[0], :o.shape[1]], o, self.cfg.depth_cap_mm)
+        box = self._observed_box(o)
+        Q = np.array(Q, dtype=np.float64, ndmin=2)
+        out = np.empty(len(Q))
+        if not len(Q):
+            return out
+        Vs = self.model.vertices(Q)
+        for b, V in enumerate(Vs):
+            r, r0, c0 = _render_window(V, obs.intrinsics, ds, box)
+            # both silhouettes lie inside the window: E_d over it is E_d over the image
+            ob = o[r0:r0 + r.shape[0], c0:c0 + r.shape[1]]
+            out[b] = depth_error(r[:ob.shape[0], :ob.shape[1]], ob, self.cfg.depth_cap_mm)
+        return out
+
+    def _observed_box(self, o: np.ndarray) -> tuple[int, int, int, int] | None:
+        """Rows / columns (r0, r1, c0, c1) holding the hand pixels of ``o`` (kept while the
+        same array is passed)."""
+        c = self._box_cache
+        if c is None or c[0] is not o:
+            rr = np.flatnonzero(o.any(axis=1))
+            cc = np.flatnonzero(o.any(axis=0))
+            box = None if not len(rr) else (int(rr[0]), int(rr[-1]) + 1, int(cc[0]),
+                                             int(cc[-1]) + 1)
+            c = (o, box)
+            self._box_cache = c
+        return c[1]

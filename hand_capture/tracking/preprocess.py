@@ -50,6 +50,31 @@ class HandObservation:
             self._outside = d
         return d
 
+    def off_hand(self, v: np.ndarray, u: np.ndarray, margin_px: float) -> np.ndarray:
+        """Whether pixels (v, u) (inside the image) lie farther than ``margin_px`` from every
+        hand pixel: ``outside_distance[v, u] > margin_px``, with the distance transform
+        computed only around the hand (a pixel beyond that window is farther anyway)."""
+        m = int(np.ceil(margin_px)) + 2
+        key = getattr(self, "_off_key", None)
+        if key != m:
+            rows = np.flatnonzero(self.mask.any(axis=1))
+            cols = np.flatnonzero(self.mask.any(axis=0))
+            H, W = self.mask.shape
+            if len(rows):
+                r0, r1 = max(int(rows[0]) - m, 0), min(int(rows[-1]) + m + 1, H)
+                c0, c1 = max(int(cols[0]) - m, 0), min(int(cols[-1]) + m + 1, W)
+            else:
+                r0 = r1 = c0 = c1 = 0
+            sub = (~self.mask[r0:r1, c0:c1]).astype(np.uint8)
+            dt = cv2.distanceTransform(sub, cv2.DIST_L2, 3) if sub.size else sub
+            self._off = (dt, r0, r1, c0, c1)
+            self._off_key = m
+        dt, r0, r1, c0, c1 = self._off
+        inw = (v >= r0) & (v < r1) & (u >= c0) & (u < c1)
+        out = np.ones(v.shape, bool)
+        out[inw] = dt[v[inw] - r0, u[inw] - c0] > margin_px
+        return out
+
     @property
     def found(self) -> bool:
         return len(self.points) > 0
@@ -117,20 +142,32 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     z0 = float(np.partition(vals, min(len(vals) - 1, max(3, len(vals) // 200)))[
         min(len(vals) - 1, max(3, len(vals) // 200))])
     band = valid & (d <= z0 + cfg.band_m)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(band.astype(np.uint8), connectivity=8)
+    # components of the band, labelled in its bounding box only (same components, same
+    # raster order of the labels as on the whole image)
+    rows = np.flatnonzero(band.any(axis=1))
+    cols = np.flatnonzero(band.any(axis=0))
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    band_b = band[r0:r1, c0:c1]
+    d_b = d[r0:r1, c0:c1]
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(band_b.astype(np.uint8),
+                                                        connectivity=8)
     if n <= 1:
         return _empty(d.shape, intr)
     # the component holding the nearest pixels (those within 1 cm of z0), ties: largest
-    near_lab = lab[band & (d <= z0 + 0.01)]
+    near_lab = lab[band_b & (d_b <= z0 + 0.01)]
     counts = np.bincount(near_lab, minlength=n)
     counts[0] = 0
     score = counts * 1e6 + stats[:, cv2.CC_STAT_AREA]
     score[0] = -1
     best = int(np.argmax(score))
-    mask = lab == best
     if int(stats[best, cv2.CC_STAT_AREA]) < cfg.min_hand_pixels:
         return _empty(d.shape, intr)
-    v, u = np.nonzero(mask)
+    mask_b = lab == best
+    mask = np.zeros(d.shape, bool)
+    mask[r0:r1, c0:c1] = mask_b
+    v, u = np.nonzero(mask_b)
+    v += r0
+    u += c0
     z = d[v, u].astype(np.float64)
     pts = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
     pix = np.stack([u, v], axis=1).astype(np.float64)

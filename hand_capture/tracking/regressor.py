@@ -20,16 +20,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
 
 from hand_capture.cameras.base import Intrinsics
 from hand_capture.errors import InputError
 from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel
 from hand_capture.model.joints import root_angles_from_matrix, root_rotation_matrix
-from hand_capture.tracking.forest import RegressionForest
+from hand_capture.tracking.forest import ForestGroup, RegressionForest
 
 __all__ = ["BACKGROUND_M", "DepthLookup", "FeatureSet", "HandRegressor", "ModelFrames",
            "PALM_KP", "FINGER_KP", "ik_fingers", "kabsch", "palm_init_pca"]
@@ -77,6 +79,16 @@ class ModelFrames:
         self.palm_local = fk.joint_positions[PALM_KP]
         self.finger_rot = fk.joint_frames[FINGER_BONE, :3, :3]
         self.rest_vertices = fk.vertices
+        self._cache: dict[int, tuple[object, object]] = {}
+
+    def cached(self, owner: object, make: Callable[[], object]) -> object:
+        """Per-model data derived from ``owner`` (e.g. a feature set's skinning rows), made
+        once by ``make()``."""
+        hit = self._cache.get(id(owner))
+        if hit is None or hit[0] is not owner:
+            hit = (owner, make())
+            self._cache[id(owner)] = hit
+        return hit[1]
 
     def palm_pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return root_rotation_matrix(q[3:6]), q[0:3].copy()
@@ -88,12 +100,20 @@ class ModelFrames:
         return out
 
 
+def _rows_and_rest(model: HandModel, ids: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Skinning rows of vertices ``ids`` and their rest-pose positions."""
+    rows = model.skinning_rows(ids)
+    return rows, rows @ model.bone_basis(np.zeros(N_DOF))[0]
+
+
 def palm_init_pca(points: np.ndarray, frames: ModelFrames) -> np.ndarray:
     """Initial pose (II.4.2): middle MCP at the centroid, palm axes from PCA, fingers 0."""
     if len(points) < 3:
         raise InputError("palm initialisation needs at least 3 points")
-    c = points.mean(axis=0)
-    w, v = np.linalg.eigh(np.cov((points - c).T))
+    n = len(points)
+    c = (np.ones(n) @ points) / n
+    X = points - c
+    w, v = np.linalg.eigh((X.T @ X) / (n - 1))       # covariance of the cloud
     x = v[:, 2]   # largest variance: distal
     z = v[:, 0]   # least variance: palm normal (dorsal)
     if x[1] > 0:  # fingers point up in the image (-y) by convention
@@ -123,12 +143,18 @@ class DepthLookup:
         z = np.maximum(pts[..., 2], 1e-3)
         u = np.rint(self.intr.fx * pts[..., 0] / z + self.intr.cx).astype(np.int64) - self.u0
         v = np.rint(self.intr.fy * pts[..., 1] / z + self.intr.cy).astype(np.int64) - self.v0
-        h, w = self.depth.shape
-        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        val = np.full(u.shape, BACKGROUND_M, np.float32)
-        d = self.depth[v[inside], u[inside]]
-        val[inside] = np.where(d > 0, d, BACKGROUND_M)
-        return val
+        # the image with background filled in and a one-pixel background border: a pixel off
+        # the image reads the border (clipped index), a pixel off the hand the background
+        img = getattr(self, "_padded", None)
+        if img is None:
+            h, w = self.depth.shape
+            img = np.full((h + 2, w + 2), BACKGROUND_M, np.float32)
+            img[1:-1, 1:-1] = np.where(self.depth > 0, self.depth, np.float32(BACKGROUND_M))
+            self._padded = img
+        h, w = img.shape
+        np.clip(u, -1, w - 2, out=u)
+        np.clip(v, -1, h - 2, out=v)
+        return img[v + 1, u + 1]
 
 
 @dataclass
@@ -169,6 +195,15 @@ class FeatureSet:
         p2 = V[self.m2] + self.d2 @ R.T
         return lookup(p1) - lookup(p2)
 
+    def local_index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(vertex_ids, m1, m2)`` with m1 / m2 as positions in ``vertex_ids`` (cached)."""
+        li = getattr(self, "_local", None)
+        if li is None:
+            ids, inv = np.unique(np.r_[self.m1, self.m2], return_inverse=True)
+            li = (ids, inv[:len(self.m1)], inv[len(self.m1):])
+            self._local = li
+        return li
+
     def evaluate_batch(self, V: np.ndarray, R: np.ndarray, lookup: DepthLookup
                        ) -> np.ndarray:
         """Feature values (B, F) for vertex sets (B, V, 3) and frame rotations (B, 3, 3)."""
@@ -201,11 +236,12 @@ def ik_fingers(model: HandModel, q: np.ndarray, targets: np.ndarray, iterations:
     rows = FINGER_KP.reshape(-1)
     lo, hi = JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1]
     for _ in range(iterations):
-        kp = model.joint_positions(Q)[:, rows]                           # (B, 15, 3)
-        J = model.keypoint_jacobian(Q)[:, rows][..., 6:].reshape(len(Q), 45, 21)
+        kp, J = model.keypoints_and_jacobian(Q, rows, _FINGER_ALL)     # (B, 15, 3 (, 21))
+        J = J.reshape(len(Q), 45, 21)
         r = (kp - T).reshape(len(Q), 45)
-        A = np.einsum("bki,bkj->bij", J, J) + damping * np.eye(21)[None]
-        g = np.einsum("bki,bk->bi", J, r)
+        Jt = np.swapaxes(J, 1, 2)
+        A = Jt @ J + damping * np.eye(21)[None]
+        g = (Jt @ r[..., None])[..., 0]
         dq = -np.linalg.solve(A, g[..., None])[..., 0]
         Q[:, 6:] = np.clip(Q[:, 6:] + dq, lo, hi)
     return Q[0] if single else Q
@@ -266,13 +302,48 @@ class HandRegressor:
         return np.einsum("ij,fjk->fik", R, frames.finger_rot)
 
     # ------------------------------------------------------------------------- inference
+    def _palm_features_fast(self, fs: FeatureSet, frames: ModelFrames, q: np.ndarray,
+                            lookup: DepthLookup) -> np.ndarray:
+        """:meth:`palm_features_at` skinning only the vertices the features use."""
+        ids, m1, m2 = fs.local_index()
+        rows, rest = frames.cached(fs, lambda: _rows_and_rest(frames.model, ids))
+        R = root_rotation_matrix(q[3:6])
+        if q[6:].any():
+            V = rows @ frames.model.bone_basis(q)[0]
+        else:  # straight fingers: the hand moves rigidly with the palm
+            V = rest @ R.T + q[0:3]
+        n = len(m1)
+        p = np.concatenate([V[m1] + fs.d1 @ R.T, V[m2] + fs.d2 @ R.T])
+        d = lookup(p)
+        return d[:n] - d[n:]
+
+    def _finger_stage(self, s: int, frames: ModelFrames) -> dict:
+        """Constants of finger stage ``s`` for this model: all five feature sets' vertices
+        (and the keypoints) skinned by one sparse product, the five forests as a group."""
+        feats = self.finger_features[s]
+
+        def make() -> dict:
+            ids = np.unique(np.concatenate([fs.vertex_ids for fs in feats]))
+            pos = np.searchsorted(ids, np.stack([np.r_[fs.m1, fs.m2] for fs in feats]))
+            n = len(feats[0].m1)
+            model = frames.model
+            rows = sp.vstack([model.skinning_rows(ids), sp.csr_matrix(model.keypoint_rows())],
+                             format="csr")
+            rest = rows @ model.bone_basis(np.zeros(N_DOF))[0]
+            # per finger the 2F feature points: F first points, then F second points
+            return {"rows": rows, "rest": rest, "n_v": len(ids), "m": pos, "n": n,
+                    "d": np.stack([np.r_[fs.d1, fs.d2] for fs in feats]).astype(np.float64),
+                    "group": ForestGroup(self.finger_forests[s])}
+
+        return frames.cached(feats[0], make)
+
     def palm_modes(self, frames: ModelFrames, lookup: DepthLookup, q0: np.ndarray,
                    n_modes: int) -> list[np.ndarray]:
         """Palm candidates: the cascade from ``q0``, the last stage split into modes."""
         q = q0.copy()
         for s, (fs, forest) in enumerate(zip(self.palm_features, self.palm_forests,
                                              strict=True)):
-            x = self.palm_features_at(fs, frames, q, lookup)
+            x = self._palm_features_fast(fs, frames, q, lookup)
             if s < self.palm_stages - 1 or n_modes <= 1:
                 q = self.palm_update(frames, q, forest.predict(x[None])[0])
             else:
@@ -292,15 +363,25 @@ class HandRegressor:
         Q[:, 6:] = 0.0
         model = frames.model
         B = len(Q)
-        for feats, forests in zip(self.finger_features, self.finger_forests, strict=True):
-            fk = model.forward(Q)
-            V, kp = fk.vertices, fk.joint_positions
-            Rf = np.stack([self.finger_frames(frames, qq) for qq in Q])      # (B, 5, 3, 3)
-            targets = np.empty((B, 5, 3, 3))
-            for f in range(5):
-                x = feats[f].evaluate_batch(V, Rf[:, f], lookup)
-                d = forests[f].predict(x).reshape(B, 3, 3)
-                targets[:, f] = kp[:, FINGER_KP[f]] + np.einsum("bkj,bij->bki", d, Rf[:, f])
+        for s in range(self.finger_stages):
+            st = self._finger_stage(s, frames)
+            R0 = root_rotation_matrix(Q[:, 3:6])                             # palm bone
+            if Q[:, 6:].any():
+                T = model.bone_basis(Q)[0]                                   # (B, 64, 3)
+                P = st["rows"] @ np.swapaxes(T, 0, 1).reshape(T.shape[1], 3 * B)
+                P = np.swapaxes(P.reshape(-1, B, 3), 0, 1)                  # (B, n, 3)
+            else:  # straight fingers (first stage): the hand moves rigidly with the palm
+                P = np.matmul(st["rest"][None], np.swapaxes(R0, 1, 2)) + Q[:, None, 0:3]
+            V, kp = P[:, :st["n_v"]], P[:, st["n_v"]:]
+            # finger-root frames T_f (B, 5, 3, 3): palm rotation times the rest frames
+            Rf = np.einsum("bij,fjk->bfik", R0, frames.finger_rot)
+            Rt = np.swapaxes(Rf, 2, 3)
+            p = V[:, st["m"]] + np.matmul(st["d"][None], Rt)             # (B, 5, 2F, 3)
+            d = lookup(p)                                                   # (B, 5, 2F)
+            n = st["n"]
+            x = d[..., :n] - d[..., n:]                                     # eq. II.15
+            delta = st["group"].predict(x).reshape(B, 5, 3, 3)
+            targets = kp[:, FINGER_KP] + np.einsum("bfkj,bfij->bfki", delta, Rf)
             Q = ik_fingers(model, Q, targets, ik_iterations or self.ik_iterations)
         return Q[0] if single else Q
 

@@ -1,0 +1,216 @@
+"""The tracker's fast paths give the results of the plain formulations they replace:
+subset skinning and FK sharing (model), batched Gauss-Newton steps and costs (ICP), the
+grouped finger forests and batched feature evaluation (regression), vectorised k-means."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
+from hand_capture.cameras.threads import limit_blas_threads
+from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel, HandShape
+from hand_capture.tracking.config import TrackerConfig
+from hand_capture.tracking.forest import ForestGroup, RegressionForest, weighted_kmeans
+from hand_capture.tracking.icp import ModelTracker, depth_error, render_depth
+from hand_capture.tracking.preprocess import segment_hand
+from hand_capture.tracking.regressor import (
+    FINGER_KP,
+    DepthLookup,
+    HandRegressor,
+    ModelFrames,
+    palm_init_pca,
+)
+from hand_capture.tracking.train import train_tracker
+
+limit_blas_threads(1)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, clip="fist"))
+    cam.open()
+    f = cam.render(0.7)
+    cfg = TrackerConfig()
+    obs = segment_hand(f.depth, f.depth_intrinsics, cfg)
+    return cam.model, f, cfg, obs
+
+
+def _poses(n, seed=0):
+    rng = np.random.default_rng(seed)
+    lo, hi = np.maximum(JOINT_LIMITS[:, 0], -3.0), np.minimum(JOINT_LIMITS[:, 1], 3.0)
+    q = rng.uniform(lo, hi, (n, N_DOF))
+    q[:, 0:3] = rng.normal(0, 0.05, (n, 3)) + [0, 0, 0.4]
+    q[:, 3:6] = rng.normal(0, 0.6, (n, 3))
+    return q
+
+
+def test_bone_basis_matches_vertices_jacobian_and_keypoints():
+    m = HandModel().with_shape(HandShape(1.04, (0.3, 0, -0.2, 0, 0, 0.1)))
+    Q = _poses(3)
+    idx = np.arange(5, m.n_vertices, 37)
+    T, H, rot, pos = m.bone_basis(Q, jacobian=True)
+    rows = m.skinning_rows(idx)
+    for b in range(3):
+        np.testing.assert_allclose(rows @ T[b], m.vertices(Q[b], idx), atol=1e-12)
+        jac = (rows @ H[b]).reshape(len(idx), 3, N_DOF)
+        np.testing.assert_allclose(jac, m.jacobian(Q[b], idx), atol=1e-12)
+        np.testing.assert_allclose(m.keypoint_rows() @ T[b], m.joint_positions(Q[b]),
+                                   atol=1e-12)
+        fk = m.forward(Q[b])
+        np.testing.assert_allclose(rot[b], fk.joint_frames[:, :3, :3], atol=0)
+        np.testing.assert_allclose(pos[b], fk.joint_frames[:, :3, 3], atol=0)
+    kp, kj = m.keypoints_and_jacobian(Q)
+    np.testing.assert_array_equal(kp, m.joint_positions(Q))
+    np.testing.assert_allclose(kj, m.keypoint_jacobian(Q), atol=1e-12)
+    rows, dofs = np.array([3, 8, 20]), np.array([1, 4, 9, 26])
+    kp2, kj2 = m.keypoints_and_jacobian(Q, rows, dofs)
+    np.testing.assert_array_equal(kp2, kp[:, rows])
+    np.testing.assert_allclose(kj2, kj[:, rows][..., dofs], atol=1e-15)
+
+
+def _kmeans_reference(x, w, k, iters=8):
+    """The loop formulation of weighted k-means the vectorised one replaces."""
+    k = min(k, len(x))
+    centres = [x[int(np.argmax(w))]]
+    for _ in range(1, k):
+        d = np.min(np.stack([np.sum((x - c) ** 2, axis=1) for c in centres]), axis=0)
+        if d.max() <= 1e-18:
+            break
+        centres.append(x[int(np.argmax(d * w))])
+    c = np.array(centres)
+    for _ in range(iters):
+        a = np.argmin(np.sum((x[:, None, :] - c[None]) ** 2, axis=2), axis=1)
+        for j in range(len(c)):
+            m = a == j
+            if m.any():
+                c[j] = np.average(x[m], axis=0, weights=w[m] + 1e-12)
+    a = np.argmin(np.sum((x[:, None, :] - c[None]) ** 2, axis=2), axis=1)
+    weights = np.bincount(a, weights=w, minlength=len(c))
+    keep = weights > 0
+    return c[keep], weights[keep]
+
+
+def test_weighted_kmeans_matches_the_loop_formulation():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        n = int(rng.integers(1, 30))
+        x = np.r_[rng.normal(0, 1, (n, 4)), rng.normal(3, 1, (n, 4))]
+        w = rng.random(len(x))
+        for k in (1, 2, 3):
+            c, cw = weighted_kmeans(x, w, k)
+            c0, cw0 = _kmeans_reference(x, w, k)
+            np.testing.assert_allclose(c, c0, atol=1e-12)
+            np.testing.assert_allclose(cw, cw0, atol=1e-12)
+
+
+def test_forest_group_predicts_like_its_forests():
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(300, 5, 12)).astype(np.float32)
+    forests = [RegressionForest.fit(X[:, g], np.c_[X[:, g, :3] * (g + 1), X[:, g, 4] > 0],
+                                    n_trees=3, max_depth=4 + g, min_leaf=4, rng=g)
+               for g in range(5)]
+    group = ForestGroup(forests)
+    got = group.predict(X[:7])
+    for g, f in enumerate(forests):
+        np.testing.assert_array_equal(got[:, g], f.predict(X[:7, g]))
+
+
+def test_batched_steps_and_costs_match_single_ones(scene):
+    model, f, cfg, obs = scene
+    tr = ModelTracker(model, cfg)
+    pts = obs.subsample(cfg.max_points)
+    rng = np.random.default_rng(2)
+    Q = np.array([f.pose + rng.normal(0, 0.02, N_DOF) for _ in range(3)])
+    refs = [f.pose, None, Q[2]]
+    for palm in (True, False):
+        batch = tr.refine_batch(Q, obs, 2, q_refs=refs, palm_only=palm, points=pts)
+        for b in range(3):
+            one = tr.refine(Q[b], obs, 2, q_ref=refs[b], palm_only=palm, points=pts)
+            np.testing.assert_allclose(batch[b], one, atol=1e-9)
+    # the fast step equals the public building blocks on the whole mesh
+    q = Q[0]
+    V, facing = tr.posed(q)
+    corr = tr.correspond(*pts, V, facing, obs.intrinsics)
+    rev = tr.reverse_correspond(pts[0], V, facing, obs)
+    A, g, _ = tr.normal_equations(q, [(corr, cfg.data_weight), (rev, cfg.reverse_weight)],
+                                  f.pose, np.arange(N_DOF))
+    A[np.diag_indices(N_DOF)] += cfg.damping * (1.0 + A.diagonal())
+    dq = -np.linalg.solve(A, g)
+    big = np.max(np.abs(dq[3:]))
+    if big > cfg.max_step_rad:
+        dq *= cfg.max_step_rad / big
+    q1, c1 = tr.step(q, obs, *pts, f.pose, np.arange(N_DOF))
+    np.testing.assert_array_equal(np.sort(c1.vertex), np.sort(corr.vertex))
+    np.testing.assert_allclose(q1, q + dq, atol=1e-9)
+    # windowed rendering: the same E_d as the whole image
+    ds = cfg.cost_downsample
+    o = obs.depth_m[::ds, ::ds]
+    costs = tr.depth_costs(Q, obs, o)
+    for b in range(3):
+        r = render_depth(model.vertices(Q[b]), obs.intrinsics, ds)
+        assert costs[b] == depth_error(r[:o.shape[0], :o.shape[1]], o, cfg.depth_cap_mm)
+        assert tr.depth_cost(Q[b], obs) == costs[b]
+    far = f.pose.copy()
+    far[2] = -1.0  # behind the camera: nothing rendered
+    assert tr.depth_cost(far, obs) == cfg.depth_cap_mm
+
+
+@pytest.fixture(scope="module")
+def tiny_regressor():
+    return train_tracker(None, seed=5, n_samples=40, n_shapes=2, palm_stages=2,
+                         finger_stages=2, n_trees=2, max_depth=5, n_features=40)
+
+
+def test_regression_fast_path_matches_the_plain_one(scene, tiny_regressor):
+    model, f, cfg, obs = scene
+    reg = tiny_regressor
+    frames = ModelFrames(model)
+    lookup = DepthLookup(obs.depth_m, 0, 0, obs.intrinsics)
+    q0 = palm_init_pca(obs.points, frames)
+    # palm cascade, plain: all vertices skinned, features evaluated on them
+    q = q0.copy()
+    for s in range(reg.palm_stages - 1):
+        x = HandRegressor.palm_features_at(reg.palm_features[s], frames, q, lookup)
+        q = HandRegressor.palm_update(frames, q, reg.palm_forests[s].predict(x[None])[0])
+    x = HandRegressor.palm_features_at(reg.palm_features[-1], frames, q, lookup)
+    centres, _ = reg.palm_forests[-1].predict_modes(x, 2)
+    plain = [HandRegressor.palm_update(frames, q, c) for c in centres]
+    fast = reg.palm_modes(frames, lookup, q0, 2)
+    np.testing.assert_allclose(np.array(fast), np.array(plain), atol=1e-9)
+    # finger cascade, plain: forest by forest, FK per call
+    Q = np.array(plain)
+    Q[:, 6:] = 0.0
+    for feats, forests in zip(reg.finger_features, reg.finger_forests, strict=True):
+        fk = model.forward(Q)
+        Rf = np.stack([HandRegressor.finger_frames(frames, qq) for qq in Q])
+        targets = np.empty((len(Q), 5, 3, 3))
+        for fi in range(5):
+            xf = feats[fi].evaluate_batch(fk.vertices, Rf[:, fi], lookup)
+            d = forests[fi].predict(xf).reshape(len(Q), 3, 3)
+            targets[:, fi] = fk.joint_positions[:, FINGER_KP[fi]] + np.einsum(
+                "bkj,bij->bki", d, Rf[:, fi])
+        for _ in range(reg.ik_iterations):
+            rows = FINGER_KP.reshape(-1)
+            kp = model.joint_positions(Q)[:, rows]
+            J = model.keypoint_jacobian(Q)[:, rows][..., 6:].reshape(len(Q), 45, 21)
+            r = (kp - targets.reshape(len(Q), 15, 3)).reshape(len(Q), 45)
+            A = np.einsum("bki,bkj->bij", J, J) + 1e-4 * np.eye(21)[None]
+            dq = -np.linalg.solve(A, np.einsum("bki,bk->bi", J, r)[..., None])[..., 0]
+            Q[:, 6:] = np.clip(Q[:, 6:] + dq, JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1])
+    got = reg.regress_fingers(frames, lookup, np.array(plain))
+    np.testing.assert_allclose(got, Q, atol=1e-9)
+
+
+def test_segmentation_window_and_off_hand_test(scene):
+    model, f, cfg, obs = scene
+    # the hand is one 8-connected component of the band, back-projected pixel by pixel
+    assert obs.mask.sum() == len(obs.points)
+    np.testing.assert_array_equal(obs.mask[obs.pixels[:, 1].astype(int),
+                                           obs.pixels[:, 0].astype(int)], True)
+    rng = np.random.default_rng(4)
+    v = rng.integers(0, obs.mask.shape[0], 4000)
+    u = rng.integers(0, obs.mask.shape[1], 4000)
+    for margin in (0.0, 2.0, 5.5):
+        np.testing.assert_array_equal(obs.off_hand(v, u, margin),
+                                      obs.outside_distance[v, u] > margin)
