@@ -83,6 +83,7 @@ class GraspPhaseNode(Node):
         self.R_wc = rotvec_to_matrix(np.array(self.cfg.camera_rotation))
         self.t_wc = np.array(self.cfg.camera_position, dtype=float)
         self.object_T: np.ndarray | None = None
+        self._object_msg: PoseStamped | None = None
         self.rejected = 0
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.pub_phase = self.create_publisher(GraspPhase, "control/grasp_phase", reliable)
@@ -95,13 +96,21 @@ class GraspPhaseNode(Node):
         self.create_timer(1.0, self._diagnostics)
 
     def _on_object(self, msg: PoseStamped) -> None:
-        p, o = msg.pose.position, msg.pose.orientation
-        pos, quat = np.array([p.x, p.y, p.z]), np.array([o.w, o.x, o.y, o.z])
-        if np.isfinite(pos).all() and np.isfinite(quat).all() and np.linalg.norm(quat) > 0.5:
-            self.object_T = object_matrix(pos, quat / np.linalg.norm(quat))
+        self._object_msg = msg  # converted when a hand pose needs it (hundreds per second)
+
+    def _object_pose(self) -> np.ndarray | None:
+        """The latest valid object pose (4, 4), or None."""
+        msg, self._object_msg = self._object_msg, None
+        if msg is not None:
+            p, o = msg.pose.position, msg.pose.orientation
+            pos, quat = np.array([p.x, p.y, p.z]), np.array([o.w, o.x, o.y, o.z])
+            if np.isfinite(pos).all() and np.isfinite(quat).all() and \
+                    np.linalg.norm(quat) > 0.5:
+                self.object_T = object_matrix(pos, quat / np.linalg.norm(quat))
+        return self.object_T
 
     def _on_hand(self, msg: HandPose) -> None:
-        if self.object_T is None or msg.status not in _STATUS:
+        if self._object_pose() is None or msg.status not in _STATUS:
             return
         try:
             q = pose_from_msg(msg)
