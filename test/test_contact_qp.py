@@ -302,3 +302,44 @@ def test_trusted_solve_skips_only_the_checks():
     b = ContactForceQP(CONFIGS["torsion_bound"]).solve(fast, com, tf, tt, check=False)
     np.testing.assert_array_equal(a.forces, b.forces)
     np.testing.assert_array_equal(a.torsion, b.torsion)
+
+
+@pytest.mark.parametrize("fallback", ["nnls", "osqp"])
+def test_fallback_answers_when_the_active_set_hits_its_cap(fallback):
+    """max_iter=1 stops the warm-started active set; OSQP (finding the active set, then the
+    exact KKT-checked solve) rescues the step, scipy's NNLS obeys the same cap and fails."""
+    cfg = ContactQPConfig(max_iter=1, fallback=fallback, torsion_bound=True)
+    ref = ReferenceContactQP(ContactQPConfig(torsion_bound=True))
+    qp = ContactForceQP(cfg)
+    contacts, com, tf, tt = random_problems(seed=2, n=4)[3]
+    res = qp.solve(contacts, com, tf, tt)
+    if fallback == "nnls":
+        assert not res.found and res.status == "max_iter"
+        np.testing.assert_array_equal(res.forces, 0.0)
+    else:
+        assert res.found and res.status == "optimal" and qp.fallback_solves == 1
+        b = ref.solve(contacts, com, tf, tt)
+        np.testing.assert_allclose(res.forces, b.forces, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(res.torsion, b.torsion, rtol=0, atol=1e-6)
+
+
+def test_no_fallback_reports_the_failure():
+    cfg = ContactQPConfig(max_iter=1, fallback="none")
+    contacts, com, tf, tt = random_problems(seed=2, n=4)[3]
+    res = ContactForceQP(cfg).solve(contacts, com, tf, tt)
+    assert not res.found and res.status == "max_iter"
+    assert np.isfinite(res.forces).all()
+
+
+def test_warm_start_from_a_stale_passive_set_still_gives_the_optimum():
+    """The last passive set belongs to a very different problem (the target flips, every
+    coefficient on it goes negative): the warm start shrinks to nothing and the active set
+    rebuilds the solution; zero target -> zero forces."""
+    cfg = CONFIGS["torsion_bound"]
+    qp, ref = ContactForceQP(cfg), ReferenceContactQP(cfg)
+    contacts, com, tf, tt = random_problems(seed=9, n=1)[0]
+    for target in (tf, -tf, np.zeros(3), tf):
+        a, b = qp.solve(contacts, com, target, tt), ref.solve(contacts, com, target, tt)
+        assert a.found and a.status == "optimal"
+        np.testing.assert_allclose(a.forces, b.forces, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(a.torsion, b.torsion, rtol=0, atol=1e-6)

@@ -47,9 +47,27 @@ def grid_spec(kind: str, mass: float, mu: float, quick: bool) -> ScenarioSpec:
                         object_friction=mu, **t)
 
 
-def run_grid(quick: bool = False) -> dict[str, Any]:
+def _record_qp(qp: Any, seq: list) -> None:
+    """Make ``qp.solve`` append a copy of every problem ``(contacts, com, force_target,
+    torque_target)`` to ``seq`` (the contacts without their Jacobians: the QP needs none)."""
+    from hand_control.contact import ContactSet
+
+    solve = qp.solve
+
+    def recording(contacts, com, force_target, torque_target, check=True):
+        seq.append((ContactSet.trusted(contacts.points.copy(), contacts.normals.copy(),
+                                       np.array(contacts.mu, dtype=np.float64)),
+                    np.array(com, dtype=np.float64), np.array(force_target, dtype=np.float64),
+                    np.array(torque_target, dtype=np.float64)))
+        return solve(contacts, com, force_target, torque_target, check)
+
+    qp.solve = recording
+
+
+def run_grid(quick: bool = False, record: list | None = None) -> dict[str, Any]:
     """Run the grid; returns the figures (keys ``composite_success``, ``pd_only_success``,
-    tracking errors, cell counts)."""
+    tracking errors, cell counts). ``record``: a list that gets, per composite run, the list
+    of contact-QP problems the controller solved, in order (for the QP benchmark)."""
     objects = QUICK_OBJECTS if quick else OBJECTS
     masses = QUICK_MASSES if quick else MASSES
     frictions = QUICK_FRICTIONS if quick else FRICTIONS
@@ -77,6 +95,9 @@ def run_grid(quick: bool = False) -> dict[str, Any]:
                 print(f"  {kind}: cannot plan a grasp: {e}", file=sys.stderr)
                 break
             plans[kind] = runner.plan
+            if record is not None and mode == "composite":
+                record.append([])
+                _record_qp(runner.controller.qp, record[-1])
             if feasible is None:
                 feasible = runner.feasibility()
                 feasible_cells += int(feasible)

@@ -41,6 +41,7 @@ from scipy.optimize import nnls
 
 from hand_capture.config import param, validate
 from hand_control.contact.friction import (
+    contact_frames,
     cross,
     cross_matrices,
     edge_directions,
@@ -95,6 +96,13 @@ class ContactQPConfig:
     )
     kkt_tol: float = param(
         1e-9, "relative optimality (KKT) tolerance that accepts a solution", lo=0.0, hi=1e-2
+    )
+    fallback: str = param(
+        "nnls",
+        "when the warm-started active-set solver fails (iteration cap, singular or inaccurate "
+        "step): 'nnls' = scipy's compiled Lawson-Hanson from scratch, 'osqp' = OSQP finds the "
+        "active set and the exact solve on it is KKT-checked, 'none' = report the failure",
+        choices=("nnls", "osqp", "none"),
     )
 
     def __post_init__(self) -> None:
@@ -270,39 +278,50 @@ class _ContactForceSolver:
 
 
 class _Layout:
-    """Buffers of one problem shape: K contacts with given friction coefficients.
+    """Constant parts of one problem shape: K contacts with given friction coefficients.
 
-    The generators and the regularisation rows of the stacked matrix depend on ``mu`` only;
-    the six wrench rows are rewritten in place at every solve.
+    The generators and the regularisation rows of the stacked least-squares matrix depend on
+    ``mu`` only, so their share of the normal matrix is computed once; the six wrench rows
+    change at every solve.
+
+    The solver works on the bordered normal matrix ``[[A'A, A'b], [b'A, b'b]]`` (n + 1
+    square, n = K G generators): one product gives ``H = A'A``, ``g = A'b`` and ``b'b``, and
+    one gather of the rows/columns ``P + [n]`` gives what a least-squares solve on the
+    passive set ``P`` needs (``H_PP``, ``g_P``).
     """
 
-    __slots__ = ("a", "a6", "b", "hb")
+    __slots__ = ("c", "gen_l", "hb", "hbt", "n", "reg")
 
     def __init__(self, h: np.ndarray, reg_weights: np.ndarray) -> None:
         k, _, g = h.shape
+        n = self.n = k * g
         # (4K, K G) block diagonal: column k G + j is generator j of contact k in the local
         # coordinates (f_t1, f_t2, f_n, l) of contact k
-        self.hb = (h[:, :, None, :] * _block_eye(k)).reshape(4 * k, k * g)
-        self.a = np.zeros((6 + 4 * k, k * g))
-        # sqrt(a3) f_k and sqrt(a4) l_k rows: diag(reg_1..reg_K)
-        self.a[6:] = np.tile(reg_weights[0], (k, 1)) * self.hb
-        self.a6 = self.a[0:6]  # the six weighted wrench rows (a contiguous view)
-        self.b = np.zeros(6 + 4 * k)
+        self.hb = (h[:, :, None, :] * _block_eye(k)).reshape(4 * k, n)
+        # [hb' 0; 0 1]: maps the rows of [m; b] (local coordinates' wrench rows, then the
+        # target) to [every generator's wrench row; the target]
+        self.hbt = np.zeros((n + 1, 4 * k + 1))
+        self.hbt[:n, :4 * k] = self.hb.T
+        self.hbt[n, 4 * k] = 1.0
+        # sqrt(a3) f_k and sqrt(a4) l_k rows: diag(reg_1..reg_K) hb, and their normal matrix
+        w = np.tile(reg_weights[0, :, 0], k)
+        self.reg = w[:, None] * self.hb
+        self.c = np.zeros((n + 1, n + 1))
+        self.c[:n, :n] = self.reg.T @ self.reg
+        self.gen_l = self.hb[3::4].sum(axis=0).tolist()  # torsion of each generator
 
 
-def _contact_maps(
+def _contact_rows(
     normals: list[list[float]], r: list[list[float]], wf: float, wt: float
-) -> tuple[list[list[float]], list[tuple[float, ...]]]:
+) -> list[float]:
     """The map from every contact's local ``(f_t1, f_t2, f_n, l)`` to the weighted wrench on
-    the object about its COM, ``[wf R_k, 0; wt [r_k]x R_k, wt n_k]``, as the six rows of a
-    (6, 4K) matrix, and each contact's frame ``R_k``.
+    the object about its COM, ``[wf R_k, 0; wt [r_k]x R_k, wt n_k]``, transposed: a flat
+    list of the (4K, 6) matrix, one row per local coordinate.
 
     ``R = [t1 t2 n]`` is :func:`contact_frames`'s Householder frame, written out on floats:
     for a few contacts, plain arithmetic costs less than numpy's per-call overhead.
     """
-    rows: list[list[float]] = [[], [], [], [], [], []]
-    r0, r1, r2, r3, r4, r5 = rows
-    frames = []
+    out: list[float] = []
     for (nx, ny, nz), (rx, ry, rz) in zip(normals, r, strict=True):
         sg = math.copysign(1.0, nz)
         vz = nz + sg
@@ -310,35 +329,150 @@ def _contact_maps(
         # I - c v v^T with v = n + sign(n_z) e_z; first column times the sign (handedness)
         ax, ay, az = (1.0 - c * (nx * nx)) * sg, -(c * (ny * nx)) * sg, -(c * (vz * nx)) * sg
         bx, by, bz = -(c * (nx * ny)), 1.0 - c * (ny * ny), -(c * (vz * ny))
-        frames.append((ax, ay, az, bx, by, bz, nx, ny, nz))
-        # force rows wf R, torque rows wt [r x t1, r x t2, r x n, n]
-        r0 += (wf * ax, wf * bx, wf * nx, 0.0)
-        r1 += (wf * ay, wf * by, wf * ny, 0.0)
-        r2 += (wf * az, wf * bz, wf * nz, 0.0)
-        r3 += (wt * (ry * az - rz * ay), wt * (ry * bz - rz * by), wt * (ry * nz - rz * ny),
-               wt * nx)
-        r4 += (wt * (rz * ax - rx * az), wt * (rz * bx - rx * bz), wt * (rz * nx - rx * nz),
-               wt * ny)
-        r5 += (wt * (rx * ay - ry * ax), wt * (rx * by - ry * bx), wt * (rx * ny - ry * nx),
-               wt * nz)
-    return rows, frames
+        out += (wf * ax, wf * ay, wf * az, wt * (ry * az - rz * ay), wt * (rz * ax - rx * az),
+                wt * (rx * ay - ry * ax),
+                wf * bx, wf * by, wf * bz, wt * (ry * bz - rz * by), wt * (rz * bx - rx * bz),
+                wt * (rx * by - ry * bx),
+                wf * nx, wf * ny, wf * nz, wt * (ry * nz - rz * ny), wt * (rz * nx - rx * nz),
+                wt * (rx * ny - ry * nx),
+                0.0, 0.0, 0.0, wt * nx, wt * ny, wt * nz)
+    return out
+
+
+_MINUS_ONE = np.array([-1.0])
+
+
+def _ls(
+    a6t: np.ndarray, c: np.ndarray, p: list[int], n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Least squares on the passive set ``p``: ``H_pp z = g_p`` by Cholesky (LAPACK dposv).
+
+    ``a6t`` (n + 1, 6): the weighted wrench rows of every generator, then the target ``b6``;
+    ``c``: the constant (regulariser) part of the bordered normal matrix. Only the columns
+    ``p + [n]`` of ``[[H, g], [g', b'b]] = a6t a6t' + c`` are formed (the rest is never
+    needed). Returns ``(sub, cols, z)`` with ``sub = a6t[p + [n]]``, ``cols`` those columns
+    (for the gradient), or ``None`` if ``H_pp`` is not positive definite (dependent
+    generators on ``p``).
+    """
+    idx = p + [n]
+    sub = a6t.take(idx, 0)
+    cols = a6t.dot(sub.T)
+    cols += c.take(idx, 1)
+    s = cols.take(idx, 0)
+    _, z, info = _dposv(s[:-1, :-1], s[:-1, -1])
+    return None if info else (sub, cols, z)
+
+
+def _active_set(
+    a6t: np.ndarray, c: np.ndarray, passive: Any, tol: float, maxiter: int
+) -> tuple[list[int], np.ndarray, str, int, np.ndarray | None]:
+    """``argmin 1/2 x'Hx - g'x, x >= 0`` (``= argmin |A x - b|^2`` for ``H = A'A, g = A'b``,
+    given through ``a6t`` and ``c``, see :func:`_ls`) by the Lawson-Hanson active-set method
+    on the normal equations, warm-started.
+
+    ``passive``: the indices expected to be positive (the last solve's passive set). The
+    least-squares solution on it, shrunk until every coefficient is positive, is the feasible
+    start; when the problem moved little it already passes the KKT test and no iteration
+    runs. Returns ``(P, x_P, status, iterations, a6t[P + [n]])``; the status is
+    ``"optimal"`` only when the exact KKT conditions hold at ``x``: ``H x - g >= -tol``
+    everywhere (gradient >= 0), ``|H x - g| <= tol`` where ``x > 0``, and ``x_P > 0``.
+    """
+    n = a6t.shape[0] - 1
+    enter_tol = 1e-4 * tol  # kkt_tol 1e-9 -> 1e-13 x max(1, |b|^2)
+    p: list[int] = list(passive)
+    z = _EMPTY
+    sub = cols = None
+    for _ in range(2):  # the warm set, then its positive part; else start from nothing
+        if not p:
+            break
+        sol = _ls(a6t, c, p, n)
+        if sol is None:
+            p = []
+            break
+        sub, cols, z = sol
+        zl = z.tolist()
+        if min(zl) > 0.0:
+            break
+        p = [i for i, v in zip(p, zl, strict=True) if v > 0.0]
+    else:
+        p = []
+    if not p:
+        z, sub = _EMPTY, None
+    it = 0
+    while True:
+        # the gradient H x - g (and, last, g_P' z - b'b, dropped)
+        if p:
+            vl = cols.dot(np.concatenate((z, _MINUS_ONE))).tolist()
+        else:
+            vl = (-a6t.dot(a6t[n])).tolist()
+        vl.pop()
+        if not math.isfinite(sum(vl)):
+            return p, z, "non_finite", it, sub
+        vmin = min(vl)
+        # stop only when no generator can still lower the objective (down to rounding, as
+        # scipy's NNLS): the weak curvature of the regulariser (alpha3 = 1e-3) turns a
+        # gradient left at the acceptance tolerance into ~1e-3 N of force error
+        if vmin >= -enter_tol or (it >= maxiter and vmin >= -tol):
+            if p and max([abs(vl[i]) for i in p]) > tol:
+                return p, z, "inaccurate", it, sub
+            return p, z, "optimal", it, sub
+        j = vl.index(vmin)
+        if j in p:
+            return p, z, "inaccurate", it, sub
+        xl = z.tolist()
+        p.append(j)
+        xl.append(0.0)
+        while True:  # Lawson-Hanson inner loop: keep the coefficients positive
+            it += 1
+            if it > maxiter:
+                return p, z, "max_iter", it, None
+            sol = _ls(a6t, c, p, n)
+            if sol is None:
+                return p, z, "inaccurate", it, None
+            sub, cols, z = sol
+            zl = z.tolist()
+            if min(zl) > 0.0:
+                break
+            # the longest step from x toward z that keeps every coefficient >= 0
+            alpha, drop = min((xi / (xi - zi) if xi > zi else 0.0, q)
+                              for q, (xi, zi) in enumerate(zip(xl, zl, strict=True))
+                              if zi <= 0.0)
+            if alpha <= 0.0 and p[drop] == j:
+                return p, z, "inaccurate", it, None  # the new generator cannot enter
+            xl = [xi + alpha * (zi - xi) for xi, zi in zip(xl, zl, strict=True)]
+            xl[drop] = 0.0
+            keep = [q for q, v in enumerate(xl) if v > 0.0]
+            p = [p[q] for q in keep]
+            xl = [xl[q] for q in keep]
+            if not p:
+                z = _EMPTY
+                sub = None
+                break
+
+
+_EMPTY = np.zeros(0)
 
 
 class ContactForceQP(_ContactForceSolver):
-    """Fast contact-force solver for the control loop (exact active-set NNLS).
+    """Fast contact-force solver for the control loop (exact, warm-started active set).
 
     Each contact contributes non-negative generators ``(f, l)`` of its admissible set: the
     pyramid edges ``(b_j, 0)`` and, for a free torsion, ``(0, +1)`` and ``(0, -1)``; for a
     bounded torsion ``(b_j, +-mu_t n.b_j)`` (the cone these span is exactly ``{f in pyramid,
     |l| <= mu_t n.f}``). Every term of eq. (III.23) is linear in the generator coefficients, so
-    the problem is ``min |A x - b|^2, x >= 0``, solved by Lawson-Hanson (exact up to rounding)
-    and accepted only if it passes a KKT check.
+    the problem is ``min |A x - b|^2, x >= 0`` with ``A`` = [weighted wrench rows; weighted
+    regularisation rows], a box/cone-constrained least-squares problem. It is solved by a
+    Lawson-Hanson active-set method on its normal equations ``A'A x = A'b`` (the
+    regularisation's share of ``A'A`` is constant per contact layout) and accepted only if it
+    passes the exact KKT check.
 
     Warm start: in a control loop the set of generators in use (the passive set) rarely
-    changes between steps. The solver first solves the least-squares problem on the last
-    passive set of the same contact count; that is the exact optimum whenever the KKT check
-    passes (all coefficients positive, gradient >= 0 elsewhere). Otherwise the full
-    Lawson-Hanson solve runs, so the result is the same either way.
+    changes between steps. The solver starts from the last passive set of the same contact
+    count: the least-squares solution on it is the exact optimum whenever the KKT check passes,
+    otherwise a few active-set iterations move from there. When the active-set method fails
+    (iteration cap, dependent generators), ``config.fallback`` decides: scipy's compiled
+    Lawson-Hanson from scratch, OSQP to find the active set (the solution is then the exact
+    one on that set, KKT-checked), or a failure status.
     """
 
     _MAX_LAYOUTS = 32
@@ -354,8 +488,9 @@ class ContactForceQP(_ContactForceSolver):
         self._n_gen = self._basis.shape[1] // 4
         self._maxiter = cfg.max_iter or None
         self._layouts: dict[tuple[int, bytes], _Layout] = {}
-        self._passive: dict[Any, np.ndarray] = {}  # warm start: last passive set per shape
-        self.warm_hits = 0  # solves the warm start answered (diagnostics)
+        self._passive: dict[Any, Any] = {}  # warm start: last passive set per shape
+        self.warm_hits = 0  # solves the warm start answered without an iteration
+        self.fallback_solves = 0  # solves the fallback answered (diagnostics)
 
     def _layout(self, mu: np.ndarray) -> _Layout:
         key = (mu.shape[0], mu.tobytes())
@@ -378,38 +513,120 @@ class ContactForceQP(_ContactForceSolver):
         k = len(contacts)
         lay = self._layout(contacts.mu)
         s1, s2 = self._s12
-        rl = r.tolist()
-        maps, frames = _contact_maps(contacts.normals.tolist(), rl, s1, s2)
-        # Least-squares rows: sqrt(a1) net force, sqrt(a2) net torque (the wrench of every
-        # generator about the COM: maps @ generators), then per contact sqrt(a3) f_k and
-        # sqrt(a4) l_k (|f_k| is frame-invariant: local coordinates serve; constant rows).
-        np.array(maps).dot(lay.hb, out=lay.a6)
         tfl, ttl = tf.tolist(), tt.tolist()
-        a, b = lay.a, lay.b
-        b[0:6] = [s1 * tfl[0], s1 * tfl[1], s1 * tfl[2], s2 * ttl[0], s2 * ttl[1], s2 * ttl[2]]
-        x, status, objective = self._nnls(a, b, k)
-        if x is None:
+        b6 = [s1 * tfl[0], s1 * tfl[1], s1 * tfl[2], s2 * ttl[0], s2 * ttl[1], s2 * ttl[2]]
+        # (4K + 1, 6): the weighted wrench (eq. III.23's first two terms) of every contact's
+        # local (f_t1, f_t2, f_n, l), then the target; through the generators: (K G + 1, 6)
+        nl, rl = contacts.normals.tolist(), r.tolist()
+        rows = _contact_rows(nl, rl, s1, s2)
+        a6t = lay.hbt.dot(np.fromiter(rows + b6, np.float64, 24 * k + 6).reshape(4 * k + 1, 6))
+        bb = math.fsum([v * v for v in b6])
+        if not math.isfinite(bb):  # an overflow while the problem was built
+            return _result("non_finite", contacts, r, (tf, tt), t0, "dissertation")
+        # |grad| <= |a| |b| at the optimum, and the entries of a are O(1) (unit generators,
+        # lever arms well under 1 m): scale the tolerance with |b|^2 (>= |b| when |b| >= 1).
+        tol = self.config.kkt_tol * max(1.0, bb)
+        maxiter = self._maxiter or 3 * lay.n
+        warm = self._passive.get(k)
+        if warm is None and self.config.fallback == "nnls":
+            # cold (first problem of this contact count): scipy's compiled Lawson-Hanson
+            # beats the Python iterations from an empty set; it seeds the warm start
+            passive, z, status = self._fallback(a6t, lay, tol, maxiter, "cold")
+            self.fallback_solves -= int(status == "optimal")  # not a fallback
+            it, sub = 0, a6t.take(passive + [lay.n], 0)
+        else:
+            status = "cold"
+        if status != "optimal":
+            # a few active-set iterations from the last passive set (the loop's usual case
+            # needs none); beyond that scipy's compiled Lawson-Hanson is quicker
+            short = self.config.fallback == "nnls" and maxiter > 2
+            passive, z, status, it, sub = _active_set(
+                a6t, lay.c, () if warm is None else warm, tol, 2 if short else maxiter)
+            if status == "max_iter" and short:
+                passive, z, status = self._fallback(a6t, lay, tol, maxiter, status)
+                self.fallback_solves -= int(status == "optimal")  # the planned path
+                it, sub = 1, a6t.take(passive + [lay.n], 0)
+        if status == "optimal":
+            self.warm_hits += int(it == 0 and warm is not None)
+        elif self.config.fallback != "none":
+            passive, z, status = self._fallback(a6t, lay, tol, maxiter, status)
+            sub = a6t.take(passive + [lay.n], 0)
+        if status != "optimal":
             return _result(status, contacts, r, (tf, tt), t0, "dissertation")
-        # local (f_t1, f_t2, f_n, l) of every contact, then world forces f = R f_local
-        y = lay.hb.dot(x).tolist()
-        forces, torsion = [], []
-        fx = fy = fz = mx = my = mz = 0.0  # net wrench
-        for i, ((ax, ay, az, bx, by, bz, nx, ny, nz), (rx, ry, rz)) in enumerate(
-                zip(frames, rl, strict=True)):
-            y0, y1, y2, y3 = y[4 * i:4 * i + 4]
-            f0 = ax * y0 + bx * y1 + nx * y2
-            f1 = ay * y0 + by * y1 + ny * y2
-            f2 = az * y0 + bz * y1 + nz * y2
-            forces.append((f0, f1, f2))
-            torsion.append(y3)
+        self._passive[k] = passive
+        # Forces and torsions from the generators in use: row p of a6t holds s1 x the world
+        # force of generator p (and its torque); lay.gen_l[p] its torsion per unit.
+        cfg = self.config
+        g = self._n_gen
+        fk = [0.0] * (3 * k)
+        lk = [0.0] * k
+        if passive and s1 > 0.0:
+            gen_l = lay.gen_l
+            for i, zi, row in zip(passive, z.tolist(), sub.tolist(), strict=False):
+                c = i // g
+                fk[3 * c] += zi * row[0]
+                fk[3 * c + 1] += zi * row[1]
+                fk[3 * c + 2] += zi * row[2]
+                lk[c] += zi * gen_l[i]
+            if s1 != 1.0:
+                fk = [v / s1 for v in fk]
+        elif passive:  # alpha1 = 0: the force rows are zero; through the contact frames
+            y = z.dot(lay.hbt.take(passive, 0)[:, :4 * k]).reshape(k, 4)
+            fk = np.einsum("kij,kj->ki", contact_frames(contacts.normals), y[:, :3]).ravel()
+            fk, lk = fk.tolist(), y[:, 3].tolist()
+        # net wrench error and objective (eq. III.23) on floats
+        fx = fy = fz = mx = my = mz = fsq = lsq = 0.0
+        for c, ((rx, ry, rz), (nx, ny, nz)) in enumerate(zip(rl, nl, strict=True)):
+            f0, f1, f2, lc = fk[3 * c], fk[3 * c + 1], fk[3 * c + 2], lk[c]
             fx, fy, fz = fx + f0, fy + f1, fz + f2
-            mx += ry * f2 - rz * f1 + y3 * nx
-            my += rz * f0 - rx * f2 + y3 * ny
-            mz += rx * f1 - ry * f0 + y3 * nz
+            mx += ry * f2 - rz * f1 + lc * nx
+            my += rz * f0 - rx * f2 + lc * ny
+            mz += rx * f1 - ry * f0 + lc * nz
+            fsq += f0 * f0 + f1 * f1 + f2 * f2
+            lsq += lc * lc
         err = [fx - tfl[0], fy - tfl[1], fz - tfl[2], mx - ttl[0], my - ttl[1], mz - ttl[2]]
+        e0, e1, e2, e3, e4, e5 = err
+        ef, et = e0 * e0 + e1 * e1 + e2 * e2, e3 * e3 + e4 * e4 + e5 * e5
+        objective = cfg.alpha1 * ef + cfg.alpha2 * et + cfg.alpha3 * fsq + cfg.alpha4 * lsq
         return _result(status, contacts, r, (tf, tt), t0, "dissertation",
-                       (np.array(forces), np.array(torsion), objective), np.array(err),
-                       math.hypot(*err))
+                       (np.array(fk).reshape(k, 3), np.array(lk), objective), np.array(err),
+                       math.sqrt(ef + et))
+
+    def _fallback(
+        self, a6t: np.ndarray, lay: _Layout, tol: float, maxiter: int, status: str,
+    ) -> tuple[list[int], np.ndarray, str]:
+        """The solve when the warm-started active set failed (see ``config.fallback``):
+        ``(passive set, x on it, status)``."""
+        n = lay.n
+        if self.config.fallback == "nnls":
+            a = np.concatenate((a6t[:n].T, lay.reg))
+            b = np.zeros(a.shape[0])
+            b[0:6] = a6t[n]
+            x, st, _ = self._nnls(a, b)
+            if x is None:
+                return [], _EMPTY, st
+            self.fallback_solves += 1
+            p = np.flatnonzero(x > 0.0)
+            return p.tolist(), x[p], st
+        import osqp
+        import scipy.sparse as sp
+
+        hext = a6t.dot(a6t.T)
+        hext += lay.c
+        prob = osqp.OSQP()
+        prob.setup(P=sp.csc_matrix(np.triu(hext[:n, :n])), q=-hext[:n, n],
+                   A=sp.identity(n, format="csc"), l=np.zeros(n), u=np.full(n, np.inf),
+                   eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=200000,
+                   verbose=False)
+        res = prob.solve(raise_error=False)  # the status is checked below
+        if res.info.status != "solved" or res.x is None or not np.isfinite(res.x).all():
+            return [], _EMPTY, "osqp_" + str(res.info.status).replace(" ", "_")
+        # OSQP's support as the warm start of the exact active-set solve (KKT-checked)
+        seed = np.flatnonzero(res.x > 1e-12 * max(1.0, float(res.x.max()))).tolist()
+        p, z, st, _, _ = _active_set(a6t, lay.c, seed, tol, maxiter)
+        if st == "optimal":
+            self.fallback_solves += 1
+        return p, z, st
 
     # -- eq. (10) then eq. (11) -----------------------------------------------------------
     def _solve_seed000(
@@ -441,36 +658,20 @@ class ContactForceQP(_ContactForceSolver):
         return _result(status, contacts, r, (tf, tt), t0, "seed000",
                        (forces, torsion, objective), err)
 
-    def _nnls(
-        self, a: np.ndarray, b: np.ndarray, warm_key: Any = None
-    ) -> tuple[np.ndarray | None, str, float]:
-        """``argmin |a x - b|^2, x >= 0`` and its objective, checked against the KKT conditions.
-
-        ``warm_key`` names the problem shape whose last passive set is tried first (``None``:
-        no warm start). Returns ``(None, status, inf)`` when the solver fails or the check does
-        not pass.
+    def _nnls(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray | None, str, float]:
+        """``argmin |a x - b|^2, x >= 0`` by scipy's Lawson-Hanson and its objective, checked
+        against the KKT conditions. Returns ``(None, status, inf)`` when the solver fails or
+        the check does not pass.
         """
-        if warm_key is not None:
-            passive = self._passive.get(warm_key)
-            if passive is not None:
-                x = _ls_on_passive_set(a, b, passive)
-                if x is not None:
-                    status, objective = self._kkt(a, b, x, passive)
-                    if status == "optimal":
-                        self.warm_hits += 1
-                        return x, status, objective
         try:
             x, _ = nnls(a, b, maxiter=self._maxiter)
         except RuntimeError:
             return None, "max_iter", math.inf
         except ValueError:  # NaN/Inf in the data (e.g. an overflow while building it)
             return None, "non_finite", math.inf
-        passive = np.flatnonzero(x > 0.0)
-        status, objective = self._kkt(a, b, x, passive)
+        status, objective = self._kkt(a, b, x, np.flatnonzero(x > 0.0))
         if status != "optimal":
             return None, status, math.inf
-        if warm_key is not None:
-            self._passive[warm_key] = passive
         return x, "optimal", objective
 
     def _kkt(
@@ -497,25 +698,6 @@ class ContactForceQP(_ContactForceSolver):
         if violation > tol:
             return "inaccurate", math.inf
         return "optimal", objective
-
-
-def _ls_on_passive_set(a: np.ndarray, b: np.ndarray, passive: np.ndarray) -> np.ndarray | None:
-    """Least squares on the columns ``passive`` (normal equations, Cholesky), others zero.
-
-    ``None`` unless every coefficient on the passive set comes out positive and finite (then
-    the caller's KKT check decides whether this is the optimum).
-    """
-    if passive.size == 0:
-        return None
-    ap = a.take(passive, axis=1)
-    apt = ap.T
-    _, z, info = _dposv(apt.dot(ap), apt.dot(b))
-    zl = z.tolist()
-    if info != 0 or not (min(zl) > 0.0 and math.isfinite(sum(zl))):
-        return None
-    x = np.zeros(a.shape[1])
-    x[passive] = z
-    return x
 
 
 class ReferenceContactQP(_ContactForceSolver):

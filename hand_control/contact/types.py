@@ -42,8 +42,7 @@ def unchecked(cls: type, **fields: object) -> object:
     """An instance of the frozen dataclass ``cls`` built without ``__init__`` and its checks:
     the ``trusted`` constructors of the control loop's hot path use it."""
     obj = object.__new__(cls)
-    for name, value in fields.items():
-        object.__setattr__(obj, name, value)
+    obj.__dict__.update(fields)  # a frozen dataclass without slots keeps its fields there
     return obj
 
 @dataclass(frozen=True, eq=False)

@@ -154,6 +154,9 @@ class ControllerCore:
                             torsional_friction=self.config.torsional_friction),
             joint_names=world.joint_names)
         self.joint_names = world.joint_names
+        self._no_gravity = not self.controller.config.gravity_compensation
+        self._zeros = np.zeros(len(self.joint_names))  # read-only use: finiteness checks
+        self._zeros.setflags(write=False)
         self._index = {n: i for i, n in enumerate(self.joint_names)}
         self.counters = {"steps": 0, "qp_fallbacks": 0, "rejected_inputs": 0,
                          "non_finite_outputs": 0}
@@ -236,14 +239,16 @@ class ControllerCore:
                 self.last_output = out
                 if out.fallback:
                     self.counters["qp_fallbacks"] += 1
-                else:
-                    effort = out.tau_grasp + out.tau_gravity
+                else:  # tau_gravity is zero here (gravity compensated inside MuJoCo)
+                    effort = out.tau_grasp if self._no_gravity else \
+                        out.tau_grasp + out.tau_gravity
                     forces, torsion = out.qp.forces, out.qp.torsion
             except HandSuiteError:
                 self.counters["rejected_inputs"] += 1
         pd_only = effort is None
         q_target = np.array(q_target, dtype=np.float64)  # the command's own copy
-        if not ((pd_only or _all_finite(effort)) and _all_finite(q_target)):
+        zeros = self._zeros
+        if not ((pd_only or effort.dot(zeros) == 0.0) and q_target.dot(zeros) == 0.0):
             self.counters["non_finite_outputs"] += 1
             q_target = np.where(np.isfinite(q_target), q_target, q)
             pd_only = True

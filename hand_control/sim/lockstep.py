@@ -132,6 +132,8 @@ class LockstepRunner:
             control_period=self.control_every * self.world.model.opt.timestep)
         self.controller = self.core.controller
         self._no_contacts = ContactFrame.empty(0.0)
+        # the simulator's contact forces: only seed 000's eq. (10) uses them
+        self._contact_forces = self.controller.qp.config.method == "seed000"
         # Live views into MjData (its arrays never move), read at every step: the object's
         # state and the hand's joints. The controller uses them within the step only.
         w = self.world
@@ -142,6 +144,8 @@ class LockstepRunner:
             self._hand_views = (w.data.qpos[w._qpos_idx], w.data.qvel[w._dof_idx])
         self.world.set_initial_state(self.reference.initial_pose)
         self.world.set_command(self.reference.initial_pose, np.zeros(self.world.n_hand))
+        # the references at every physics step's time, once (a row lookup per step)
+        self.reference.precompute(self.world.model.opt.timestep, t0=self.world.time)
 
     def feasibility(self, mu: float | None = None, mass: float | None = None) -> bool:
         """Dynamic feasibility LP (III.10-III.16) of the planned contacts for this object."""
@@ -157,7 +161,8 @@ class LockstepRunner:
         q, qd = w.hand_state() if self._hand_views is None else self._hand_views
         pos, quat, vel, omega_body, rot = self._obj_views
         composite = self.core.needs_contacts(t)
-        cf = w.contacts(self.obj.name, jacobians=True) if composite else self._no_contacts
+        cf = w.contacts(self.obj.name, jacobians=True, forces=self._contact_forces) \
+            if composite else self._no_contacts
         # everything comes from the world in this process: the controller's fast path
         # (no re-validation of the simulator's arrays; its output is still checked)
         cmd = self.core.step(
@@ -167,6 +172,20 @@ class LockstepRunner:
             trusted=True)
         w.set_command(cmd.positions, cmd.efforts, check=False)  # fresh, finite (n_hand,)
         self.last_command = cmd
+
+    def _tracking_errors(self, times: list[float], poses: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """Position [m] and orientation [deg] errors of the object vs its target at ``times``
+        (``poses``: (N, 7) position + quaternion after each of those steps); ``[nan]`` when
+        there are none."""
+        if not times:
+            return np.array([math.nan]), np.array([math.nan])
+        refs = [self.reference(t) for t in times]
+        target = np.array([r.object_position for r in refs])
+        tquat = np.array([r.object_quaternion for r in refs])
+        pos_err = np.sqrt(((poses[:, 0:3] - target) ** 2).sum(axis=1))
+        dot = np.minimum(1.0, np.abs((poses[:, 3:7] * tquat).sum(axis=1)))
+        return pos_err, np.degrees(2.0 * np.arccos(dot))
 
     def _events(self, t: float, schedule: list[tuple[float, float]], dropped: list[bool]
                 ) -> None:
@@ -198,27 +217,35 @@ class LockstepRunner:
         n = int(round(duration / w.model.opt.timestep))
         fs = spec.friction_schedule
         schedule = sorted(zip(fs[0::2], fs[1::2], strict=True))
-        dropped = [False]
+        dropped = [spec.perturb_mass <= 0]
         p_init = w.object_pose(self.obj.name).position.copy()
-        errs, rot_errs, tr = [], [], {"t": [], "pos": [], "target": [], "phase": []}
+        tr = {"t": [], "pos": [], "target": [], "phase": []}
         t_ctrl = 0.0
         control_steps = 0
         t_lift0 = self.reference.t_lift0
         obj_pos, obj_quat = self._obj_pos, self._obj_quat  # live views
+        # the object's pose after every step from lifting on, for the tracking errors
+        # (computed once after the loop)
+        times: list[float] = []
+        poses = np.empty((n, 7))
+        every = self.control_every
+        control_step, step, perf = self.control_step, w.step, time.perf_counter
         t0 = time.perf_counter()
         for i in range(n):
             t = w.time
-            self._events(t, schedule, dropped)
-            if i % self.control_every == 0:
-                c0 = time.perf_counter()
-                self.control_step(t)
-                t_ctrl += time.perf_counter() - c0
+            if schedule or not dropped[0]:
+                self._events(t, schedule, dropped)
+            if i % every == 0:
+                c0 = perf()
+                control_step(t)
+                t_ctrl += perf() - c0
                 control_steps += 1
-            w.step()
+            step()
             if t >= t_lift0:
-                ref = self.reference(t)
-                errs.append(math.dist(obj_pos.tolist(), ref.object_position.tolist()))
-                rot_errs.append(_angle_deg(obj_quat, ref.object_quaternion))
+                j = len(times)
+                times.append(t)
+                poses[j, 0:3] = obj_pos
+                poses[j, 3:7] = obj_quat
             if trace and i % 10 == 0:
                 ref = self.reference(t)
                 op = w.object_pose(self.obj.name)
@@ -233,8 +260,7 @@ class LockstepRunner:
         lifted = float(op.position[2] - p_init[2])
         success = final < spec.success_tolerance and (
             spec.lift_height == 0 or lifted > 0.5 * spec.lift_height)
-        e = np.array(errs) if errs else np.array([math.nan])
-        re = np.array(rot_errs) if rot_errs else np.array([math.nan])
+        e, re = self._tracking_errors(times, poses[:len(times)])
         return EpisodeResult(
             scenario=spec.name, mode=self.controller_config.mode, success=bool(success),
             feasible=self.feasibility(), final_error_mm=final * 1e3,

@@ -142,6 +142,12 @@ def _smooth(x: float) -> float:
     return x * x * (3.0 - 2.0 * x)
 
 
+def _smooth_array(x: np.ndarray) -> np.ndarray:
+    """:func:`_smooth` elementwise (the same operations, so the same values)."""
+    x = np.minimum(np.maximum(x, 0.0), 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
 def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
     a = float(np.linalg.norm(v))
     if a < 1e-12:
@@ -176,6 +182,15 @@ class RefSample:
     grasp: bool
 
 
+def _ref_sample(phase: str, q: np.ndarray, pos: np.ndarray, quat: np.ndarray,
+                grasp: bool) -> RefSample:
+    """A :class:`RefSample` without the frozen-dataclass ``__init__`` (one per step)."""
+    r = object.__new__(RefSample)
+    r.__dict__.update(phase=phase, q_target=q, object_position=pos, object_quaternion=quat,
+                      grasp=grasp)
+    return r
+
+
 class Reference:
     """Reference trajectories of one scenario (see the module docstring).
 
@@ -205,6 +220,73 @@ class Reference:
         self._rotates = bool(np.any(np.asarray(spec.carry_rotation) != 0.0))
         self._last_t = math.nan
         self._last: RefSample | None = None
+        self._index: dict[float, int] = {}  # tabulated times -> row (see precompute)
+        self._table: tuple[np.ndarray, ...] = ()
+
+    def precompute(self, dt: float, t0: float = 0.0, steps: int | None = None) -> None:
+        """Tabulate the references at the times a simulation stepping by ``dt`` from ``t0``
+        reaches, to the end of the scenario (+ 2 steps).
+
+        The times are the same floating-point sums as the simulator's clock (MuJoCo adds the
+        timestep to ``time`` at every step), so a lookup is an exact dictionary hit and
+        returns the values :meth:`_sample` computes at that time (the table is computed with
+        the same operations, vectorised over time); any other time is sampled as before.
+        A control loop at 1 kHz then reads a row instead of evaluating the trajectory.
+        """
+        if not (dt > 0 and math.isfinite(dt) and math.isfinite(t0)):
+            raise ConfigError(f"Reference.precompute: bad dt={dt} or t0={t0}")
+        n = steps if steps is not None else int(math.ceil((self.t_end - t0) / dt)) + 2
+        times = [t0]
+        t = t0
+        for _ in range(max(n, 0)):
+            t += dt
+            times.append(t)
+        self._table = self._sample_many(np.array(times))
+        self._index = {t: i for i, t in enumerate(times)}
+        self._last_t = math.nan
+
+    def _sample_many(self, t: np.ndarray) -> tuple[np.ndarray, ...]:
+        """:meth:`_sample` at every time of ``t``, as read-only arrays
+        ``(q (N, n), position (N, 3), quaternion (N, 4), phase index (N,), grasp (N,))``."""
+        s, plan = self.spec, self.plan
+        n = t.shape[0]
+        q = np.empty((n, self.q_start.shape[0]))
+        pos = np.empty((n, 3))
+        quat = np.empty((n, 4))
+        pos[:], quat[:] = self.p0, self.quat0
+        reach = t < self.t_close0
+        close = ~reach & (t < self.t_settle0)
+        hold = ~(reach | close)
+        a = _smooth_array(t[reach] / s.t_reach)[:, None]
+        q[reach] = (1 - a) * self.q_start + a * plan.q_pregrasp
+        a = _smooth_array((t[close] - self.t_close0) / s.t_close)[:, None]
+        q[close] = (1 - a) * plan.q_pregrasp + a * plan.q_grasp
+        th = t[hold]
+        if self._rotates:  # pouring: per-row (rotations), the scalar code itself
+            rows = [self._sample(float(ti)) for ti in th.tolist()]
+            q[hold] = [r.q_target for r in rows]
+            pos[hold] = [r.object_position for r in rows]
+            quat[hold] = [r.object_quaternion for r in rows]
+        elif th.size:
+            lift = s.lift_height * (_smooth_array((th - self.t_lift0) / s.t_lift)
+                                    if s.t_lift > 0 else (th >= self.t_lift0).astype(float))
+            ac = (_smooth_array((th - self.t_carry0) / s.t_carry) if s.t_carry > 0
+                  else (th >= self.t_carry0).astype(float))
+            up = np.zeros((th.shape[0], 3))
+            up[:, 2] = lift
+            ph = self.p0 + up + ac[:, None] * np.asarray(s.carry_offset)
+            pos[hold] = ph
+            quat[hold] = self.object_target(float(th[0]))[1]  # constant without rotation
+            qh = np.tile(plan.q_grasp, (th.shape[0], 1))
+            qh[:, 0:3] += ph - self.p0
+            q[hold] = qh
+        phase = np.searchsorted(
+            np.array([self.t_close0, self.t_settle0, self.t_lift0, self.t_carry0,
+                      self.t_hold0]), t, side="right")
+        grasp = phase >= 2
+        for arr in (q, pos, quat, phase, grasp):
+            arr.setflags(write=False)
+        return q, pos, quat, phase, grasp
 
     @property
     def initial_pose(self) -> np.ndarray:
@@ -224,7 +306,12 @@ class Reference:
     def __call__(self, t: float) -> RefSample:
         if t == self._last_t:
             return self._last
-        self._last = self._sample(t)
+        i = self._index.get(t)
+        if i is None:
+            self._last = self._sample(t)
+        else:  # a tabulated time (see precompute): the row, read-only views
+            q, pos, quat, phase, grasp = self._table
+            self._last = _ref_sample(PHASES[phase[i]], q[i], pos[i], quat[i], bool(grasp[i]))
         self._last_t = t
         return self._last
 

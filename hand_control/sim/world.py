@@ -553,7 +553,7 @@ class SimWorld:
         return self._geom_names[geom] if b == 0 else self._body_names[b]
 
     def contacts(self, object_name: str | None = None, hand_only: bool = False,
-                 jacobians: bool = False) -> ContactFrame:
+                 jacobians: bool = False, forces: bool = True) -> ContactFrame:
         """The contacts of the current state.
 
         Args:
@@ -561,6 +561,9 @@ class SimWorld:
             hand_only: only contacts that involve the hand (hand = body 1).
             jacobians: add the hand-side Jacobians over the hand DoFs (``mj_jac`` at the
                 contact point of the hand body), for the Jacobian-transpose mapping (eq. 12).
+            forces: read the contact forces (``mj_contactForce``); ``False`` leaves
+                ``forces`` and ``torsional`` zero (a controller that does not use them, e.g.
+                eq. III.23, saves the calls).
         """
         m, d = self.model, self.data
         n = d.ncon
@@ -598,23 +601,28 @@ class SimWorld:
         frame = con.frame[idx].tolist()  # (K, 9): rows normal, tangent 1, tangent 2
         pos = np.array(con.pos[idx])  # copies: MjData is rewritten at the next step
         fric = np.array(con.friction[idx, 0])
-        f6 = np.empty((k, 6))
-        for r, c in enumerate(sel):
-            mujoco.mj_contactForce(m, d, c[0], f6[r])
-        # contact frame -> world (plain floats: a few contacts), the sign flipped where the
-        # hand was geom 2 (its side: the force it applies, its normal)
-        nrm, frc, tors = [], [], []
-        for (fn, ft1, ft2, tn, _, _), (e0, e1, e2, e3, e4, e5, e6, e7, e8), c in zip(
-                f6.tolist(), frame, sel, strict=True):
-            if c[1]:  # -(f R) = (-f) R; the normal row -e_0
-                fn, ft1, ft2, tn = -fn, -ft1, -ft2, -tn
-                nrm.append((-e0, -e1, -e2))
-            else:
-                nrm.append((e0, e1, e2))
-            frc.append((fn * e0 + ft1 * e3 + ft2 * e6, fn * e1 + ft1 * e4 + ft2 * e7,
-                        fn * e2 + ft1 * e5 + ft2 * e8))
-            tors.append(tn)
-        normals, forces = np.array(nrm), np.array(frc)
+        if forces:
+            f6 = np.empty((k, 6))
+            for r, c in enumerate(sel):
+                mujoco.mj_contactForce(m, d, c[0], f6[r])
+            # contact frame -> world (plain floats: a few contacts), the sign flipped where
+            # the hand was geom 2 (its side: the force it applies, its normal)
+            nrm, frc, tors = [], [], []
+            for (fn, ft1, ft2, tn, _, _), (e0, e1, e2, e3, e4, e5, e6, e7, e8), c in zip(
+                    f6.tolist(), frame, sel, strict=True):
+                if c[1]:  # -(f R) = (-f) R; the normal row -e_0
+                    fn, ft1, ft2, tn = -fn, -ft1, -ft2, -tn
+                    nrm.append((-e0, -e1, -e2))
+                else:
+                    nrm.append((e0, e1, e2))
+                frc.append((fn * e0 + ft1 * e3 + ft2 * e6, fn * e1 + ft1 * e4 + ft2 * e7,
+                            fn * e2 + ft1 * e5 + ft2 * e8))
+                tors.append(tn)
+            normals, force_arr, torsional = np.array(nrm), np.array(frc), np.array(tors)
+        else:
+            normals = np.array([(-f[0], -f[1], -f[2]) if c[1] else (f[0], f[1], f[2])
+                                for f, c in zip(frame, sel, strict=True)])
+            force_arr, torsional = np.zeros((k, 3)), np.zeros(k)
         bodies = np.array([[gbody[c[2]] for c in sel], [gbody[c[3]] for c in sel]],
                           dtype=np.int64)
         jacp = jacr = None
@@ -630,5 +638,5 @@ class SimWorld:
         names = self._contact_names
         return ContactFrame.trusted(
             tuple([names[c[2]] for c in sel]), tuple([names[c[3]] for c in sel]),
-            bodies[0], bodies[1], pos, normals, np.array([-dist[c[0]] for c in sel]), forces,
-            np.array(tors), fric, jacp, jacr, float(d.time))
+            bodies[0], bodies[1], pos, normals, np.array([-dist[c[0]] for c in sel]),
+            force_arr, torsional, fric, jacp, jacr, float(d.time))
