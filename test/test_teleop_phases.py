@@ -63,8 +63,9 @@ def test_full_cycle_and_rigid_following() -> None:
     assert up.phase == Phase.MANIPULATION
     np.testing.assert_allclose(up.object_target[:3, 3], obj[:3, 3] + [0.07, 0.0, 0.0],
                                atol=1e-9)
-    # opening the grip releases, moving away returns to reaching
-    for c in np.linspace(0.8, 0.0, 8):
+    # opening the grip (and keeping it open for release_time) releases, moving away returns
+    # to reaching
+    for c in list(np.linspace(0.8, 0.0, 8)) + [0.0] * 8:
         q = _pose(0.07, c)
         up = det.update(t, m.forward(q).joint_positions, _wrist(q), obj)
         t += dt
@@ -94,3 +95,20 @@ def test_bad_input_is_refused() -> None:
         det.update(0.0, kp, np.eye(4), np.eye(4))
     with pytest.raises(InputError):
         det.update(0.0, np.zeros((5, 3)), np.eye(4), np.eye(4))
+
+
+def test_single_frames_of_an_open_grip_do_not_release() -> None:
+    """Tracking jitter: two isolated frames of a fully open hand during manipulation are
+    outvoted by the median of the last poses and do not drop the object."""
+    m = HandModel()
+    det = GraspPhaseDetector()
+    obj = np.eye(4)
+    obj[:3, 3] = m.forward(_pose(0.0, 0.0)).joint_positions[[0, 5, 9, 13, 17]].mean(axis=0)
+    t, dt = 0.0, 1 / 30
+    seq = [0.0] * 5 + list(np.linspace(0.0, 0.8, 10)) + [0.8] * 20
+    seq += ([0.8] * 4 + [0.0]) * 6  # manipulation with a glitch every fifth frame
+    for c in seq:
+        q = _pose(0.0, c)
+        up = det.update(t, m.forward(q).joint_positions, _wrist(q), obj)
+        t += dt
+    assert up.phase == Phase.MANIPULATION

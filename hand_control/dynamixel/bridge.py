@@ -35,6 +35,7 @@ import contextlib
 import enum
 import logging
 import math
+import sys
 import threading
 import time
 from collections import deque
@@ -57,6 +58,7 @@ from hand_control.dynamixel.servo_map import ServoMap, load_servo_map
 from hand_control.errors import InputError, ServoError
 
 EMULATOR_PORT = "emulator"
+_EMULATOR_SWITCH_INTERVAL_S = 2e-4  # GIL switch interval with the in-process emulator [s]
 
 #: Layout of the state block read every cycle, Present Current(126) .. Present Temperature(146).
 _STATE_DTYPE = np.dtype({
@@ -260,6 +262,10 @@ class ServoBridge:
             self.emulator = BusEmulator.from_map(
                 self.map, return_delay_us=cfg.emulator_return_delay_us)
             port = self.emulator.start()
+            # dynamixel-sdk polls the port while it waits for a status packet, holding the
+            # GIL; the in-process emulator thread must get it within a fraction of a
+            # millisecond, not CPython's default 5 ms switch interval
+            sys.setswitchinterval(min(sys.getswitchinterval(), _EMULATOR_SWITCH_INTERVAL_S))
         else:
             self.latency_warning = usb_latency_warning(port)
             if self.latency_warning:

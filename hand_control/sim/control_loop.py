@@ -13,6 +13,7 @@ PD-only command (zero efforts), counted in :attr:`ControllerCore.counters`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
@@ -62,6 +63,11 @@ class ControllerNodeConfig:
                                 "[m/N]", lo=0.0)
     world_frame: str = param("world", "frame of the simulation; hand/pose targets must be in "
                              "it (reference: hand_pose)")
+    target_cutoff: float = param(
+        4.0, "low-pass cutoff of hand and object targets that come from outside (hand/pose, "
+        "control/object_target) [Hz]: tracked poses arrive at 10-30 Hz, and each step of the "
+        "target jerks the hand and shakes a held object loose; 0 = use them as they come",
+        lo=0.0)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -166,6 +172,7 @@ class ControllerCore:
         # grasp torques on/off from outside (teleoperation: on in the manipulation phase of
         # the grasp-phase detector); None = the scenario reference's phases
         self.grasp_override: bool | None = None
+        self._filtered: tuple[float, np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def needs_contacts(self, t: float) -> bool:
         """Whether the step at ``t`` uses contacts (composite mode, grasp torques on)."""
@@ -173,6 +180,23 @@ class ControllerCore:
 
     def _grasp_on(self, t: float) -> bool:
         return self.reference(t).grasp if self.grasp_override is None else self.grasp_override
+
+    def _low_pass(self, t: float, q: np.ndarray, pos: np.ndarray, quat: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """First-order low-pass (``target_cutoff``) of the hand and object targets at time
+        ``t`` [s]: joint values and position lerp, quaternion nlerp (same hemisphere)."""
+        f = self._filtered
+        if f is None or t <= f[0]:
+            self._filtered = (t, np.array(q, float), np.array(pos, float), np.array(quat, float))
+            return self._filtered[1:]
+        a = 1.0 - math.exp(-2.0 * math.pi * self.config.target_cutoff * (t - f[0]))
+        quat = np.asarray(quat, float)
+        if float(quat @ f[3]) < 0.0:
+            quat = -quat
+        qq = f[3] + a * (quat - f[3])
+        self._filtered = (t, f[1] + a * (np.asarray(q, float) - f[1]),
+                          f[2] + a * (np.asarray(pos, float) - f[2]), qq / np.linalg.norm(qq))
+        return self._filtered[1:]
 
     def hand_pose_from_names(self, names: Sequence[str], positions: Sequence[float],
                              default: np.ndarray | None = None) -> np.ndarray:
@@ -214,6 +238,9 @@ class ControllerCore:
         obj_pos, obj_quat = ref.object_position, ref.object_quaternion
         if self.object_target_override is not None:
             obj_pos, obj_quat = self.object_target_override
+        if self.config.target_cutoff > 0 and (self.hand_target_override is not None
+                                              or self.object_target_override is not None):
+            q_target, obj_pos, obj_quat = self._low_pass(t, q_target, obj_pos, obj_quat)
         effort = None
         k = len(contact_bodies)
         forces = torsion = None

@@ -53,10 +53,10 @@ class PhaseConfig:
         0.008, "the grip must have shrunk this much since closing began before it can settle "
         "into a grasp (an open hand held still near the object is not a grasp) [m]",
         lo=0.0, hi=0.2)
-    release_time: float = param(0.3, "window in which an opening grip releases [s]",
+    release_time: float = param(0.2, "the grip must stay opened this long to release [s]",
                                 lo=0.01, hi=5.0)
-    release_increase: float = param(0.008, "grip-size increase that releases [m]",
-                                    lo=0.0, hi=0.2)
+    release_increase: float = param(0.010, "grip-size increase over the grasped grip that "
+                                    "releases [m]", lo=0.0, hi=0.2)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -98,6 +98,7 @@ class GraspPhaseDetector:
         self._grips: deque[tuple[float, float]] = deque()
         self._offset: np.ndarray | None = None  # object pose in the wrist frame, (4, 4)
         self._open_grip = 0.0  # grip size when closing began [m]
+        self._grasp_grip = 0.0  # grip size when manipulation began [m]
         self._raw: deque[float] = deque(maxlen=self.cfg.grip_filter)  # unfiltered grip sizes
 
     def reset(self) -> None:
@@ -151,10 +152,14 @@ class GraspPhaseDetector:
                   and np.ptp(w) <= c.steady_tolerance
                   and self._open_grip - grip >= c.close_decrease):
                 self._offset = np.linalg.inv(wrist) @ object_pose
+                self._grasp_grip = grip
                 self._enter(Phase.MANIPULATION, t)
         elif self.phase == Phase.MANIPULATION:
+            # released once the grip has stayed wider than the grasped grip by
+            # release_increase for release_time (a single jittery frame does not drop it)
             w = self._window(t, c.release_time)
-            if w.size and grip - w.min() > c.release_increase:
+            if (w.size >= 2 and t - self._since >= c.release_time
+                    and w.min() - self._grasp_grip > c.release_increase):
                 self._offset = None
                 self._enter(Phase.RELEASING, t)
         elif self.phase == Phase.RELEASING and dist > c.leave_distance:
