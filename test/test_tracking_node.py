@@ -135,7 +135,7 @@ def test_tracker_node_rejects_bad_input_without_crashing(ros, frame):
 
 
 def test_tracker_node_drops_frames_when_busy(ros, frame):
-    node = TrackerNode()
+    node = TrackerNode(parameter_overrides=[Parameter("poll_period_s", value=0.002)])
     node._on_info(camera_info_msg(frame.depth_intrinsics))
     for k in range(4):
         node._on_image(depth_image_msg(frame.depth, Time(sec=k)))
@@ -143,6 +143,16 @@ def test_tracker_node_drops_frames_when_busy(ros, frame):
     node._process_latest()
     assert node.processed == 1 and node._pending is None
     assert node.last_result is not None
+    node.destroy_node()
+
+
+def test_tracker_node_in_callback_mode_tracks_and_counts_replaced_frames(ros, frame):
+    node = TrackerNode()  # poll_period_s 0: each image is tracked in its callback
+    for _ in range(4):  # four frames went by while the tracker was busy ...
+        node._on_info(camera_info_msg(frame.depth_intrinsics))
+    node._on_image(depth_image_msg(frame.depth, Time(sec=3)))  # ... only the newest is kept
+    assert node.processed == 1 and node.last_result is not None
+    assert node.dropped == 3
     node.destroy_node()
 
 

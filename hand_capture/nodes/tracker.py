@@ -87,8 +87,10 @@ class TrackerNodeConfig:
     markers_every: int = param(3, "publish hand/markers every n-th frame (0 = never)", lo=0)
     debug_image_every: int = param(1, "publish hand/debug_image every n-th frame (0 = never)",
                                    lo=0)
-    poll_period_s: float = param(0.002, "period of the timer that processes the latest "
-                                 "image [s]", lo=0.0005, hi=1.0)
+    poll_period_s: float = param(
+        0.0, "period of a timer that processes the latest image [s]; 0 = process each image "
+        "in its callback (the subscription keeps one, the newest, while the tracker is busy; "
+        "no wake-ups without a frame)", lo=0.0, hi=1.0)
     blas_threads: int = param(1, "BLAS threads of the process", lo=1, hi=256)
 
     def __post_init__(self) -> None:
@@ -152,19 +154,30 @@ class TrackerNode(Node):
         self.stage_s: Counter[str] = Counter()
         self.last_result: TrackResult | None = None
         self._diag_n, self._diag_t = 0, time.monotonic()
-        self.create_timer(nc.poll_period_s, self._process_latest)
+        self._in_callback = nc.poll_period_s == 0.0
+        self._infos = self._images = 0
+        if not self._in_callback:
+            self.create_timer(nc.poll_period_s, self._process_latest)
         self.create_timer(1.0, self._diagnostics)
         log.info(f"tracker ready: mode {self.cfg.mode}, {self.cfg.side} hand, regressor "
                  f"{'loaded' if regressor else 'none'}")
 
     # ---------------------------------------------------------------------------- inputs
     def _on_image(self, msg: Image) -> None:
+        if self._in_callback:
+            # frames the subscription replaced while the tracker was busy: one camera_info
+            # comes with every frame
+            self._images += 1
+            self.dropped = max(0, self._infos - self._images)
+            self.process(msg)
+            return
         if self._pending is not None:
             self.dropped += 1  # keep only the latest frame
         self._pending = msg
 
     def _on_info(self, msg: CameraInfo) -> None:
         self._info = msg
+        self._infos += 1
 
     def _on_shape(self, msg: HandShapeMsg) -> None:
         try:

@@ -14,6 +14,8 @@ Topics:
          stamped with the stamp of the input they come from, for per-stage latency)
     out  diagnostics (diagnostic_msgs/DiagnosticArray: bus state, loop rate, per-servo
          temperature, voltage, current, hardware error bits)
+Cycles (sync read, then sync write of the goals) run at ``control_rate_hz`` and right away
+    when a new input arrives (at most about ``control_rate_hz`` in all).
 Parameters: those of :class:`BridgeConfig`; ``goal_current_scale`` (grip strength in
     current-based position mode) may change while running, the others are read-only.
 Service:
@@ -29,6 +31,7 @@ Lifecycle: configure = open the port, ping and check every servo, write modes an
 from __future__ import annotations
 
 import sys
+import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from hand_msgs.msg import HandPose, JointCommand
@@ -62,6 +65,7 @@ class ServoBridgeNode(LifecycleNode):
         self._sub = None
         self._srv = None
         self._control_timer = None
+        self._last_cycle = 0.0  # time.monotonic() of the last control cycle [s]
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self._diag_timer = self.create_timer(1.0 / self.config.diagnostics_rate_hz,
@@ -175,18 +179,28 @@ class ServoBridgeNode(LifecycleNode):
         hand = "left" if msg.handedness == HandPose.HAND_LEFT else "right"
         if self.core.handle_pose(msg.joint_names, msg.positions, handedness=hand,
                                  valid=valid):
-            self._input_stamp = msg.header.stamp
+            self._accepted(msg.header.stamp)
 
     def _on_joint_state(self, msg: JointState) -> None:
         if self.core is not None and self.core.handle_joint_state(msg.name, msg.position):
-            self._input_stamp = msg.header.stamp
+            self._accepted(msg.header.stamp)
 
     def _on_command(self, msg: JointCommand) -> None:
         if self.core is not None and self.core.handle_joint_state(msg.joint_names,
                                                                   msg.positions):
-            self._input_stamp = msg.header.stamp
+            self._accepted(msg.header.stamp)
+
+    def _accepted(self, stamp) -> None:
+        """A new input: run the cycle now rather than at the next tick, unless a cycle ran
+        less than 0.9 of a period ago (the bus sees at most about ``control_rate_hz``)."""
+        self._input_stamp = stamp
+        if self._control_timer is not None and \
+                time.monotonic() - self._last_cycle >= 0.9 / self.config.control_rate_hz:
+            self._control_timer.reset()
+            self._on_control()
 
     def _on_control(self) -> None:
+        self._last_cycle = time.monotonic()
         r = self.core.step() if self.core is not None else None
         if r is None or self._state_pub is None:
             return
