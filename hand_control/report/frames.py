@@ -39,7 +39,8 @@ def _instants(data: BagData, n: int) -> list[int]:
     return picks
 
 
-def sim_frame_renderer(scenario: str, n_frames: int = 6, width: int = 480, height: int = 360
+def sim_frame_renderer(scenario: str, n_frames: int = 6, width: int = 480, height: int = 360,
+                       azimuth: float = 180.0, elevation: float = -15.0
                        ) -> Callable[[BagData, Path], list[Path]]:
     """A ``frames_fn`` for :func:`hand_control.report.build_report`.
 
@@ -47,6 +48,7 @@ def sim_frame_renderer(scenario: str, n_frames: int = 6, width: int = 480, heigh
         scenario: the scenario the sim node ran (its world is rebuilt).
         n_frames: at most this many frames.
         width, height: image size [px].
+        azimuth, elevation: the free camera around the object [deg].
     """
 
     def render(data: BagData, out: Path) -> list[Path]:
@@ -68,7 +70,7 @@ def sim_frame_renderer(scenario: str, n_frames: int = 6, width: int = 480, heigh
         t_po = np.asarray(po.t_ns) if po is not None and po.msgs else None
         cam = mujoco.MjvCamera()
         cam.lookat[:] = world.object_pose(obj.name).position + np.array([0.0, 0.05, 0.06])
-        cam.distance, cam.azimuth, cam.elevation = 0.55, 135.0, -25.0
+        cam.distance, cam.azimuth, cam.elevation = 0.55, azimuth, elevation
         paths: list[Path] = []
         renderer = mujoco.Renderer(m, height, width)
         try:
