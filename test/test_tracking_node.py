@@ -14,11 +14,12 @@ from hand_msgs.msg import HandShape as HandShapeMsg
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from visualization_msgs.msg import MarkerArray
 
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
-from hand_capture.model import ARTICULATED_JOINTS
+from hand_capture.model import ARTICULATED_JOINTS, rest_pose
 from hand_capture.nodes.images import camera_info_msg, depth_image_msg, numpy_to_image
 from hand_capture.nodes.tracker import TrackerNode
 
@@ -92,6 +93,22 @@ def test_tracker_node_publishes_pose_with_the_image_stamp(ros, frame, tmp_path):
     assert types == sorted([5, 11])  # LINE_LIST, TRIANGLE_LIST
     assert got["debug"] and got["debug"][0].encoding == "rgb8"
     io.destroy_node()
+    node.destroy_node()
+
+
+def test_serialized_markers_equal_the_message_objects(ros) -> None:
+    """The fast hand/markers path (bytes patched into a serialised template) deserialises to
+    exactly the markers the plain path builds, for two poses, stamps and statuses."""
+    node = TrackerNode()
+    rng = np.random.default_rng(0)
+    for k, status in enumerate(("tracking", "lost")):
+        pose = rest_pose().copy()
+        pose[6:] += rng.normal(0.0, 0.2, 21)
+        stamp = Time(sec=1700 + k, nanosec=999 * k)
+        fast = deserialize_message(node._markers_bytes(pose, stamp, "cam", status), MarkerArray)
+        plain = node._markers(pose, stamp, "cam", status)  # as a subscriber receives it:
+        assert fast == deserialize_message(serialize_message(plain), MarkerArray)  # float32
+    assert len(fast.markers[0].points) == 3 * len(node.tracker.model.faces)
     node.destroy_node()
 
 

@@ -54,6 +54,7 @@ from hand_capture.config import param, validate
 from hand_capture.errors import HandSuiteError
 from hand_capture.model import ARTICULATED_JOINTS, JOINT_INDEX, HandModel, HandShape
 from hand_capture.nodes.images import image_to_array, intrinsics_from_msg, rgb_image_msg
+from hand_capture.nodes.markers import SerializedMarkers
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import fill_pose_msg
@@ -145,6 +146,8 @@ class TrackerNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", 10)
 
         self._pending: Image | None = None
+        self._marker_tpl: SerializedMarkers | None = None
+        self._marker_key: tuple[str, int, int] | None = None
         self._info: CameraInfo | None = None
         self.processed = 0
         self.dropped = 0
@@ -296,37 +299,60 @@ class TrackerNode(Node):
         n = self.processed
         me, de = self.node_cfg.markers_every, self.node_cfg.debug_image_every
         if me and n % me == 1 % me:
-            self.pub_markers.publish(self._markers(pose, stamp, frame_id, status))
+            self.pub_markers.publish(self._markers_bytes(pose, stamp, frame_id, status))
         if de and n % de == 1 % de:
             self.pub_debug.publish(rgb_image_msg(self._debug_image(res, pose, intr), stamp,
                                                  frame_id))
 
     # ----------------------------------------------------------------------- rendering
-    def _markers(self, pose: np.ndarray, stamp: object, frame_id: str, status: str
-                 ) -> MarkerArray:
-        model = self.tracker.model
-        fk = model.forward(pose)
-        good = status in ("tracking", "recovering")
+    def _marker_template(self, frame_id: str, n_mesh: int, n_skel: int) -> MarkerArray:
+        """The two markers (skinned mesh, skeleton) with placeholder points."""
         mesh = Marker()
-        mesh.header.stamp = stamp
         mesh.header.frame_id = frame_id
         mesh.ns, mesh.id, mesh.type, mesh.action = "hand_mesh", 0, Marker.TRIANGLE_LIST, 0
         mesh.pose.orientation.w = 1.0
         mesh.scale.x = mesh.scale.y = mesh.scale.z = 1.0
-        mesh.color.r, mesh.color.g, mesh.color.b = (0.9, 0.7, 0.6) if good else (0.6, 0.6, 0.6)
-        mesh.color.a = 0.8
-        tri = fk.vertices[model.faces.reshape(-1)]
-        mesh.points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in tri]
         skel = Marker()
-        skel.header = mesh.header
+        skel.header.frame_id = frame_id
         skel.ns, skel.id, skel.type, skel.action = "hand_skeleton", 1, Marker.LINE_LIST, 0
         skel.pose.orientation.w = 1.0
         skel.scale.x = 0.003
-        skel.color.g, skel.color.a = 1.0, 1.0
-        kp = fk.joint_positions
-        skel.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
-                       for a, b in _BONES for p in (kp[a], kp[b])]
+        mesh.points = [Point() for _ in range(n_mesh)]
+        skel.points = [Point() for _ in range(n_skel)]
         return MarkerArray(markers=[mesh, skel])
+
+    def _marker_content(self, pose: np.ndarray, status: str
+                        ) -> tuple[list[tuple[float, ...]], list[np.ndarray]]:
+        """Colours and points of the mesh and skeleton markers for ``pose``."""
+        model = self.tracker.model
+        fk = model.forward(pose)
+        good = status in ("tracking", "recovering")
+        mesh_color = (0.9, 0.7, 0.6, 0.8) if good else (0.6, 0.6, 0.6, 0.8)
+        tri = fk.vertices[model.faces.reshape(-1)]
+        kp = fk.joint_positions
+        skel = kp[np.array(_BONES).reshape(-1)]
+        return [mesh_color, (0.0, 1.0, 0.0, 1.0)], [tri, skel]
+
+    def _markers(self, pose: np.ndarray, stamp: object, frame_id: str, status: str
+                 ) -> MarkerArray:
+        """hand/markers as message objects (the plain path; see :meth:`_markers_bytes`)."""
+        colors, points = self._marker_content(pose, status)
+        arr = self._marker_template(frame_id, 0, 0)
+        for m, c, pts in zip(arr.markers, colors, points, strict=True):
+            m.header.stamp = stamp
+            m.color.r, m.color.g, m.color.b, m.color.a = c
+            m.points = [Point(x=x, y=y, z=z) for x, y, z in pts.tolist()]
+        return arr
+
+    def _markers_bytes(self, pose: np.ndarray, stamp: object, frame_id: str, status: str
+                       ) -> bytes:
+        """hand/markers serialised straight from the arrays (:class:`SerializedMarkers`)."""
+        colors, points = self._marker_content(pose, status)
+        key = (frame_id, len(points[0]), len(points[1]))
+        if self._marker_key != key:
+            self._marker_tpl = SerializedMarkers(self._marker_template(*key))
+            self._marker_key = key
+        return self._marker_tpl.serialize(stamp, colors, points)
 
     def _debug_image(self, res: TrackResult, pose: np.ndarray, intr: object) -> np.ndarray:
         obs = res.observation
