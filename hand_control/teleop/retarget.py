@@ -118,7 +118,7 @@ class GraspRetarget:
         return float(np.clip((self._grip_open - grip) / span, 0.0, 1.0))
 
     def target(self, q_op: np.ndarray, T_op: np.ndarray, phase: Phase,
-               object_pose: np.ndarray) -> np.ndarray:
+               object_pose: np.ndarray, grip: float | None = None) -> np.ndarray:
         """The hand's PD target (27,) for the tracked pose ``q_op`` (world) in ``phase``.
 
         Args:
@@ -126,8 +126,10 @@ class GraspRetarget:
             T_op: (4, 4) the operator's wrist to use (``q_op``'s, possibly filtered).
             phase: the grasp phase decided for this pose.
             object_pose: (4, 4) the object's current pose.
+            grip: ``q_op``'s grip size [m] when the caller has it (else computed).
         """
-        grip = float(grip_size(self.model.joint_positions(q_op)))
+        if grip is None:
+            grip = float(grip_size(self.model.joint_positions(q_op)))
         T_plan = object_pose @ self._wrist_in_object
         if phase != self._phase:
             if phase == Phase.CLOSING:
@@ -194,5 +196,7 @@ class PerformanceInterface:
         if q.shape != (27,) or not np.isfinite(q).all():
             raise InputError("the hand pose must be 27 finite values")
         T_op = self.filter(t, pose_matrix(q))
-        up = self.detector.update(t, self.model.joint_positions(q), T_op, object_pose)
-        return InterfaceStep(up, self.retarget.target(q, T_op, up.phase, object_pose))
+        kp = self.model.joint_positions(q)
+        up = self.detector.update(t, kp, T_op, object_pose)
+        return InterfaceStep(up, self.retarget.target(q, T_op, up.phase, object_pose,
+                                                      float(grip_size(kp))))
