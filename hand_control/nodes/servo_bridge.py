@@ -14,8 +14,8 @@ Topics:
          stamped with the stamp of the input they come from, for per-stage latency)
     out  diagnostics (diagnostic_msgs/DiagnosticArray: bus state, loop rate, per-servo
          temperature, voltage, current, hardware error bits)
-Cycles (sync read, then sync write of the goals) run at ``control_rate_hz`` and right away
-    when a new input arrives (at most about ``control_rate_hz`` in all).
+Cycles (sync read, then sync write of the goals) run when a new input arrives (at most about
+    ``control_rate_hz``), and at ``control_rate_hz`` while no input comes.
 Parameters: those of :class:`BridgeConfig`; ``goal_current_scale`` (grip strength in
     current-based position mode) may change while running, the others are read-only.
 Service:
@@ -66,6 +66,7 @@ class ServoBridgeNode(LifecycleNode):
         self._srv = None
         self._control_timer = None
         self._last_cycle = 0.0  # time.monotonic() of the last control cycle [s]
+        self._last_input = 0.0  # time.monotonic() of the last accepted input [s]
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self._diag_timer = self.create_timer(1.0 / self.config.diagnostics_rate_hz,
@@ -124,7 +125,7 @@ class ServoBridgeNode(LifecycleNode):
             self.get_logger().error(f"activate failed: {e}")
             return _FAILURE
         self._control_timer = self.create_timer(1.0 / self.config.control_rate_hz,
-                                                self._on_control)
+                                                self._on_timer)
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -194,9 +195,15 @@ class ServoBridgeNode(LifecycleNode):
         """A new input: run the cycle now rather than at the next tick, unless a cycle ran
         less than 0.9 of a period ago (the bus sees at most about ``control_rate_hz``)."""
         self._input_stamp = stamp
+        now = time.monotonic()
+        self._last_input = now
         if self._control_timer is not None and \
-                time.monotonic() - self._last_cycle >= 0.9 / self.config.control_rate_hz:
-            self._control_timer.reset()
+                now - self._last_cycle >= 0.9 / self.config.control_rate_hz:
+            self._on_control()
+
+    def _on_timer(self) -> None:
+        """The fixed-rate cycle, while no input drives the cycles (none for 1.5 periods)."""
+        if time.monotonic() - self._last_input >= 1.5 / self.config.control_rate_hz:
             self._on_control()
 
     def _on_control(self) -> None:
