@@ -354,7 +354,7 @@ def _ls(
     (for the gradient), or ``None`` if ``H_pp`` is not positive definite (dependent
     generators on ``p``).
     """
-    idx = p + [n]
+    idx = np.array(p + [n])  # one conversion for the three gathers
     sub = a6t.take(idx, 0)
     cols = a6t.dot(sub.T)
     cols += c.take(idx, 1)
@@ -588,9 +588,10 @@ class ContactForceQP(_ContactForceSolver):
         e0, e1, e2, e3, e4, e5 = err
         ef, et = e0 * e0 + e1 * e1 + e2 * e2, e3 * e3 + e4 * e4 + e5 * e5
         objective = cfg.alpha1 * ef + cfg.alpha2 * et + cfg.alpha3 * fsq + cfg.alpha4 * lsq
-        return _result(status, contacts, r, (tf, tt), t0, "dissertation",
-                       (np.array(fk).reshape(k, 3), np.array(lk), objective), np.array(err),
-                       math.sqrt(ef + et))
+        # what _result makes of the solution, inline (one result per control step)
+        return _new_result(True, status, np.array(fk).reshape(k, 3), np.array(lk),
+                           np.array(err), math.sqrt(ef + et), float(objective),
+                           time.perf_counter() - t0, "dissertation")
 
     def _fallback(
         self, a6t: np.ndarray, lay: _Layout, tol: float, maxiter: int, status: str,

@@ -294,7 +294,7 @@ class CompositeController:
         Raises:
             InputError: NaN/Inf, wrong lengths, or contacts without matching Jacobians.
         """
-        nv = self.nv
+        nv = len(self.joint_names)  # self.nv without the property call
         if check:
             q = as_finite_array("q", q, (nv,))
             qd = as_finite_array("qd", qd, (nv,))

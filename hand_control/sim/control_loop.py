@@ -285,10 +285,13 @@ class ControllerCore:
                             ref.phase, empty3 if forces is None else forces,
                             np.zeros(0) if torsion is None else torsion, empty3, empty3, (),
                             True)
+        if not trusted:
+            contact_points = np.asarray(contact_points).reshape(-1, 3)
+            contact_normals = np.asarray(contact_normals).reshape(-1, 3)
+            contact_bodies = tuple(contact_bodies)
+        # trusted: (K, 3) arrays and a tuple of names from SimWorld.contacts, as they are
         return _command(self.joint_names, q_target, effort, ref.phase, forces, torsion,
-                        np.asarray(contact_points).reshape(-1, 3),
-                        np.asarray(contact_normals).reshape(-1, 3), tuple(contact_bodies),
-                        False)
+                        contact_points, contact_normals, contact_bodies, False)
 
 
 _COMMAND_FIELDS = tuple(f.name for f in fields(Command))

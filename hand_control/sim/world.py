@@ -601,42 +601,47 @@ class SimWorld:
         frame = con.frame[idx].tolist()  # (K, 9): rows normal, tangent 1, tangent 2
         pos = np.array(con.pos[idx])  # copies: MjData is rewritten at the next step
         fric = np.array(con.friction[idx, 0])
+        # the per-contact lists in one pass (plain Python: a handful of contacts)
+        names = self._contact_names
+        b1l, b2l, n1, n2, pen, nrm = [], [], [], [], [], []
+        for c, f in zip(sel, frame, strict=True):
+            b1l.append(gbody[c[2]])
+            b2l.append(gbody[c[3]])
+            n1.append(names[c[2]])
+            n2.append(names[c[3]])
+            pen.append(-dist[c[0]])
+            # the normal: the frame's first row, from the hand (flipped where it was geom 2)
+            nrm.append((-f[0], -f[1], -f[2]) if c[1] else (f[0], f[1], f[2]))
+        normals = np.array(nrm)
         if forces:
             f6 = np.empty((k, 6))
             for r, c in enumerate(sel):
                 mujoco.mj_contactForce(m, d, c[0], f6[r])
             # contact frame -> world (plain floats: a few contacts), the sign flipped where
             # the hand was geom 2 (its side: the force it applies, its normal)
-            nrm, frc, tors = [], [], []
+            frc, tors = [], []
             for (fn, ft1, ft2, tn, _, _), (e0, e1, e2, e3, e4, e5, e6, e7, e8), c in zip(
                     f6.tolist(), frame, sel, strict=True):
-                if c[1]:  # -(f R) = (-f) R; the normal row -e_0
+                if c[1]:  # -(f R) = (-f) R
                     fn, ft1, ft2, tn = -fn, -ft1, -ft2, -tn
-                    nrm.append((-e0, -e1, -e2))
-                else:
-                    nrm.append((e0, e1, e2))
                 frc.append((fn * e0 + ft1 * e3 + ft2 * e6, fn * e1 + ft1 * e4 + ft2 * e7,
                             fn * e2 + ft1 * e5 + ft2 * e8))
                 tors.append(tn)
-            normals, force_arr, torsional = np.array(nrm), np.array(frc), np.array(tors)
+            force_arr, torsional = np.array(frc), np.array(tors)
         else:
-            normals = np.array([(-f[0], -f[1], -f[2]) if c[1] else (f[0], f[1], f[2])
-                                for f, c in zip(frame, sel, strict=True)])
             force_arr, torsional = np.zeros((k, 3)), np.zeros(k)
-        bodies = np.array([[gbody[c[2]] for c in sel], [gbody[c[3]] for c in sel]],
-                          dtype=np.int64)
+        bodies = np.array((b1l, b2l), dtype=np.int64)
         jacp = jacr = None
         if jacobians:
-            # mj_jac writes each contact's (3, nv) rows straight into the buffers; the hand's
-            # columns are then a view (no per-contact copies)
+            # mj_jac writes each contact's (3, nv) rows straight into the buffer; the hand's
+            # columns then in one copy, contiguous (K, 3, n_hand) blocks: eq. (12)'s products
+            # reshape them to (3K, n_hand) without copying
             jac = np.empty((2, k, 3, m.nv))
             jp, jr = jac[0], jac[1]
-            for r, b in enumerate(bodies[0].tolist()):
+            for r, b in enumerate(b1l):
                 mujoco.mj_jac(m, d, jp[r], jr[r], pos[r], b)
-            cols = self._dof_cols
-            jacp, jacr = jp[:, :, cols], jr[:, :, cols]
-        names = self._contact_names
+            hand = np.ascontiguousarray(jac[:, :, :, self._dof_cols])
+            jacp, jacr = hand[0], hand[1]
         return ContactFrame.trusted(
-            tuple([names[c[2]] for c in sel]), tuple([names[c[3]] for c in sel]),
-            bodies[0], bodies[1], pos, normals, np.array([-dist[c[0]] for c in sel]),
+            tuple(n1), tuple(n2), bodies[0], bodies[1], pos, normals, np.array(pen),
             force_arr, torsional, fric, jacp, jacr, float(d.time))
