@@ -130,6 +130,9 @@ def _topics_two_processes(seconds: float) -> dict[str, float]:
 
 
 def run(quick: bool = False) -> dict[str, Any]:
+    from hand_capture.cameras.threads import limit_blas_threads
+
+    limit_blas_threads(1)  # one core: no BLAS worker threads beside the loop
     spec = load_scenario("lift_box")
     if quick:
         spec = spec.with_(t_lift=0.6, t_carry=0.6, t_hold=0.3)
