@@ -37,6 +37,8 @@ setup(
         (f"share/{PACKAGE}/config/scenarios", glob("config/scenarios/*.yaml")),
         (f"share/{PACKAGE}/data/touch", glob("data/touch/*.npz")),
         (f"share/{PACKAGE}/data/tracker", glob("data/tracker/*.npz")),
+        (f"share/{PACKAGE}/data/teleop", glob("data/teleop/*.npz")),
+        (f"share/{PACKAGE}/data/sample_capture", glob("data/sample_capture/*")),
     ],
     install_requires=["setuptools"],
     extras_require={"realsense": ["pyrealsense2"]},

@@ -40,6 +40,32 @@ def test_every_graph_names_existing_scripts_and_parameter_files() -> None:
             assert (ROOT / (module.replace(".", "/") + ".py")).is_file(), module
 
 
+def _installed_globs() -> list[str]:
+    """The glob patterns of setup.py's data_files (what a colcon install puts in share/)."""
+    tree = ast.parse((ROOT / "setup.py").read_text())
+    return [node.args[0].value for node in ast.walk(tree)
+            if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "glob"]
+
+
+def test_data_files_named_by_parameter_files_are_installed() -> None:
+    """Every data/... path a parameter file names exists and is in setup.py's data_files, so
+    a colcon install (share/hand_suite) has it too."""
+    import fnmatch
+
+    globs = _installed_globs()
+    named = set()
+    for f in (ROOT / "config").rglob("*.yaml"):
+        named |= set(re.findall(r"\b(data/[\w./-]+)", f.read_text()))
+    assert named, "no parameter file names a data file"
+    for rel in sorted(named):
+        path = ROOT / rel
+        assert path.exists(), f"{rel} is named but missing"
+        files = [path] if path.is_file() else [q for q in path.iterdir() if q.is_file()]
+        for q in files:
+            r = str(q.relative_to(ROOT))
+            assert any(fnmatch.fnmatch(r, g) for g in globs), f"{r} is not installed"
+
+
 def test_every_launch_file_names_a_described_graph() -> None:
     launch_files = sorted((ROOT / "launch").glob("*.launch.py"))
     assert launch_files
