@@ -42,6 +42,27 @@ def test_shipped_performance_and_camera_pose_come_from_the_generator(performance
     assert np.allclose(cfg["camera_rotation"], performance.camera_rotation, atol=1e-5)
 
 
+def test_controller_period_matches_the_sims_state_rate() -> None:
+    """The controller caps the object's rotational gains by its control period: in teleop it
+    must be the period of the sim's joint states (timestep x steps_per_tick)."""
+    from hand_capture.config import load_node_params
+    from hand_control.sim.config import SimConfig, SimNodeConfig
+    from hand_control.sim.control_loop import ControllerNodeConfig
+
+    files = [config_dir() / f for f in ("sim.yaml", "controller.yaml", "teleop.yaml")]
+
+    def merged(cls, node):
+        vals = {}
+        for f in files:
+            cfg = load_node_params(cls, f, node)
+            vals.update({k: v for k, v in vars(cfg).items() if v != getattr(cls(), k)})
+        return cls(**vals)
+
+    sim, node = merged(SimConfig, "sim"), merged(SimNodeConfig, "sim")
+    ctl = merged(ControllerNodeConfig, "controller")
+    assert ctl.control_period == pytest.approx(sim.timestep * node.steps_per_tick)
+
+
 def test_offline_teleop_grasps_lifts_carries_and_releases(performance) -> None:
     idx = np.arange(0, len(performance.times), 2)  # a 30 fps camera
     runner = LockstepRunner(load_scenario("lift_box"), control_every=4)

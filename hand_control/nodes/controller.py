@@ -62,7 +62,7 @@ class ControllerNode(Node):
         body = world.objects[runner.obj.name]["body"]
         self.core = ControllerCore(world, runner.reference, spec.object_mass, self.cfg,
                                    object_inertia=float(world.model.body_inertia[body].min()),
-                                   control_period=0.004)
+                                   control_period=self.cfg.control_period)
         self.object_name = runner.obj.name
         self._obj = None
         self._twist = (np.zeros(3), np.zeros(3))

@@ -63,6 +63,10 @@ class ControllerNodeConfig:
                                 "[m/N]", lo=0.0)
     world_frame: str = param("world", "frame of the simulation; hand/pose targets must be in "
                              "it (reference: hand_pose)")
+    control_period: float = param(
+        0.004, "period of the joint states that trigger the control steps [s] (the sim's "
+        "timestep x steps_per_tick); caps the object's rotational gains for stability",
+        lo=1e-4, hi=0.1)
     target_cutoff: float = param(
         4.0, "low-pass cutoff of hand and object targets that come from outside (hand/pose, "
         "control/object_target) [Hz]: tracked poses arrive at 10-30 Hz, and each step of the "
