@@ -46,8 +46,8 @@ from hand_capture.model.joints import (
 )
 from hand_capture.paths import resolve_path
 
-__all__ = ["BASE_POSE", "CLIPS", "Keyframe", "MotionClip", "builtin_clip", "load_motion",
-           "save_pose_sequence"]
+__all__ = ["BASE_POSE", "CLIPS", "R_PALM_TO_CAMERA", "Keyframe", "MotionClip", "builtin_clip",
+           "load_motion", "save_pose_sequence"]
 
 _TIME_COLUMNS = ("time", "t", "stamp", "time_s")
 
@@ -286,13 +286,15 @@ def _root(R: np.ndarray, position: Sequence[float]) -> dict[str, float]:
             "root_ry": float(ry), "root_rz": float(rz)}
 
 
-# Palm towards the camera, fingers up (-y of the optical frame), thumb on the image's right
-# for a right hand: hand +x -> camera -y, hand +z (dorsal) -> camera +z.
-_R_PALM_TO_CAMERA = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+#: Root rotation of a hand seen palm-on: palm towards the camera, fingers up (-y of the optical
+#: frame), thumb on the image's right for a right hand: hand +x -> camera -y, hand +z (dorsal)
+#: -> camera +z. The clips, the tracker's training views and the teleop camera start from it.
+R_PALM_TO_CAMERA = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+R_PALM_TO_CAMERA.setflags(write=False)
 _WRIST = (0.0, 0.09, 0.40)
 
 #: The pose the built-in clips start from and the default of joints a file leaves out.
-BASE_POSE: np.ndarray = pose_from_dict(_root(_R_PALM_TO_CAMERA, _WRIST))
+BASE_POSE: np.ndarray = pose_from_dict(_root(R_PALM_TO_CAMERA, _WRIST))
 BASE_POSE.setflags(write=False)
 
 _D = math.radians

@@ -256,18 +256,18 @@ def render_calibration_frames(model: object, intr: Intrinsics,
         intr: camera intrinsics.
         rng: noise generator, or None for clean depth.
     """
+    from hand_capture.cameras.motion import R_PALM_TO_CAMERA
     from hand_capture.cameras.noise import DepthNoiseConfig, DepthNoiseModel
     from hand_capture.cameras.render import Mesh, make_renderer
     from hand_capture.cameras.transforms import rotvec_to_matrix
     from hand_capture.model.joints import root_angles_from_matrix
-    from hand_capture.tracking.train import _R_PALM_TO_CAMERA
 
     ren = make_renderer("zbuffer")
     noise = DepthNoiseModel(DepthNoiseConfig()) if rng is not None else None
     frames = []
     for i, qd in enumerate(CALIBRATION_POSES.values()):
         q = qd.copy()
-        R = _R_PALM_TO_CAMERA @ rotvec_to_matrix(np.array([0.25 * (i - 1), 0.2 * (i - 1), 0]))
+        R = R_PALM_TO_CAMERA @ rotvec_to_matrix(np.array([0.25 * (i - 1), 0.2 * (i - 1), 0]))
         q[3:6] = root_angles_from_matrix(R)
         q[0:3] = (0.0, 0.07, 0.42)
         res = ren.render([Mesh(model.vertices(q), model.faces, 1, closed=True)], intr)

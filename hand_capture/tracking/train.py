@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from hand_capture.cameras.base import Intrinsics
-from hand_capture.cameras.motion import FIST, GRASP, OPEN, PINCH
+from hand_capture.cameras.motion import FIST, GRASP, OPEN, PINCH, R_PALM_TO_CAMERA
 from hand_capture.cameras.noise import DepthNoiseConfig, DepthNoiseModel
 from hand_capture.cameras.render import Mesh, make_renderer
 from hand_capture.cameras.transforms import rotvec_to_matrix
@@ -41,8 +41,6 @@ from hand_capture.tracking.regressor import (
 
 __all__ = ["TrainingSample", "default_intrinsics", "random_pose", "render_samples",
            "train_tracker"]
-
-_R_PALM_TO_CAMERA = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 
 def default_intrinsics() -> Intrinsics:
@@ -88,7 +86,7 @@ def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: flo
     tilt = rotvec_to_matrix(axis * math.radians(max_tilt_deg) * rng.random())
     roll = rotvec_to_matrix(np.array([0.0, 0.0, 1.0]) * math.radians(max_roll_deg)
                             * rng.uniform(-1, 1))
-    R = roll @ _R_PALM_TO_CAMERA @ tilt
+    R = roll @ R_PALM_TO_CAMERA @ tilt
     centre = np.array([rng.uniform(-0.06, 0.06), rng.uniform(-0.05, 0.05),
                        rng.uniform(0.30, 0.55)])
     mcp = model.joint_positions(np.zeros(N_DOF))[9]

@@ -29,7 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-from hand_capture.cameras.motion import Keyframe, MotionClip, save_pose_sequence
+from hand_capture.cameras.motion import (
+    R_PALM_TO_CAMERA,
+    Keyframe,
+    MotionClip,
+    save_pose_sequence,
+)
 from hand_capture.cameras.transforms import matrix_to_rotvec
 from hand_capture.model.joints import JOINT_NAMES, pose_to_dict, root_rotation_matrix
 from hand_capture.paths import data_dir
@@ -37,9 +42,6 @@ from hand_control.sim.grasp import GraspPlan
 
 __all__ = ["TeleopPerformance", "camera_pose_for", "teleop_performance"]
 
-# Palm towards the camera, fingers up (-y of the optical frame): hand +x -> camera -y,
-# hand +z (dorsal) -> camera +z; the orientation of hand_capture.cameras.motion's clips.
-_R_PALM_TO_CAMERA = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
 
 _LONG_FINGER_JOINTS = [JOINT_NAMES.index(f"{f}_{j}") for f in ("index", "middle", "ring", "little")
                        for j in ("mcp_flex", "pip_flex", "dip_flex")]
@@ -65,7 +67,7 @@ def camera_pose_for(q_grasp: np.ndarray, distance: float = 0.42
     """Camera (position [m], rotation vector [rad]) in the world that sees the wrist of the
     world-frame pose ``q_grasp`` palm-on at ``distance`` [m] (camera +z through the wrist)."""
     R_world_root = root_rotation_matrix(q_grasp[3:6])
-    R_wc = R_world_root @ _R_PALM_TO_CAMERA.T  # so that R_wc^T R_world_root = palm-on
+    R_wc = R_world_root @ R_PALM_TO_CAMERA.T  # so that R_wc^T R_world_root = palm-on
     t_wc = q_grasp[0:3] - R_wc @ np.array([0.0, 0.0, distance])
     return t_wc, matrix_to_rotvec(R_wc)
 
