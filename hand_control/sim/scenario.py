@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from hand_capture.cameras.transforms import rotvec_to_matrix
 from hand_capture.config import from_mapping, load_yaml, param, validate
 from hand_capture.model.joints import (
     root_angles_from_matrix,
@@ -146,15 +147,6 @@ def _smooth_array(x: np.ndarray) -> np.ndarray:
     """:func:`_smooth` elementwise (the same operations, so the same values)."""
     x = np.minimum(np.maximum(x, 0.0), 1.0)
     return x * x * (3.0 - 2.0 * x)
-
-
-def _rotvec_matrix(v: np.ndarray) -> np.ndarray:
-    a = float(np.linalg.norm(v))
-    if a < 1e-12:
-        return np.eye(3)
-    k = v / a
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(a) * kx + (1 - math.cos(a)) * kx @ kx
 
 
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -334,7 +326,7 @@ class Reference:
         q = self.plan.q_grasp.copy()
         q[0:3] += rv
         if self._rotates:
-            rot = _rotvec_matrix(a * np.asarray(s.carry_rotation, dtype=np.float64))
+            rot = rotvec_to_matrix(a * np.asarray(s.carry_rotation, dtype=np.float64))
             q[0:3] = self.p0 + rv + rot @ (self.plan.q_grasp[0:3] - self.p0)
             q[3:6] = root_angles_from_matrix(rot @ self._root_rot0)
         phase = ("settling" if t < self.t_lift0 else "lifting" if t < self.t_carry0
