@@ -29,7 +29,6 @@ from hand_capture.bench import print_table
 STAGES = (("image", "camera/depth/image_raw"), ("pose", "hand/pose"),
           ("hand target", "control/hand_target"), ("command", "control/joint_command"),
           ("servo write", "servo/goal"))
-_OTHER_CLOCK_MS = 60_000.0
 
 
 def _motion_window(data) -> tuple[int, int]:
@@ -60,7 +59,7 @@ def _cpu_share(samples: list[tuple[float, dict[str, float]]], t0: float, t1: flo
 
 
 def _run_graph(graph, out: Path, quick: bool, log: StringIO) -> dict[str, Any]:
-    from hand_control.report.series import latency_ms, load_bag, stamps_ns
+    from hand_control.report.series import SAME_CLOCK_MS, latency_ms, load_bag
     from hand_control.runner import run_graph
 
     cpu: dict[str, float] = {}
@@ -89,9 +88,8 @@ def _run_graph(graph, out: Path, quick: bool, log: StringIO) -> dict[str, Any]:
         td = data.topics.get(topic)
         if td is None or not td.msgs:
             continue
-        lat = latency_ms(td)
-        st = np.unique(stamps_ns(td.msgs))
-        keep = (st >= w0) & (np.abs(lat) < _OTHER_CLOCK_MS)
+        st, lat = latency_ms(td)
+        keep = (st >= w0) & (np.abs(lat) <= SAME_CLOCK_MS)
         if keep.any():
             res["stages"][label] = lat[keep]
     poses = data.topics.get("hand/pose") or data.topics.get("control/hand_target")

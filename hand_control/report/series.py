@@ -84,8 +84,14 @@ def stamps_ns(msgs: list[object]) -> np.ndarray:
     return np.array([_stamp_ns(m.header) for m in msgs], dtype=np.int64)
 
 
-def latency_ms(td: TopicData) -> np.ndarray:
-    """Receive time minus header stamp [ms] of the first message carrying each stamp.
+#: A latency beyond this [ms] means the stamp is on another clock than the receive time (e.g.
+#: simulation time), not a slow stage.
+SAME_CLOCK_MS = 60_000.0
+
+
+def latency_ms(td: TopicData) -> tuple[np.ndarray, np.ndarray]:
+    """Per distinct header stamp, in receive order: the stamp [ns] and the receive time of
+    the first message carrying it minus that stamp [ms].
 
     A stage that runs faster than its source (a 250 Hz controller following 30 Hz hand
     poses) repeats the source stamp; the stage's latency is when the source first got through.
@@ -94,7 +100,7 @@ def latency_ms(td: TopicData) -> np.ndarray:
     st = stamps_ns(td.msgs)
     _, first = np.unique(st, return_index=True)
     first.sort()
-    return (t[first] - st[first]) * 1e-6
+    return st[first], (t[first] - st[first]) * 1e-6
 
 
 def match_by_stamp(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
