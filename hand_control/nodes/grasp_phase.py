@@ -39,9 +39,8 @@ from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import fill_pose_msg, pose_from_msg
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import load_scenario
-from hand_control.teleop.offline import object_matrix
 from hand_control.teleop.phases import PhaseConfig
-from hand_control.teleop.retarget import InterfaceConfig, PerformanceInterface
+from hand_control.teleop.retarget import InterfaceConfig, PerformanceInterface, object_matrix
 
 _STATUS = {HandPose.STATUS_TRACKING: "tracking", HandPose.STATUS_RECOVERING: "recovering",
            HandPose.STATUS_GROUND_TRUTH: "ground_truth"}

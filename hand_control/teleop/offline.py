@@ -17,10 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hand_capture.model import HandModel, matrix_to_quat, quat_to_matrix
+from hand_capture.model import HandModel, matrix_to_quat
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.teleop.phases import Phase, PhaseConfig
-from hand_control.teleop.retarget import InterfaceConfig, PerformanceInterface
+from hand_control.teleop.retarget import InterfaceConfig, PerformanceInterface, object_matrix
 
 __all__ = ["TeleopResult", "run_teleop"]
 
@@ -34,14 +34,6 @@ class TeleopResult:
     max_lift_mm: float          # highest object lift above its start [mm]
     carried_mm: float           # horizontal object displacement at the end of manipulation [mm]
     qp_fallbacks: int
-
-
-def object_matrix(position: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
-    """(4, 4) pose from a position and a quaternion (w, x, y, z)."""
-    T = np.eye(4)
-    T[:3, :3] = quat_to_matrix(np.r_[quat_wxyz[1:], quat_wxyz[0]])
-    T[:3, 3] = position
-    return T
 
 
 def run_teleop(runner: LockstepRunner, times: np.ndarray, poses: np.ndarray,

@@ -24,7 +24,7 @@ import numpy as np
 from hand_capture.cameras.transforms import matrix_to_rotvec, rotvec_to_matrix
 from hand_capture.config import param, validate
 from hand_capture.errors import InputError
-from hand_capture.model import HandModel, root_rotation_matrix
+from hand_capture.model import HandModel, quat_to_matrix, root_rotation_matrix
 from hand_capture.model.joints import root_angles_from_matrix
 from hand_control.teleop.phases import (
     GraspPhaseDetector,
@@ -35,7 +35,7 @@ from hand_control.teleop.phases import (
 )
 
 __all__ = ["GraspRetarget", "InterfaceConfig", "InterfaceStep", "PerformanceInterface",
-           "WristFilter", "pose_matrix", "pose_with_wrist"]
+           "WristFilter", "object_matrix", "pose_matrix", "pose_with_wrist"]
 
 
 def pose_matrix(q: np.ndarray) -> np.ndarray:
@@ -43,6 +43,14 @@ def pose_matrix(q: np.ndarray) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = root_rotation_matrix(q[3:6])
     T[:3, 3] = q[0:3]
+    return T
+
+
+def object_matrix(position: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
+    """(4, 4) pose from a position and a quaternion (w, x, y, z)."""
+    T = np.eye(4)
+    T[:3, :3] = quat_to_matrix(np.r_[quat_wxyz[1:], quat_wxyz[0]])
+    T[:3, 3] = position
     return T
 
 
