@@ -80,8 +80,6 @@ class GraphRun:
     code: int
     failed: list[str] = field(default_factory=list)
     stopped_by_signal: bool = False
-    cpu_s: dict[str, float] = field(default_factory=dict)  # CPU time per node [s] (last seen)
-    wall_s: float = 0.0  # from the start of the nodes to the stop [s]
 
 
 def _pump(name: str, stream: TextIO, out: TextIO, lock: threading.Lock) -> None:
@@ -109,8 +107,8 @@ def run_graph(
         out: where node output goes (stdout by default).
         install_signal_handlers: handle SIGINT/SIGTERM (main thread only).
         should_stop: polled every 50 ms; True stops the graph like SIGINT.
-        cpu: a dict kept up to date (every 0.5 s) with each node's CPU time [s], e.g. for
-            ``should_stop`` to read; the result's ``cpu_s`` is its last state.
+        cpu: when given, kept up to date (every 0.5 s and at the end) with each node's CPU
+            time [s], e.g. for ``should_stop`` to read.
     """
     out = out or sys.stdout
     overrides = overrides or {}
@@ -145,10 +143,7 @@ def run_graph(
         with lock:
             out.write(f"[runner] graph {graph.name}: started "
                       f"{', '.join(c.spec.name for c in children)}\n")
-        t_start = time.monotonic()
-        result = _supervise(children, stop, should_stop, out, lock,
-                            {} if cpu is None else cpu)
-        result.wall_s = time.monotonic() - t_start
+        result = _supervise(children, stop, should_stop, out, lock, cpu)
     finally:
         _stop_all(children)
         for c in children:
@@ -176,16 +171,14 @@ def _sample_cpu(children: list[_Child], cpu: dict[str, float]) -> None:
 
 def _supervise(children: list[_Child], stop: threading.Event,
                should_stop: Callable[[], bool] | None, out: TextIO,
-               lock: threading.Lock, cpu: dict[str, float]) -> GraphRun:
+               lock: threading.Lock, cpu: dict[str, float] | None) -> GraphRun:
     polls = 0
     while True:
         polls += 1
-        if polls % 10 == 0:
-            _sample_cpu(children, cpu)
         result = _supervise_once(children, stop, should_stop, out, lock)
-        if result is not None:
+        if cpu is not None and (result is not None or polls % 10 == 0):
             _sample_cpu(children, cpu)
-            result.cpu_s = cpu
+        if result is not None:
             return result
         time.sleep(0.05)
 
