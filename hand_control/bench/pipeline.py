@@ -43,6 +43,12 @@ def _motion_window(data) -> tuple[int, int]:
     return td.t_ns[int(moving[0])], td.t_ns[int(moving[-1]) + 1]
 
 
+def _rate(t_ns: list[int], w0: int, w1: int) -> float:
+    """Messages per second received between w0 and w1 [ns]."""
+    t = np.asarray(t_ns)
+    return np.count_nonzero((t >= w0) & (t <= w1)) / max((w1 - w0) * 1e-9, 1e-9)
+
+
 def _cpu_share(samples: list[tuple[float, dict[str, float]]], t0: float, t1: float
                ) -> dict[str, float]:
     """Each node's CPU [% of one core] between wall times t0 and t1 [s] from the samples."""
@@ -59,7 +65,13 @@ def _cpu_share(samples: list[tuple[float, dict[str, float]]], t0: float, t1: flo
 
 
 def _run_graph(graph, out: Path, quick: bool, log: StringIO) -> dict[str, Any]:
-    from hand_control.report.series import SAME_CLOCK_MS, latency_ms, load_bag
+    from hand_control.report.series import (
+        SAME_CLOCK_MS,
+        latency_ms,
+        load_bag,
+        max_lift_mm,
+        positions,
+    )
     from hand_control.runner import run_graph
 
     cpu: dict[str, float] = {}
@@ -93,17 +105,12 @@ def _run_graph(graph, out: Path, quick: bool, log: StringIO) -> dict[str, Any]:
         if keep.any():
             res["stages"][label] = lat[keep]
     poses = data.topics.get("hand/pose") or data.topics.get("control/hand_target")
-    t = np.asarray(poses.t_ns)
-    n_in = np.count_nonzero((t >= w0) & (t <= w1))
-    res["fps"] = n_in / max((w1 - w0) * 1e-9, 1e-9)
-    img = np.asarray(data.topics["camera/depth/image_raw"].t_ns)
-    res["camera_fps"] = np.count_nonzero((img >= w0) & (img <= w1)) / max((w1 - w0) * 1e-9,
-                                                                          1e-9)
+    res["fps"] = _rate(poses.t_ns, w0, w1)
+    res["camera_fps"] = _rate(data.topics["camera/depth/image_raw"].t_ns, w0, w1)
     res["cpu"] = _cpu_share(samples, w0 * 1e-9, w1 * 1e-9)
     obj = data.topics.get("sim/object_pose")
     if obj is not None and obj.msgs:
-        z = np.array([m.pose.position.z for m in obj.msgs])
-        res["lift_mm"] = float((z.max() - z[0]) * 1000.0)
+        res["lift_mm"] = max_lift_mm(positions(obj.msgs))
     return res
 
 

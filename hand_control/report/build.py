@@ -31,6 +31,7 @@ from hand_control.report.series import (
     latency_ms,
     load_bag,
     match_by_stamp,
+    max_lift_mm,
     positions,
     stamps_ns,
 )
@@ -174,7 +175,7 @@ def _object(data: BagData, res: ReportResult, plt, out: Path) -> str:
         ax.set_title("xyz"[k] + " [m]")
         ax.set_xlabel("time [s]")
     axes[0].legend()
-    res.numbers["object_max_lift_mm"] = float((po[:, 2].max() - po[0, 2]) * 1000.0)
+    res.numbers["object_max_lift_mm"] = max_lift_mm(po)
     if has_tgt:
         idx = np.clip(np.searchsorted(np.asarray(tgt.t_ns), np.asarray(obj.t_ns)) - 1, 0, None)
         valid = np.asarray(obj.t_ns) >= tgt.t_ns[0]

@@ -115,6 +115,11 @@ def positions(msgs: list[object]) -> np.ndarray:
     return np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in msgs])
 
 
+def max_lift_mm(positions_m: np.ndarray) -> float:
+    """Highest rise [mm] of (T, 3) positions [m] above the first one."""
+    return float((positions_m[:, 2].max() - positions_m[0, 2]) * 1000.0)
+
+
 def contact_force_sum(msgs: list[object]) -> np.ndarray:
     """(T,) total contact force magnitude [N] of ContactArray messages."""
     return np.array([sum(float(np.linalg.norm([c.force.x, c.force.y, c.force.z]))
