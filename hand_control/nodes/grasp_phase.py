@@ -36,14 +36,14 @@ from hand_capture.errors import ConfigError, HandSuiteError
 from hand_capture.model import matrix_to_quat
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
-from hand_capture.posemsg import fill_pose_msg, pose_from_msg
+from hand_capture.posemsg import STATUS, fill_pose_msg, pose_from_msg
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import load_scenario
 from hand_control.teleop.phases import PhaseConfig
 from hand_control.teleop.retarget import InterfaceConfig, PerformanceInterface, object_matrix
 
-_STATUS = {HandPose.STATUS_TRACKING: "tracking", HandPose.STATUS_RECOVERING: "recovering",
-           HandPose.STATUS_GROUND_TRUTH: "ground_truth"}
+#: Statuses of a usable hand pose, by code (the names of posemsg.STATUS, which the output keeps)
+_STATUS = {STATUS[name]: name for name in ("tracking", "recovering", "ground_truth")}
 
 
 @dataclass(frozen=True)
