@@ -29,7 +29,7 @@ from hand_control.control import (
     ObjectTarget,
 )
 from hand_control.errors import HandSuiteError, InputError
-from hand_control.sim.scenario import Reference
+from hand_control.sim.scenario import Reference, RefSample
 from hand_control.sim.world import SimWorld
 
 __all__ = ["Command", "ControllerCore", "ControllerNodeConfig", "HandKinematics"]
@@ -180,10 +180,11 @@ class ControllerCore:
 
     def needs_contacts(self, t: float) -> bool:
         """Whether the step at ``t`` uses contacts (composite mode, grasp torques on)."""
-        return self.controller.config.mode == "composite" and self._grasp_on(t)
+        return self.controller.config.mode == "composite" and self._grasp_on(self.reference(t))
 
-    def _grasp_on(self, t: float) -> bool:
-        return self.reference(t).grasp if self.grasp_override is None else self.grasp_override
+    def _grasp_on(self, ref: RefSample) -> bool:
+        """Grasp torques on: ``grasp_override`` when set, else the reference's phase."""
+        return ref.grasp if self.grasp_override is None else self.grasp_override
 
     def _low_pass(self, t: float, q: np.ndarray, pos: np.ndarray, quat: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -248,8 +249,7 @@ class ControllerCore:
         effort = None
         k = len(contact_bodies)
         forces = torsion = None
-        grasp = ref.grasp if self.grasp_override is None else self.grasp_override
-        if grasp and self.controller.config.mode == "composite" and k > 0:
+        if self._grasp_on(ref) and self.controller.config.mode == "composite" and k > 0:
             try:
                 if contact_set is None:
                     self.kin.update(q)
