@@ -3,6 +3,7 @@ the mapped goals, and every safety behaviour holds under an injected fault."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -272,6 +273,25 @@ def test_unplugged_port_is_a_communication_failure_not_a_crash(clock) -> None:
         assert "port error" in b.diagnostics()[0].message or "timeout" in b.error_reason
     finally:
         b.close()  # must not raise either
+
+
+def test_emulated_bus_tolerates_a_slow_host(clock) -> None:
+    """The emulator answers when the host schedules its thread: a 50 ms stall (a loaded
+    machine) is not a communication failure, even with a 20 ms hardware packet timeout."""
+    b = make("generic_3dof", clock, max_comm_failures=1, packet_timeout_ms=20.0)
+    b.configure()
+    b.activate()
+    try:
+        run(b, clock, pose(), 2)
+        stall = threading.Timer(0.0, lambda: (b.emulator.lock.acquire(), time.sleep(0.05),
+                                              b.emulator.lock.release()))
+        stall.start()
+        time.sleep(0.005)
+        run(b, clock, pose(), 1)
+        stall.join()
+        assert b.state is BridgeState.ACTIVE and b.failures.consecutive == 0
+    finally:
+        b.close()
 
 
 def test_hardware_error_stops_commanding_and_reboot_rereads_first(gen, clock) -> None:

@@ -107,7 +107,7 @@ def test_teleop_graph_runs_the_performance_and_records_every_topic(tmp_path: Pat
     assert "grasp phase: manipulation" in out, out[-5000:]
     counts = _topics(tmp_path / "bag")
     missing = [t for t in TELEOP_TOPICS if counts.get(t, 0) == 0]
-    assert not missing, (missing, counts)
+    assert not missing, (missing, counts, out[-4000:])
 
 
 def test_replay_graph_runs_the_shipped_capture_through_the_chain(tmp_path: Path) -> None:
@@ -119,4 +119,4 @@ def test_replay_graph_runs_the_shipped_capture_through_the_chain(tmp_path: Path)
     chain = ("/hand/pose", "/control/grasp_phase", "/control/hand_target",
              "/control/joint_command", "/sim/joint_states", "/servo/goal")
     missing = [t for t in chain if counts.get(t, 0) == 0]
-    assert not missing, (missing, counts)
+    assert not missing, (missing, counts, out[-4000:])

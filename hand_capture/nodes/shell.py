@@ -18,9 +18,15 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.task import Future
 
+_stop_signal: list[int] = []  # the SIGINT/SIGTERM that asked this process to stop
 
-def _sigterm_to_keyboardinterrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
+
+def _signal_to_keyboardinterrupt(signum: int, frame: object) -> None:
+    """The first stop signal interrupts the spin; later ones (a runner escalating to SIGTERM)
+    must not interrupt the shutdown hooks, e.g. the servos' torque-off."""
+    _stop_signal.append(signum)
+    if len(_stop_signal) == 1:
+        raise KeyboardInterrupt
 
 
 def run_node(
@@ -35,7 +41,8 @@ def run_node(
     it is called on every exit path (normal, Ctrl-C, SIGTERM, exception) before the node is
     destroyed, e.g. to switch torque off.
     """
-    signal.signal(signal.SIGTERM, _sigterm_to_keyboardinterrupt)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _signal_to_keyboardinterrupt)
     argv = list(sys.argv if args is None else args)
     code = 0
     node: Node | None = None
@@ -54,10 +61,14 @@ def run_node(
             executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except Exception:  # report any failure with the node name, exit 1
-        name = node.get_name() if node is not None else getattr(factory, "__name__", "node")
-        sys.stderr.write(f"[{name}] failed:\n{traceback.format_exc()}")
-        code = 1
+    except Exception:
+        # A signal that lands inside rclpy's C++ (e.g. while a message is taken) surfaces as a
+        # RuntimeError from pybind11, not as KeyboardInterrupt: still a requested stop.
+        # Any other failure: reported with the node name, exit 1.
+        if not _stop_signal:
+            name = node.get_name() if node is not None else getattr(factory, "__name__", "node")
+            sys.stderr.write(f"[{name}] failed:\n{traceback.format_exc()}")
+            code = 1
     finally:
         if node is not None:
             hook = getattr(node, "on_shutdown", None)

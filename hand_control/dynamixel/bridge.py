@@ -59,6 +59,10 @@ from hand_control.errors import InputError, ServoError
 
 EMULATOR_PORT = "emulator"
 _EMULATOR_SWITCH_INTERVAL_S = 2e-4  # GIL switch interval with the in-process emulator [s]
+#: Least packet timeout on the emulated bus [ms]: its replies come when the host schedules the
+#: emulator thread, not after a wire's transmission time; on a loaded 2-core machine that took
+#: over 20 ms five cycles in a row and put the bridge in its ERROR state.
+_EMULATOR_MIN_PACKET_TIMEOUT_MS = 100.0
 
 #: Layout of the state block read every cycle, Present Current(126) .. Present Temperature(146).
 _STATE_DTYPE = np.dtype({
@@ -98,8 +102,8 @@ class BridgeConfig:
     max_comm_failures: int = param(5, "consecutive failed cycles before the ERROR state "
                                    "and a torque-off attempt", lo=1, hi=1000, read_only=True)
     packet_timeout_ms: float = param(20.0, "extra wait for a status packet beyond its "
-                                     "transmission time [ms]", lo=0.2, hi=1000.0,
-                                     read_only=True)
+                                     "transmission time [ms] (at least 100 with port: "
+                                     "emulator)", lo=0.2, hi=1000.0, read_only=True)
     read_mode: str = param("auto", "state read: sync (Sync Read, any firmware), fast_sync "
                            "(Fast Sync Read: X330 fw >= 46, X430 fw >= 45), or auto (fast_sync "
                            "when every servo's firmware has it and a trial read works)",
@@ -256,6 +260,7 @@ class ServoBridge:
     def _open(self) -> None:
         cfg = self.config
         port = cfg.port
+        timeout_ms = cfg.packet_timeout_ms
         if port == EMULATOR_PORT:
             from hand_control.dynamixel.emulator import BusEmulator
 
@@ -266,12 +271,13 @@ class ServoBridge:
             # GIL; the in-process emulator thread must get it within a fraction of a
             # millisecond, not CPython's default 5 ms switch interval
             sys.setswitchinterval(min(sys.getswitchinterval(), _EMULATOR_SWITCH_INTERVAL_S))
+            timeout_ms = max(timeout_ms, _EMULATOR_MIN_PACKET_TIMEOUT_MS)
         else:
             self.latency_warning = usb_latency_warning(port)
             if self.latency_warning:
                 self.log.warning(self.latency_warning)
         self.port_name = port
-        self.bus = DynamixelBus(port, cfg.baud, cfg.packet_timeout_ms)
+        self.bus = DynamixelBus(port, cfg.baud, timeout_ms)
         self.bus.open()
         if not self._atexit_registered:
             atexit.register(self.close)

@@ -1,0 +1,77 @@
+"""The node shell's stop path: a stop signal ends the node with exit code 0 and its shutdown
+hook runs to the end, whatever the signal interrupted and however many signals follow."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+
+from ros_helpers import ROOT, wait_for
+
+#: A node whose timer callback turns an interrupt into another exception (as pybind11 does
+#: when a signal lands while rclpy converts a message), and whose shutdown hook takes 1 s.
+NODE = """
+import sys, time
+from rclpy.node import Node
+from hand_capture.nodes.shell import run_node
+
+class Slow(Node):
+    def __init__(self):
+        super().__init__("slow_stop")
+        self.create_timer(0.01, self._tick)
+        print("up", flush=True)
+
+    def _tick(self):
+        try:
+            time.sleep(0.05)
+        except KeyboardInterrupt:
+            raise RuntimeError("Unable to convert call argument") from None
+        if "--fail" in sys.argv:
+            raise RuntimeError("a real failure")
+
+    def on_shutdown(self):
+        print("stopping", flush=True)
+        time.sleep(1.0)
+        print("stopped", flush=True)
+
+sys.exit(run_node(Slow, sys.argv))
+"""
+
+
+def _start(*args: str) -> tuple[subprocess.Popen, list[str]]:
+    p = subprocess.Popen([sys.executable, "-c", NODE, *args], cwd=ROOT, text=True,
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                         env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(p.stdout), daemon=True).start()
+    return p, lines
+
+
+def test_signal_inside_a_callback_is_a_clean_stop_and_a_second_signal_spares_the_hook() -> None:
+    p, lines = _start()
+    try:
+        assert wait_for(lambda: "up\n" in lines, 30.0), lines
+        p.send_signal(signal.SIGINT)
+        assert wait_for(lambda: "stopping\n" in lines, 10.0), lines
+        p.send_signal(signal.SIGTERM)  # a runner escalating while torque goes off
+        assert p.wait(timeout=10) == 0, "".join(lines)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
+    assert not any("failed" in ln for ln in lines), lines
+
+
+def test_a_failure_without_a_signal_is_reported_and_exits_one() -> None:
+    p, lines = _start("--fail")
+    try:
+        assert p.wait(timeout=30) == 1
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
+    out = "".join(lines)
+    assert "[slow_stop] failed:" in out and "a real failure" in out
