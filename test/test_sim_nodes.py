@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 
+import pytest
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from hand_msgs.msg import ContactArray, JointCommand
 from rclpy.parameter import Parameter
@@ -81,3 +82,47 @@ def test_controller_node_closes_the_loop_over_topics(ros) -> None:
     assert ctrl.core.counters["non_finite_outputs"] == 0
     # lifting started at 1.3 s: the box is up by most of the reference's 10 cm by 2.5 s
     assert sim.world.object_pose("box").position[2] - z0 > 0.05
+
+
+@pytest.mark.parametrize("answer", [True, False])
+def test_controller_answers_a_new_hand_pose_without_waiting_for_a_joint_state(
+        ros, answer: bool) -> None:
+    """reference: hand_pose: with ``command_on_reference`` a new hand pose gets its command
+    (carrying the pose's stamp) at once, computed on the newest joint state; without it, only
+    the next joint state's step carries it."""
+    from hand_msgs.msg import HandPose
+    from rclpy.qos import qos_profile_sensor_data
+
+    from hand_capture.model import rest_pose
+    from hand_capture.posemsg import fill_pose_msg
+
+    peer, add, spin_until = ros
+    ctrl = add(ControllerNode(parameter_overrides=[
+        Parameter("scenario", value="lift_box"), Parameter("reference", value="hand_pose"),
+        Parameter("command_on_reference", value=answer)]))
+    got = _collect(peer, {"control/joint_command": JointCommand})
+    qos = qos_profile_sensor_data
+    pub_obj = peer.create_publisher(PoseStamped, "sim/object_pose", qos)
+    pub_js = peer.create_publisher(JointState, "sim/joint_states", qos)
+    pub_hand = peer.create_publisher(HandPose, "hand/pose", qos)
+    names = list(ctrl.core.joint_names)
+    obj = PoseStamped()
+    obj.header.frame_id = "world"
+    obj.pose.orientation.w = 1.0
+    js = JointState(name=names, position=[0.0] * len(names), velocity=[0.0] * len(names))
+    js.header.stamp.sec = 5
+    assert spin_until(lambda: ctrl._obj is not None, 10.0, tick=lambda: pub_obj.publish(obj))
+    assert spin_until(lambda: got["control/joint_command"], 10.0,
+                      tick=lambda: pub_js.publish(js))
+    hand = fill_pose_msg(HandPose(), rest_pose(), status="tracking")
+    hand.header.frame_id = "world"
+    hand.header.stamp.sec = 77
+
+    def carried() -> bool:
+        return any(c.header.stamp.sec == 77 for c in got["control/joint_command"])
+
+    assert spin_until(lambda: ctrl._hand_stamp is not None, 10.0,
+                      tick=lambda: pub_hand.publish(hand))
+    assert spin_until(carried, 0.5) == answer
+    pub_js.publish(js)
+    assert spin_until(carried, 5.0)

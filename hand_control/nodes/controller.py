@@ -10,6 +10,9 @@ Topics:
          the scenario's scripted reference at the current (simulation) time. The teleop graph
          remaps it to control/hand_target (the grasp_phase node's retargeted hand); a pose in
          another frame than ``world_frame`` (e.g. a tracker's camera frame) is rejected.
+         With ``command_on_reference`` (default) each new hand pose also triggers a step, on
+         the newest joint state, so a pose reaches the command without waiting for the next
+         joint state.
     in   control/grasp_phase (hand_msgs/GraspPhase) when ``reference: hand_pose``: the grasp
          torques are on in the manipulation phase only (off until a phase arrives)
     in   control/object_target (geometry_msgs/PoseStamped): overrides the object target
@@ -27,8 +30,10 @@ a non-finite value never reaches a joint.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -50,6 +55,19 @@ from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import load_scenario
 
 
+@dataclass(frozen=True)
+class _State:
+    """A joint state from the sim with the object state and contacts current at its arrival."""
+
+    t: float  # its stamp [s]
+    received: float  # time.monotonic() at arrival [s]
+    stamp: object  # its header stamp
+    q: np.ndarray  # (n_hand,) [rad]
+    qd: np.ndarray  # (n_hand,) [rad/s]
+    object_pose: tuple[np.ndarray, ...]  # position, quaternion wxyz, linear, angular velocity
+    contacts: tuple  # hand-object contacts: bodies, points, normals, forces, friction
+
+
 class ControllerNode(Node):
     """Runs :class:`ControllerCore` on every joint state from the simulation."""
 
@@ -67,6 +85,9 @@ class ControllerNode(Node):
         self._obj = None
         self._twist = (np.zeros(3), np.zeros(3))
         self._contacts = None
+        self._state: _State | None = None  # the newest joint state and what came with it
+        self._last_t = -math.inf  # time of the last control step [s]
+        self._cmd_names = list(self.core.joint_names)
         self._warned = 0.0
         self.commands = 0
         self.create_subscription(JointState, "sim/joint_states", self._on_joint_state,
@@ -141,7 +162,10 @@ class ControllerNode(Node):
             self._log_throttled(f"hand/pose rejected: {e}")
             return
         self.core.hand_target_override = q
+        new = self._hand_stamp != msg.header.stamp
         self._hand_stamp = msg.header.stamp
+        if new and self.cfg.command_on_reference:
+            self._answer_reference()
 
     def _on_joint_state(self, msg: JointState) -> None:
         if self._obj is None:
@@ -163,8 +187,28 @@ class ControllerNode(Node):
                    if b == self.object_name and hand(a)]
             bodies = [b1[i] for i in sel]
             pts, nrm, frc, mu = p_[sel], n_[sel], f_[sel], m_[sel]
+        self._state = _State(t, time.monotonic(), msg.header.stamp, q, qd,
+                             (*self._obj, *self._twist), (bodies, pts, nrm, frc, mu))
+        self._control(t)
+
+    def _answer_reference(self) -> None:
+        """A new hand pose: a control step now, on the newest joint state, at that state's
+        time plus the wall time since it came (at most half a control period, so the next
+        joint state's step still comes later on the target filter's clock)."""
+        s = self._state
+        if s is None:
+            return
+        dt = min(max(time.monotonic() - s.received, 0.0), 0.5 * self.cfg.control_period)
+        t = s.t + dt
+        if t > self._last_t:
+            self._control(t)
+
+    def _control(self, t: float) -> None:
+        """One control step at time ``t`` [s] on the stored state; publishes the command."""
+        s = self._state
+        self._last_t = t
         before = dict(self.core.counters)
-        cmd = self.core.step(t, q, qd, (*self._obj, *self._twist), bodies, pts, nrm, frc, mu)
+        cmd = self.core.step(t, s.q, s.qd, s.object_pose, *s.contacts)
         c = self.core.counters
         if c["qp_fallbacks"] > before["qp_fallbacks"]:
             self._log_throttled(f"contact QP found no solution: PD-only step "
@@ -173,22 +217,22 @@ class ControllerNode(Node):
             self._log_throttled(f"bad contact/state input: PD-only step "
                                 f"({c['rejected_inputs']} so far)")
         out = JointCommand()
-        out.header.stamp = msg.header.stamp if self._hand_stamp is None else self._hand_stamp
-        out.joint_names = list(cmd.joint_names)
+        out.header.stamp = s.stamp if self._hand_stamp is None else self._hand_stamp
+        out.joint_names = self._cmd_names
         out.positions = cmd.positions.tolist()
         out.efforts = cmd.efforts.tolist()
         self.pub_cmd.publish(out)
         self.commands += 1
-        self._publish_forces(msg, cmd)
+        self._publish_forces(s.stamp, cmd)
 
-    def _publish_forces(self, state: JointState, cmd) -> None:
+    def _publish_forces(self, stamp, cmd) -> None:
         now = time.monotonic()
         rate = self.cfg.forces_rate
         if rate > 0 and now - self._last_forces < 1.0 / rate:
             return
         self._last_forces = now
         arr = ContactArray()
-        arr.header.stamp = state.header.stamp
+        arr.header.stamp = stamp
         arr.header.frame_id = "world"
         for k in range(len(cmd.planned_forces)):
             c = Contact()

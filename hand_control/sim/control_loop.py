@@ -72,6 +72,10 @@ class ControllerNodeConfig:
         "control/object_target) [Hz]: tracked poses arrive at 10-30 Hz, and each step of the "
         "target jerks the hand and shakes a held object loose; 0 = use them as they come",
         lo=0.0)
+    command_on_reference: bool = param(
+        True, "reference: hand_pose: a new hand pose is answered at once, by a control step "
+        "on the newest joint state, instead of at the next joint state (up to one "
+        "control_period later)")
 
     def __post_init__(self) -> None:
         validate(self)
