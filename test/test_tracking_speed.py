@@ -1,8 +1,11 @@
 """The tracker's fast paths give the results of the plain formulations they replace:
 subset skinning and FK sharing (model), batched Gauss-Newton steps and costs (ICP), the
-grouped finger forests and batched feature evaluation (regression), vectorised k-means."""
+grouped finger forests and batched feature evaluation (regression), vectorised k-means, the
+depth lookup cropped to the hand."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -214,3 +217,71 @@ def test_segmentation_window_and_off_hand_test(scene):
     for margin in (0.0, 2.0, 5.5):
         np.testing.assert_array_equal(obs.off_hand(v, u, margin),
                                       obs.outside_distance[v, u] > margin)
+
+
+@pytest.mark.parametrize("weights, which", [((1.0, 0.0), "all"), ((0.7, 0.7), "all"),
+                                            ((1.0, 0.5), "fingers")])
+def test_fast_step_matches_the_normal_equations_for_other_weights_and_dofs(scene, weights,
+                                                                           which):
+    model, f, cfg0, obs = scene
+    cfg = dataclasses.replace(cfg0, data_weight=weights[0], reverse_weight=weights[1])
+    tr = ModelTracker(model, cfg)
+    pts = obs.subsample(cfg.max_points)
+    rng = np.random.default_rng(5)
+    q = f.pose + rng.normal(0, 0.03, N_DOF) * np.r_[0.2, 0.2, 0.2, np.ones(N_DOF - 3)]
+    dofs = np.arange(N_DOF) if which == "all" else np.arange(6, N_DOF)
+    V, facing = tr.posed(q)
+    sets = [(tr.correspond(*pts, V, facing, obs.intrinsics), cfg.data_weight)]
+    if cfg.reverse_weight > 0:
+        sets.append((tr.reverse_correspond(pts[0], V, facing, obs), cfg.reverse_weight))
+    A, g, _ = tr.normal_equations(q, sets, f.pose, dofs)
+    A[np.diag_indices(len(dofs))] += cfg.damping * (1.0 + A.diagonal())
+    dq = -np.linalg.solve(A, g)
+    big = np.max(np.abs(dq[dofs >= 3]))
+    if big > cfg.max_step_rad:
+        dq *= cfg.max_step_rad / big
+    want = q.copy()
+    want[dofs] += dq
+    q1, _ = tr.step(q, obs, *pts, f.pose, dofs)
+    np.testing.assert_allclose(q1, want, atol=1e-9)
+
+
+def test_hand_box_and_the_cropped_depth_lookup(scene):
+    model, f, cfg, obs = scene
+    d = f.depth.astype(np.float32) * np.float32(0.001)
+    np.testing.assert_array_equal(obs.depth_m, np.where(obs.mask, d, 0.0))
+    r0, r1, c0, c1 = obs.box
+    rows, cols = np.flatnonzero(obs.mask.any(axis=1)), np.flatnonzero(obs.mask.any(axis=0))
+    assert (r0, r1, c0, c1) == (rows[0], rows[-1] + 1, cols[0], cols[-1] + 1)
+    # the regressor's lookup in the box reads what it reads in the whole image, on and off
+    # the hand and off the image
+    full = DepthLookup(obs.depth_m, 0, 0, obs.intrinsics)
+    crop = DepthLookup(obs.depth_m[r0:r1, c0:c1], c0, r0, obs.intrinsics)
+    rng = np.random.default_rng(6)
+    P = obs.points[rng.integers(0, len(obs.points), 3000)] + rng.normal(0, 0.04, (3000, 3))
+    P[:50, 0] += 1.0
+    P[50:100, 1] -= 1.0
+    np.testing.assert_array_equal(crop(P.reshape(30, 100, 3)), full(P.reshape(30, 100, 3)))
+    assert (full(P) < 1.0).any() and (full(P) == 2.0).any()
+
+
+def test_lazy_back_projection_gives_the_same_points(scene):
+    model, f, cfg, obs = scene
+    a = segment_hand(f.depth, f.depth_intrinsics, cfg)
+    sub_a = a.subsample(100)                  # the subsample only is back-projected
+    b = segment_hand(f.depth, f.depth_intrinsics, cfg)
+    pts, pix = b.points, b.pixels             # the whole cloud first
+    sub_b = b.subsample(100)
+    for x, y in zip(sub_a, sub_b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert a.n_points == len(pts) == len(pix) and a.found
+    np.testing.assert_array_equal(a.points, pts)
+    # the wrist cut keeps the points near the centroid, mask and box follow
+    cut = segment_hand(f.depth, f.depth_intrinsics, dataclasses.replace(cfg, wrist_cut_m=0.06))
+    assert 0 < cut.n_points < len(pts)
+    assert np.linalg.norm(cut.points - pts.mean(axis=0), axis=1).max() <= 0.06 + 1e-9
+    assert cut.mask.sum() == cut.n_points
+    np.testing.assert_array_equal(cut.mask[cut.pixels[:, 1].astype(int),
+                                           cut.pixels[:, 0].astype(int)], True)
+    r0, r1, c0, c1 = cut.box
+    assert cut.mask[r0:r1, c0:c1].sum() == cut.n_points

@@ -7,19 +7,25 @@ three rendered frames of the predefined calibration poses (II.3.6), and tracking
 calibrated model. In the same run and on the same frames:
 
 * **hybrid** tracking (II.5.1, the product);
+* **teleop**: the hybrid tracker with the teleop graph's cheaper settings (the ``tracker``
+  parameters of ``config/tracker.yaml`` overridden by ``config/teleop.yaml``, as the graph
+  applies them: regression every few frames while tracking succeeds, one refined
+  candidate), so the speed / accuracy trade-off of those settings is measured;
 * **ICP only**: model-based tracking initialised with the hybrid's first frame (II.6.3);
 * **regressor only**: per-frame regression, best mode by E_d.
 
 Figures: mean / median joint position error over the 21 keypoints [mm], success rate (share
 of frames whose largest joint error is under 10..50 mm, Figure II.17), frames per second
-(wall clock and CPU time of the tracking call alone) and a per-stage time profile. Recovery:
-a sequence with a gap of blank frames; the number of frames after the gap until the success
-flag is back and until the largest joint error is under 20 mm again.
+(wall clock and CPU time of the tracking call alone), CPU time per frame (mean and 99th
+percentile: the machine is shared, so CPU time is the steadier figure) and a per-stage time
+profile. Recovery: a sequence with a gap of blank frames; the number of frames after the gap
+until the success flag is back and until the largest joint error is under 20 mm again.
 ``--quick`` runs the same on one shape and short excerpts (under a minute).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -30,7 +36,31 @@ from hand_capture.bench import print_table
 MOTIONS = ("finger_counting", "fist", "wrist_rotation", "translation", "pinch")
 SHAPE_SEEDS = (11, 12, 13)
 THRESHOLDS_MM = (10, 20, 30, 40, 50)
-MODES = ("hybrid", "icp", "regressor")
+#: rows of the comparison: the product, the teleop graph's settings, the two ablations
+MODES = ("hybrid", "teleop", "icp", "regressor")
+
+
+def teleop_config():
+    """The tracker's :class:`TrackerConfig` in the teleop graph: ``config/tracker.yaml``,
+    then ``config/teleop.yaml`` (the graph's order of parameter files)."""
+    from hand_capture.config import from_mapping, load_yaml
+    from hand_capture.paths import config_dir
+    from hand_capture.tracking.config import TrackerConfig
+
+    merged: dict = {}
+    for name in ("tracker.yaml", "teleop.yaml"):
+        data = load_yaml(config_dir() / name) or {}
+        for key in ("/**", "tracker", "/tracker"):
+            merged.update((data.get(key) or {}).get("ros__parameters") or {})
+    own = {f.name for f in dataclasses.fields(TrackerConfig)}
+    return from_mapping(TrackerConfig, {k: v for k, v in merged.items() if k in own})
+
+
+def _configs() -> dict:
+    from hand_capture.tracking.config import TrackerConfig
+
+    return {"hybrid": TrackerConfig(mode="hybrid"), "teleop": teleop_config(),
+            "icp": TrackerConfig(mode="icp"), "regressor": TrackerConfig(mode="regressor")}
 
 
 def _hand_length(model) -> float:
@@ -40,7 +70,7 @@ def _hand_length(model) -> float:
 
 def _run_mode(tracker, frames, truth_kp, mode_first=None):
     """Track a pre-rendered sequence; per-frame errors (N, 21) [mm], timings, flags."""
-    errs, wall, cpu, flags = [], [], [], []
+    errs, wall, cpu, flags, regressed = [], [], [], [], []
     stages: dict[str, float] = {}
     if mode_first is not None:
         tracker.reset(mode_first)
@@ -53,8 +83,10 @@ def _run_mode(tracker, frames, truth_kp, mode_first=None):
         cpu.append(time.process_time() - c0)
         errs.append(np.linalg.norm(tracker.model.joint_positions(r.pose) - kp, axis=1) * 1e3)
         flags.append(r.success)
+        regressed.append(r.regressed)
         for k, v in r.timing.items():
             stages[k] = stages.get(k, 0.0) + v
+    stages["regressed"] = float(np.sum(regressed))
     return np.array(errs), np.array(wall), np.array(cpu), np.array(flags), stages
 
 
@@ -71,12 +103,12 @@ def run(quick: bool = False) -> dict:
     from hand_capture.cameras.threads import limit_blas_threads
     from hand_capture.model import HandModel
     from hand_capture.tracking.calibration import calibrate, render_calibration_frames
-    from hand_capture.tracking.config import TrackerConfig
     from hand_capture.tracking.hybrid import HybridTracker, default_model_path
     from hand_capture.tracking.regressor import HandRegressor
     from hand_capture.tracking.train import train_tracker
 
     limit_blas_threads(1)
+    configs = _configs()
     path = default_model_path()
     if path.exists():
         reg = HandRegressor.load(path)
@@ -117,7 +149,7 @@ def run(quick: bool = False) -> dict:
         rows_cal.append([seed, f"{true_model.shape.global_scale:.3f}",
                          f"{ratio_true:.3f}", f"{ratio_fit:.3f}", kp_rest_err0, kp_rest_err,
                          cal.residual_mm, cal_s])
-        trackers = {m: HybridTracker(model, TrackerConfig(mode=m), reg) for m in MODES}
+        trackers = {m: HybridTracker(model, configs[m], reg) for m in MODES}
         for clip in MOTIONS:
             cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed,
                                                         clip=clip, noise_seed=seed),
@@ -158,20 +190,32 @@ def run(quick: bool = False) -> dict:
         c = np.concatenate(all_cpu[m])
         s["fps"] = 1.0 / float(np.mean(w))
         s["fps_cpu"] = 1.0 / float(np.mean(c))
+        s["cpu_ms"] = 1e3 * float(np.mean(c))
+        s["cpu_ms_p99"] = 1e3 * float(np.percentile(c, 99))
         s["frames"] = len(e)
+        s["regressed"] = all_stage[m].get("regressed", 0.0) / len(e)
         summ[m] = s
         rows.append([m, len(e), s["mean"], s["median"]] + [s[f"s{t}"] for t in THRESHOLDS_MM]
-                    + [s["fps"], s["fps_cpu"]])
-    print_table("summary (success = share of frames whose largest joint error < t mm)",
+                    + [s["fps"], s["fps_cpu"], s["cpu_ms"], s["cpu_ms_p99"]])
+    print_table("summary (success = share of frames whose largest joint error < t mm; CPU time "
+                "of the tracking call per frame)",
                 ["mode", "frames", "mean mm", "median mm"] + [f"<{t}mm" for t in THRESHOLDS_MM]
-                + ["fps wall", "fps cpu"], rows)
+                + ["fps wall", "fps cpu", "cpu ms", "cpu ms p99"], rows)
     prof_rows = []
     for m in MODES:
         nfr = summ[m]["frames"]
         prof_rows.append([m] + [1e3 * all_stage[m].get(k, 0.0) / nfr
-                                for k in ("preprocess", "regression", "icp", "selection")])
-    print_table("time per frame by stage [ms] (wall clock)",
-                ["mode", "preprocess", "regression", "ICP", "selection"], prof_rows)
+                                for k in ("preprocess", "regression", "icp", "selection")]
+                         + [summ[m]["regressed"]])
+    print_table("time per frame by stage [ms] (wall clock); share of frames with regression",
+                ["mode", "preprocess", "regression", "ICP", "selection", "regressed"],
+                prof_rows)
+    tc = configs["teleop"]
+    diff = [[f.name, getattr(configs["hybrid"], f.name), getattr(tc, f.name)]
+            for f in dataclasses.fields(tc)
+            if getattr(tc, f.name) != getattr(configs["hybrid"], f.name)]
+    print_table("teleop settings (config/teleop.yaml over config/tracker.yaml) that differ "
+                "from the product's", ["parameter", "hybrid", "teleop"], diff)
 
     # ---------------------------------------------------------------- recovery after a gap
     seed = shape_seeds[0]
@@ -192,11 +236,11 @@ def run(quick: bool = False) -> dict:
                                           model=base).shape)
     rec_rows = []
     rec = {}
-    for m in ("hybrid", "icp"):
-        tr = HybridTracker(cal_model, TrackerConfig(mode=m), reg)
+    for m in ("hybrid", "teleop", "icp"):
+        tr = HybridTracker(cal_model, configs[m], reg)
         first = None
         if m == "icp":
-            t2 = HybridTracker(cal_model, TrackerConfig(mode="hybrid"), reg)
+            t2 = HybridTracker(cal_model, configs["hybrid"], reg)
             first = t2.process(*frames[0]).pose
         e, _, _, fl, _ = _run_mode(tr, frames, truth, first)
         post = slice(gap_start + gap_len, len(frames))
@@ -214,12 +258,24 @@ def run(quick: bool = False) -> dict:
                  "succ@20 after gap", "flags during gap"], rec_rows)
 
     h, i_, r_ = summ["hybrid"], summ["icp"], summ["regressor"]
+    tl = summ["teleop"]
     out = {
         "regressor_model": reg_src,
         "frames": h["frames"], "n_shapes": len(shape_seeds), "n_motions": len(MOTIONS),
         "fps": h["fps"], "fps_cpu": h["fps_cpu"],
+        "cpu_ms": h["cpu_ms"], "cpu_ms_p99": h["cpu_ms_p99"],
         "mean_joint_err_mm": h["mean"], "median_joint_err_mm": h["median"],
         **{f"success_{t}mm": h[f"s{t}"] for t in THRESHOLDS_MM},
+        "teleop_fps": tl["fps"], "teleop_fps_cpu": tl["fps_cpu"],
+        "teleop_cpu_ms": tl["cpu_ms"], "teleop_cpu_ms_p99": tl["cpu_ms_p99"],
+        "teleop_cpu_ratio_vs_hybrid": tl["cpu_ms"] / h["cpu_ms"],
+        "teleop_mean_joint_err_mm": tl["mean"], "teleop_median_joint_err_mm": tl["median"],
+        **{f"teleop_success_{t}mm": tl[f"s{t}"] for t in THRESHOLDS_MM},
+        "teleop_regressed_share": tl["regressed"],
+        "teleop_recovery_frames": rec["teleop"][0],
+        "teleop_recovery_frames_flag": rec["teleop"][1],
+        "teleop_stage_ms": {k: 1e3 * all_stage["teleop"].get(k, 0.0) / tl["frames"]
+                            for k in ("preprocess", "regression", "icp", "selection")},
         "icp_only_mean_joint_err_mm": i_["mean"],
         **{f"icp_only_success_{t}mm": i_[f"s{t}"] for t in THRESHOLDS_MM},
         "icp_only_fps": i_["fps"],

@@ -17,7 +17,9 @@ Publishes:
 * ``hand/shape`` (latched) after an automatic calibration (``calibrate_on_start``), which is
   also saved under ``shape_folder`` as ``<subject_id>.yaml`` and loaded from there on the next
   start;
-* ``diagnostics``: rates, dropped and rejected frames (by reason), stage times.
+* ``diagnostics``: rates, dropped and rejected frames (by reason), stage times (wall clock)
+  and the CPU time per frame, the share of frames that ran the regression (below 1 with
+  ``regress_every`` > 1, the teleop graph's cheaper setting).
 
 Frames are never queued: the image callback keeps only the latest image and a short timer
 processes it, so a slow frame drops the ones that arrived meanwhile (counted). Parameters:
@@ -154,6 +156,8 @@ class TrackerNode(Node):
         self.rejected: Counter[str] = Counter()
         self.status_count: Counter[str] = Counter()
         self.proc_s = 0.0
+        self.cpu_s = 0.0
+        self.regressed = 0
         self.stage_s: Counter[str] = Counter()
         self.last_result: TrackResult | None = None
         self._diag_n, self._diag_t = 0, time.monotonic()
@@ -230,7 +234,7 @@ class TrackerNode(Node):
         except (HandSuiteError, ValueError, IndexError):
             self.rejected["bad_camera_info"] += 1
             return None
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             depth = image_to_array(msg)
             if self._calib is not None:
@@ -241,6 +245,8 @@ class TrackerNode(Node):
             self.get_logger().warning(f"rejected a depth image: {e}", throttle_duration_sec=5.0)
             return None
         self.proc_s += time.perf_counter() - t0
+        self.cpu_s += time.process_time() - c0
+        self.regressed += int(res.regressed)
         for k, v in res.timing.items():
             self.stage_s[k] += v
         self.processed += 1
@@ -391,6 +397,8 @@ class TrackerNode(Node):
         vals = {"rate_hz": f"{rate:.2f}", "processed": str(self.processed),
                 "dropped_busy": str(self.dropped), "rejected": str(sum(self.rejected.values())),
                 "proc_ms_mean": f"{1e3 * self.proc_s / n:.2f}",
+                "cpu_ms_mean": f"{1e3 * self.cpu_s / n:.2f}",
+                "regressed_share": f"{self.regressed / n:.2f}",
                 "mode": self.cfg.mode,
                 "last_cost_mm": f"{self.last_result.cost:.2f}" if self.last_result else "",
                 "shape_global_scale": f"{self.tracker.model.shape.global_scale:.4f}"}

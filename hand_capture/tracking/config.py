@@ -71,6 +71,13 @@ class TrackerConfig:
                                lo=1, hi=20)
     refine_top: int = param(2, "candidates fully refined after screening (step 4)", lo=1,
                             hi=32)
+    regress_every: int = param(1, "run the regression (steps 1-2) every n-th frame while the "
+                               "previous frame tracked successfully (eq. II.19); frames in "
+                               "between refine the previous pose only; after a failure it "
+                               "runs on every frame; 1 = every frame", lo=1, hi=1000)
+    regress_above_mm: float = param(0.0, "with regress_every > 1: run the regression anyway "
+                                    "when the previous frame's E_d (eq. II.19) is above this, "
+                                    "i.e. tracked but doubtful [mm]; 0 = never", lo=0.0)
     model_file: str = param("", "trained regressor (.npz); empty = data/tracker/"
                             "regressor.npz when present")
     mode: str = param("hybrid", "tracking mode", choices=("hybrid", "icp", "regressor"))

@@ -19,6 +19,15 @@ step 4's three Gauss-Newton iterations per candidate fit a 30 frames/s budget on
 After a loss (blank or occluded frames, delta = 0) the temporal term is off and the
 regressor's candidates re-initialise the tracker by themselves: no manual reset.
 
+Cheaper settings (the teleop graph's, ``config/teleop.yaml``): with ``regress_every`` n > 1
+steps 1-2 run only every n-th frame while the previous frame passed eq. II.19 (and, with
+``regress_above_mm``, whenever its E_d was above that doubtful level); the frames in
+between refine the previous pose alone (steps 3-6), so the ICP from the previous pose tracks
+and the regression re-anchors it. After a failure the regression runs on every frame, so
+recovery is automatic as above. ``refine_top`` 1, fewer ``icp_iterations`` and no
+``palm_iterations`` cut the rest; ``hand-suite bench tracking`` measures the trade-off (row
+``teleop``). A pool no larger than ``refine_top`` is not screened (all of it is refined).
+
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
 """
@@ -65,6 +74,9 @@ class TrackResult:
         last_good: the last pose that passed the success test (None before the first).
         n_candidates: size of the pose pool.
         timing: seconds per stage (``STAGES``).
+        observation: the segmented hand.
+        regressed: whether the regression (steps 1-2) ran on this frame (see
+            ``TrackerConfig.regress_every``).
     """
 
     pose: np.ndarray
@@ -76,6 +88,7 @@ class TrackResult:
     n_candidates: int
     timing: dict[str, float] = field(default_factory=dict)
     observation: HandObservation | None = None
+    regressed: bool = False
 
 
 def pose_distance_sq(q: np.ndarray, p: np.ndarray) -> float:
@@ -123,6 +136,8 @@ class HybridTracker:
         self.delta = initial_pose is not None
         self.last_good: np.ndarray | None = self.prev
         self.frame_count = 0
+        self._since_regression = 0
+        self._prev_cost = 0.0   # E_d of the previous frame [mm]
 
     # ------------------------------------------------------------------------------ frame
     def process(self, depth: np.ndarray, intr: Intrinsics) -> TrackResult:
@@ -141,14 +156,24 @@ class HybridTracker:
         pts = obs.subsample(cfg.max_points)
         ds = cfg.cost_downsample
         obs_ds = obs.depth_m[::ds, ::ds]
-        lookup = DepthLookup(obs.depth_m, 0, 0, intr)
 
         pool: list[tuple[np.ndarray, np.ndarray]] = []  # (pose, regression reference)
         mode = cfg.mode
         regress = mode in ("hybrid", "regressor") and self.regressor is not None
+        if regress and mode == "hybrid" and self.delta and self.prev is not None:
+            # tracking well: the regression every regress_every-th frame only, or when the
+            # last fit was doubtful
+            regress = (self._since_regression + 1 >= cfg.regress_every
+                       or 0.0 < cfg.regress_above_mm < self._prev_cost)
+        self._since_regression = 0 if regress else self._since_regression + 1
         palms: list[np.ndarray] = []
         if regress:  # step 1: palm modes
             t = time.perf_counter()
+            # the features read depth in the hand's bounding box (off it: background, as off
+            # the hand anywhere)
+            r0, r1, c0, c1 = obs.box if obs.box is not None else (0, intr.height, 0,
+                                                                  intr.width)
+            lookup = DepthLookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
             q0 = palm_init_pca(obs.points, self.frames)
             palms = self.regressor.palm_modes(self.frames, lookup, q0, cfg.n_modes)
             timing["regression"] += time.perf_counter() - t
@@ -177,11 +202,15 @@ class HybridTracker:
             pool.append((q, q.copy()))
 
         # step 4: screen by cost, refine the best, select by eq. II.20
-        t = time.perf_counter()
-        costs = self._costs([q for q, _ in pool], obs, obs_ds)
-        timing["selection"] += time.perf_counter() - t
-        if mode != "regressor" and cfg.icp_iterations > 0:
-            order = np.argsort([c[0] for c in costs])[:cfg.refine_top]
+        refine = mode != "regressor" and cfg.icp_iterations > 0
+        costs = None
+        if not refine or len(pool) > cfg.refine_top:  # screening needed
+            t = time.perf_counter()
+            costs = self._costs([q for q, _ in pool], obs, obs_ds)
+            timing["selection"] += time.perf_counter() - t
+        if refine:
+            order = np.arange(len(pool)) if costs is None else \
+                np.argsort([c[0] for c in costs])[:cfg.refine_top]
             t = time.perf_counter()
             track = self.delta and self.prev is not None
             refs = [self.prev if track else pool[i][1] for i in order]
@@ -203,9 +232,10 @@ class HybridTracker:
             status = "lost"
         self.prev = q.copy()
         self.delta = success
+        self._prev_cost = e_d
         conf = float(np.clip(1.0 - e_d / cfg.depth_cap_mm, 0.0, 1.0))
         return TrackResult(q.copy(), success, status, e_d, conf, self.last_good, len(costs),
-                           timing, obs)
+                           timing, obs, regress)
 
     def _costs(self, qs: list[np.ndarray], obs: HandObservation, obs_ds: np.ndarray
                ) -> list[tuple[float, float]]:

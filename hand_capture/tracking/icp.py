@@ -150,6 +150,34 @@ def _root_jacobian(q: np.ndarray, points: np.ndarray) -> np.ndarray:
     return J
 
 
+def _empty_corr() -> Correspondences:
+    return Correspondences(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)))
+
+
+def _project(V: np.ndarray, intr: Intrinsics) -> np.ndarray:
+    """Image coordinates (N, 2) (u, v) of points (N, 3) (pinhole, depth clamped at 1 mm)."""
+    z = np.maximum(V[:, 2], 1e-3)
+    uv = np.empty((len(V), 2))
+    uv[:, 0] = intr.fx * V[:, 0] / z + intr.cx
+    uv[:, 1] = intr.fy * V[:, 1] / z + intr.cy
+    return uv
+
+
+class _DofTerms:
+    """Per-DoF-set constants of the smoothness (II.24) and joint-limit (II.25) terms."""
+
+    def __init__(self, dofs: np.ndarray) -> None:
+        self.n = len(dofs)
+        self.ang = np.flatnonzero(dofs >= 3)
+        self.scale = _SMOOTH_SCALE[dofs]
+        self.scale_sq = self.scale * self.scale
+        self.lo = _LIM_LO[dofs]
+        self.hi = _LIM_HI[dofs]
+        self.diag = np.arange(self.n) * (self.n + 1)     # flat indices of the diagonal
+        self.root = self.n == 6 and dofs[0] == 0 and dofs[-1] == 5
+        self.full = self.n == N_DOF and bool(np.all(dofs == np.arange(N_DOF)))
+
+
 class ModelTracker:
     """Gauss-Newton ICP of one hand model (module docstring).
 
@@ -182,6 +210,7 @@ class ModelTracker:
         self._xc_dense = self._xc.toarray()
         self._nx = self._xc.shape[1]
         self._tree_cache: tuple[np.ndarray, cKDTree] | None = None
+        self._dof_cache: dict[bytes, _DofTerms] = {}
         self._box_cache: tuple[np.ndarray, tuple | None] | None = None
 
     # ----------------------------------------------------------------------------- geometry
@@ -200,16 +229,21 @@ class ModelTracker:
     def correspond(self, points: np.ndarray, pixels: np.ndarray, V: np.ndarray,
                    facing: np.ndarray, intr: Intrinsics) -> Correspondences:
         """Eq. II.22 with the 2D window search (module docstring)."""
-        cfg = self.cfg
-        empty = Correspondences(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)))
         if len(facing) == 0 or len(points) == 0:
-            return empty
+            return _empty_corr()
         Vf = V[facing]
-        z = np.maximum(Vf[:, 2], 1e-3)
-        uv = np.empty((len(Vf), 2))
-        uv[:, 0] = intr.fx * Vf[:, 0] / z + intr.cx
-        uv[:, 1] = intr.fy * Vf[:, 1] / z + intr.cy
-        k = min(cfg.window_candidates, len(facing))
+        keep, sel = self._window_match(points, pixels, Vf, _project(Vf, intr))
+        vi = facing[sel[keep]]
+        return Correspondences(points[keep], vi, V[vi])
+
+    def _window_match(self, points: np.ndarray, pixels: np.ndarray, Vf: np.ndarray,
+                      uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. II.22 for the facing vertices ``Vf`` (projected at ``uv``): ``(keep, sel)``,
+        whether point i has a pair within ``outlier_mm`` and the row of ``Vf`` it pairs
+        with (the nearest in 3D of the ``window_candidates`` vertices nearest to its pixel
+        inside the window)."""
+        cfg = self.cfg
+        k = min(cfg.window_candidates, len(Vf))
         # unbalanced tree: quicker to build, same neighbours
         tree = cKDTree(uv, balanced_tree=False, compact_nodes=False)
         _, idx = tree.query(pixels, k=k, p=np.inf, distance_upper_bound=cfg.window_px)
@@ -228,9 +262,7 @@ class ModelTracker:
                 d_fb, i_fb = cKDTree(Vf).query(points[miss])
                 bd[miss] = d_fb
                 sel[miss] = i_fb
-        keep = bd * _MM <= cfg.outlier_mm            # False for a point with no vertex (inf)
-        vi = facing[sel[keep]]
-        return Correspondences(points[keep], vi, V[vi])
+        return bd * _MM <= cfg.outlier_mm, sel      # False for a point with no vertex (inf)
 
     def reverse_correspond(self, points: np.ndarray, V: np.ndarray, facing: np.ndarray,
                            obs: HandObservation, stride: int = 3,
@@ -240,25 +272,33 @@ class ModelTracker:
         ``reverse_margin_px`` from it) is paired with its nearest observed point. This
         pulls back model parts that stick out where the camera sees nothing (e.g. a finger
         extended in front of a fist)."""
-        empty = Correspondences(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3)))
         f = facing[::stride]
         if len(f) == 0 or len(points) == 0:
-            return empty
-        intr = obs.intrinsics
+            return _empty_corr()
         Vf = V[f]
-        z = np.maximum(Vf[:, 2], 1e-3)
-        u = np.rint(intr.fx * Vf[:, 0] / z + intr.cx).astype(np.int64)
-        v = np.rint(intr.fy * Vf[:, 1] / z + intr.cy).astype(np.int64)
+        keep, idx = self._reverse_match(points, Vf, _project(Vf, obs.intrinsics), obs, tree)
+        if keep is None:
+            return _empty_corr()
+        vi = f[keep]
+        return Correspondences(points[idx], vi, V[vi])
+
+    def _reverse_match(self, points: np.ndarray, Vf: np.ndarray, uv: np.ndarray,
+                       obs: HandObservation, tree: cKDTree | None
+                       ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """:meth:`reverse_correspond` for vertices ``Vf`` projected at ``uv``: ``(keep,
+        idx)``, the vertices off the hand and their nearest points (None, None: none)."""
+        intr = obs.intrinsics
+        u = np.rint(uv[:, 0]).astype(np.int64)
+        v = np.rint(uv[:, 1]).astype(np.int64)
         inside = (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
         # off the hand by more than reverse_margin_px (silhouette rims are left alone: a
         # vertex on the rim of a finger may round to an empty pixel next to it)
-        keep = np.ones(len(f), bool)
+        keep = np.ones(len(Vf), bool)
         keep[inside] = obs.off_hand(v[inside], u[inside], self.cfg.reverse_margin_px)
         if not keep.any():
-            return empty
-        dist, idx = (tree or cKDTree(points)).query(Vf[keep])
-        vi = f[keep]
-        return Correspondences(points[idx], vi, V[vi])
+            return None, None
+        _, idx = (tree or cKDTree(points)).query(Vf[keep])
+        return keep, idx
 
     # -------------------------------------------------------------------------------- GN
     def normal_equations(self, q: np.ndarray, corr: Correspondences | list,
@@ -327,16 +367,25 @@ class ModelTracker:
         Same as ``normal_equations(q, [(correspond(...), data_weight), (reverse_correspond(...),
         reverse_weight)], ...)`` on ``posed(q)``, computed on the candidate vertices only, from
         one FK pass (vertices, normals and the Jacobian rows share it)."""
-        out, corr = self._steps(q[None], obs, points, pixels, [q_ref], dofs)
+        out, corr = self._steps(q[None], obs, points, pixels, [q_ref], dofs, with_pairs=True)
         return out[0], corr[0]
 
+    def _dof_terms(self, dofs: np.ndarray) -> _DofTerms:
+        key = dofs.tobytes()
+        t = self._dof_cache.get(key)
+        if t is None:
+            t = self._dof_cache[key] = _DofTerms(dofs)
+        return t
+
     def _steps(self, Q: np.ndarray, obs: HandObservation, points: np.ndarray,
-               pixels: np.ndarray, q_refs: list, dofs: np.ndarray
+               pixels: np.ndarray, q_refs: list, dofs: np.ndarray, with_pairs: bool = False
                ) -> tuple[np.ndarray, list[Correspondences]]:
         """:meth:`step` for a batch of poses (B, 27): one FK pass and one skinning product
-        for all of them; correspondences and normal equations per pose."""
+        for all of them; correspondences and normal equations per pose (the pairs are
+        returned only ``with_pairs``)."""
         cfg = self.cfg
-        root = len(dofs) == 6 and dofs[0] == 0 and dofs[-1] == 5
+        dt = self._dof_terms(dofs)
+        root = dt.root
         T, H, rot, _ = self.model.bone_basis(Q, jacobian=not root)
         B, nb = rot.shape[0], rot.shape[1]
         # [X_c | N_c] @ [[T, 0], [0, R^T]] for every pose: columns (pose, 6)
@@ -344,49 +393,96 @@ class ModelTracker:
         rhs[:self._nx, :, :3] = np.swapaxes(T, 0, 1)
         rhs[self._nx:, :, 3:] = np.swapaxes(np.swapaxes(rot, 2, 3).reshape(B, 3 * nb, 3), 0, 1)
         vn = (self._xcn @ rhs.reshape(-1, 6 * B)).reshape(-1, B, 6)
-        tree = self._point_tree(points) if cfg.reverse_weight > 0 else None
+        front = np.einsum("vbi,vbi->vb", vn[:, :, 3:], vn[:, :, :3]) < 0.0   # facing (V_c, B)
+        wd, wr = cfg.data_weight, cfg.reverse_weight
+        tree = self._point_tree(points) if wr > 0 else None
+        intr = obs.intrinsics
         out = Q.copy()
-        corrs = []
+        pairs = []
         for b in range(B):
             q = Q[b]
             Vc = vn[:, b, :3]
-            facing = np.flatnonzero(np.einsum("ij,ij->i", vn[:, b, 3:], Vc) < 0.0)
-            corr = self.correspond(points, pixels, Vc, facing, obs.intrinsics)
-            sets = [(corr, cfg.data_weight)]
-            if cfg.reverse_weight > 0:
-                sets.append((self.reverse_correspond(points, Vc, facing, obs, tree=tree),
-                             cfg.reverse_weight))
-            sets = [(c, w) for c, w in sets if len(c.vertex) and w > 0]
-            blocks = []
-            if sets:  # all pairs in one block, each row with its set's weight
+            facing = np.flatnonzero(front[:, b])
+            rows_d = rows_r = pts_r = None
+            if len(facing) and len(points):
+                Vf = Vc[facing]
+                uv = _project(Vf, intr)
+                keep, sel = self._window_match(points, pixels, Vf, uv)
+                rows_d = facing[sel[keep]]
+                pts_d = points[keep]
+                if wr > 0:
+                    kr, ir = self._reverse_match(points, Vf[::3], uv[::3], obs, tree)
+                    if kr is not None:
+                        rows_r = facing[::3][kr]
+                        pts_r = points[ir]
+            if with_pairs:
+                d = (np.zeros(0, np.int64), np.zeros((0, 3))) if rows_d is None else \
+                    (rows_d, pts_d)
+                pairs.append(Correspondences(d[1], self.cand[d[0]], Vc[d[0]]))
+            # data rows: (candidate row, point, sqrt of the weight) of both pair sets
+            sets = []
+            if rows_d is not None and len(rows_d) and wd > 0:
+                sets.append((rows_d, pts_d, wd))
+            if rows_r is not None and wr > 0:
+                sets.append((rows_r, pts_r, wr))
+            A = np.zeros((dt.n, dt.n))
+            g = np.zeros(dt.n)
+            if sets:
                 if len(sets) == 1:
-                    c, w = sets[0]
-                    Mp, rows, r = c.model, c.vertex, c.residual_mm.reshape(-1)
+                    rows, P, w = sets[0]
+                    sw = np.sqrt(w)
                 else:
-                    Mp = np.concatenate([c.model for c, _ in sets])
-                    rows = np.concatenate([c.vertex for c, _ in sets])
-                    r = ((Mp - np.concatenate([c.points for c, _ in sets])) * _MM).reshape(-1)
-                    w = np.repeat([w for _, w in sets], [3 * len(c.vertex) for c, _ in sets])
+                    rows = np.concatenate([x[0] for x in sets])
+                    P = np.concatenate([x[1] for x in sets])
+                    sw = np.repeat(np.sqrt([x[2] for x in sets]),
+                                   [3 * len(x[0]) for x in sets])
+                M = Vc[rows]
+                r = ((M - P) * _MM).reshape(-1)
                 if root:
-                    J = _root_jacobian(q, Mp).reshape(-1, 6) * _MM
+                    J = _root_jacobian(q, M).reshape(-1, 6)
                 else:
-                    J = ((self._xc_dense[rows] @ H[b]) * _MM).reshape(-1, N_DOF)
-                    if len(dofs) != N_DOF:
+                    J = (self._xc_dense[rows] @ H[b]).reshape(-1, N_DOF)
+                    if not dt.full:
                         J = J[:, dofs]
-                blocks.append((J, r, w))
-            A, g, _ = self._assemble(q, blocks, q_refs[b], dofs)
-            corrs.append(Correspondences(corr.points, self.cand[corr.vertex], corr.model))
-            A[np.diag_indices(len(dofs))] += cfg.damping * (1.0 + A.diagonal())
+                # sqrt(w) * [mm] folded into the rows: A = J^T W J, g = J^T W r (eq. II.27)
+                if np.ndim(sw):
+                    J *= (sw * _MM)[:, None]
+                    r *= sw
+                else:
+                    J *= sw * _MM
+                    r *= sw
+                A = J.T @ J
+                g = J.T @ r
+            self._prior_terms(A, g, q, q_refs[b], dofs, dt)
+            A.ravel()[dt.diag] += cfg.damping * (1.0 + A.ravel()[dt.diag])
             try:
                 dq = -np.linalg.solve(A, g)
             except np.linalg.LinAlgError:
                 continue
-            ang = dofs >= 3
-            big = float(np.max(np.abs(dq[ang]))) if ang.any() else 0.0
-            if big > cfg.max_step_rad:
-                dq *= cfg.max_step_rad / big
+            if len(dt.ang):
+                big = float(np.max(np.abs(dq[dt.ang])))
+                if big > cfg.max_step_rad:
+                    dq *= cfg.max_step_rad / big
             out[b, dofs] += dq
-        return out, corrs
+        return out, pairs
+
+    def _prior_terms(self, A: np.ndarray, g: np.ndarray, q: np.ndarray,
+                     q_ref: np.ndarray | None, dofs: np.ndarray, dt: _DofTerms) -> None:
+        """Add the smoothness (II.24) and joint-limit (II.25) terms to ``A``, ``g`` (the
+        same terms as :meth:`_assemble`)."""
+        cfg = self.cfg
+        diag = A.ravel()   # a view: A is contiguous
+        qd = q[dofs]
+        if q_ref is not None and cfg.smooth_weight > 0:
+            d = qd - q_ref[dofs]
+            a = dt.ang
+            d[a] = (d[a] + np.pi) % (2 * np.pi) - np.pi  # angles compared modulo 2 pi
+            diag[dt.diag] += cfg.smooth_weight * dt.scale_sq
+            g += cfg.smooth_weight * dt.scale_sq * d
+        if cfg.limit_weight > 0:
+            viol = np.minimum(qd - dt.lo, 0.0) + np.maximum(qd - dt.hi, 0.0)
+            diag[dt.diag] += cfg.limit_weight * (viol != 0)
+            g += cfg.limit_weight * viol
 
     def _point_tree(self, points: np.ndarray) -> cKDTree:
         """KD-tree of the observed points, kept while the same array is passed."""

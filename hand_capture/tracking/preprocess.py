@@ -10,8 +10,6 @@ vectorised (OpenCV's connected components), about 1 ms at 320x240.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import cv2
 import numpy as np
 
@@ -22,7 +20,6 @@ from hand_capture.tracking.config import TrackerConfig
 __all__ = ["HandObservation", "segment_hand"]
 
 
-@dataclass
 class HandObservation:
     """The segmented hand of one frame.
 
@@ -32,13 +29,58 @@ class HandObservation:
         points: (N, 3) back-projected hand points in the optical frame [m].
         pixels: (N, 2) their pixel coordinates (u, v).
         intrinsics: the image's pinhole.
+        box: ``(row0, row1, col0, col1)`` (end exclusive) bounding the hand pixels; None
+            when no hand was found (or not given).
+
+    :func:`segment_hand` back-projects the hand pixels only when ``points`` / ``pixels`` are
+    read: a frame tracked from the previous pose needs only the subsample of
+    :meth:`subsample` (the same values either way).
     """
 
-    depth_m: np.ndarray
-    mask: np.ndarray
-    points: np.ndarray
-    pixels: np.ndarray
-    intrinsics: Intrinsics
+    def __init__(self, depth_m: np.ndarray, mask: np.ndarray, points: np.ndarray | None,
+                 pixels: np.ndarray | None, intrinsics: Intrinsics,
+                 box: tuple[int, int, int, int] | None = None) -> None:
+        self.depth_m = depth_m
+        self.mask = mask
+        self._points = points
+        self._pixels = pixels
+        self.intrinsics = intrinsics
+        self.box = box
+        self._vuz: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    @classmethod
+    def from_pixels(cls, depth_m: np.ndarray, mask: np.ndarray, v: np.ndarray, u: np.ndarray,
+                    z: np.ndarray, intrinsics: Intrinsics,
+                    box: tuple[int, int, int, int] | None = None) -> HandObservation:
+        """An observation whose points are the pixels (v, u) at depths z [m], back-projected
+        when first read."""
+        obs = cls(depth_m, mask, None, None, intrinsics, box)
+        obs._vuz = (v, u, z)
+        return obs
+
+    def _backproject(self, idx: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        v, u, z = self._vuz
+        if idx is not None:
+            v, u, z = v[idx], u[idx], z[idx]
+        intr = self.intrinsics
+        pts = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
+        return pts, np.stack([u, v], axis=1).astype(np.float64)
+
+    @property
+    def points(self) -> np.ndarray:
+        if self._points is None:
+            self._points, self._pixels = self._backproject(None)
+        return self._points
+
+    @property
+    def pixels(self) -> np.ndarray:
+        if self._pixels is None:
+            self._points, self._pixels = self._backproject(None)
+        return self._pixels
+
+    @property
+    def n_points(self) -> int:
+        return len(self._vuz[0]) if self._points is None else len(self._points)
 
     @property
     def outside_distance(self) -> np.ndarray:
@@ -77,7 +119,7 @@ class HandObservation:
 
     @property
     def found(self) -> bool:
-        return len(self.points) > 0
+        return self.n_points > 0
 
     @property
     def centroid(self) -> np.ndarray:
@@ -86,13 +128,15 @@ class HandObservation:
     def subsample(self, n: int, rng: np.random.Generator | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
         """At most ``n`` points (and pixels), spread evenly (deterministic without rng)."""
-        m = len(self.points)
+        m = self.n_points
         if m <= n:
             return self.points, self.pixels
         if rng is None:
             idx = np.linspace(0, m - 1, n).astype(np.int64)
         else:
             idx = rng.choice(m, n, replace=False)
+        if self._points is None:  # back-project the subsample only
+            return self._backproject(idx)
         return self.points[idx], self.pixels[idx]
 
 
@@ -110,7 +154,9 @@ def check_depth(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
         raise InputError(f"depth image {d.shape[1]}x{d.shape[0]} does not match the "
                          f"intrinsics {intr.width}x{intr.height}")
     if d.dtype == np.uint16:
-        return d.astype(np.float32) * np.float32(0.001)
+        out = d.astype(np.float32)
+        out *= np.float32(0.001)
+        return out
     if np.issubdtype(d.dtype, np.floating):
         out = d.astype(np.float32)
         return np.where(np.isfinite(out), out, 0.0).astype(np.float32)
@@ -169,17 +215,18 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     v += r0
     u += c0
     z = d[v, u].astype(np.float64)
-    pts = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
-    pix = np.stack([u, v], axis=1).astype(np.float64)
     if cfg.wrist_cut_m > 0:
+        pts = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
         keep = np.linalg.norm(pts - pts.mean(axis=0), axis=1) <= cfg.wrist_cut_m
-        pts, pix = pts[keep], pix[keep]
+        u, v, z = u[keep], v[keep], z[keep]
         mask = np.zeros_like(mask)
-        mask[pix[:, 1].astype(int), pix[:, 0].astype(int)] = True
-        if len(pts) < cfg.min_hand_pixels:
+        mask[v, u] = True
+        if len(z) < cfg.min_hand_pixels:
             return _empty(d.shape, intr)
-    depth_hand = np.where(mask, d, 0.0).astype(np.float32)
-    return HandObservation(depth_hand, mask, pts, pix, intr)
+    depth_hand = np.zeros(d.shape, np.float32)   # the hand's depth, 0 elsewhere
+    depth_hand[v, u] = d[v, u]
+    box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
+    return HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
 
 
 def depth_normals(obs: HandObservation) -> np.ndarray:

@@ -1,0 +1,131 @@
+"""The tracker's cheaper settings (regression every n-th frame while tracking succeeds, one
+refined candidate) used by the teleop graph: the schedule of the regression, recovery after a
+loss, and the teleop parameter files."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from hand_capture.bench.tracking import teleop_config
+from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
+from hand_capture.cameras.threads import limit_blas_threads
+from hand_capture.config import load_yaml
+from hand_capture.errors import ConfigError
+from hand_capture.paths import config_dir
+from hand_capture.tracking.config import TrackerConfig
+from hand_capture.tracking.hybrid import HybridTracker, default_model_path
+from hand_capture.tracking.regressor import HandRegressor
+from hand_capture.tracking.train import train_tracker
+
+limit_blas_threads(1)
+
+
+@pytest.fixture(scope="module")
+def regressor():
+    p = default_model_path()
+    if p.exists():
+        return HandRegressor.load(p)
+    return train_tracker(None, seed=1, n_samples=160, n_shapes=4, palm_stages=2,
+                         finger_stages=1, n_trees=3, max_depth=8, n_features=120)
+
+
+@pytest.fixture(scope="module")
+def cam():
+    c = SyntheticCamera(SyntheticCameraConfig(render_color=False, clip="translation"))
+    c.open()
+    return c
+
+
+class _Counting:
+    """A regressor that counts its palm regressions (step 1)."""
+
+    def __init__(self, reg: HandRegressor) -> None:
+        self.reg = reg
+        self.calls = 0
+
+    def palm_modes(self, *a, **kw):
+        self.calls += 1
+        return self.reg.palm_modes(*a, **kw)
+
+    def regress_fingers(self, *a, **kw):
+        return self.reg.regress_fingers(*a, **kw)
+
+
+def _track(tr, cam, times):
+    out = []
+    for t in times:
+        f = cam.render(t)
+        out.append(tr.process(f.depth, f.depth_intrinsics))
+    return out
+
+
+def test_regression_every_nth_frame_while_tracking_and_after_a_loss(cam, regressor):
+    spy = _Counting(regressor)
+    tr = HybridTracker(cam.model, TrackerConfig(regress_every=3, refine_top=1), spy)
+    res = _track(tr, cam, [i / 30 for i in range(7)])
+    assert all(r.success for r in res)
+    # the first frame has no previous pose; then every third frame
+    assert [r.regressed for r in res] == [True, False, False, True, False, False, True]
+    assert spy.calls == 3
+    # frames without regression: the previous pose only, refined
+    assert all(r.n_candidates == 1 for r in res)
+    f = cam.render(0.3)
+    blank = tr.process(np.zeros_like(f.depth), f.depth_intrinsics)
+    assert blank.status == "no_hand" and not blank.regressed
+    # after a loss the regression runs on every frame until tracking succeeds again: the
+    # hand moved meanwhile and is found again at once
+    res = _track(tr, cam, [1.3, 1.3 + 1 / 30, 1.3 + 2 / 30])
+    assert res[0].regressed
+    assert res[0].success and res[0].status == "recovering"
+    err = np.linalg.norm(cam.model.joint_positions(res[0].pose)
+                         - cam.model.joint_positions(cam.render(1.3).pose), axis=1).max()
+    assert err < 0.03
+    assert [r.regressed for r in res[1:]] == [False, False]
+    assert spy.calls == 4
+
+
+def test_doubtful_frames_trigger_the_regression(cam, regressor):
+    # a threshold below any E_d: every frame counts as doubtful
+    tr = HybridTracker(cam.model, TrackerConfig(regress_every=100, regress_above_mm=0.5),
+                       regressor)
+    assert all(r.regressed for r in _track(tr, cam, [0.0, 1 / 30, 2 / 30]))
+    tr = HybridTracker(cam.model, TrackerConfig(regress_every=100), regressor)
+    assert [r.regressed for r in _track(tr, cam, [0.0, 1 / 30, 2 / 30])] == \
+        [True, False, False]
+
+
+def test_product_settings_regress_on_every_frame(cam, regressor):
+    cfg = TrackerConfig()
+    assert cfg.regress_every == 1 and cfg.regress_above_mm == 0.0
+    tr = HybridTracker(cam.model, cfg, regressor)
+    res = _track(tr, cam, [0.0, 1 / 30, 2 / 30])
+    assert all(r.regressed for r in res)
+    assert all(r.n_candidates == cfg.refine_top for r in res)
+
+
+def test_teleop_parameters_are_the_cheaper_hybrid_settings():
+    cfg = teleop_config()
+    assert cfg.mode == "hybrid"
+    assert cfg.regress_every > 1 and cfg.refine_top == 1
+    # the teleop file sets only known tracker parameters, each as the graph applies it
+    own = load_yaml(config_dir() / "teleop.yaml")["tracker"]["ros__parameters"]
+    names = {f.name for f in dataclasses.fields(TrackerConfig)}
+    node_only = {"debug_image_every", "markers_every", "subject_id", "shape_folder",
+                 "calibrate_on_start", "calibration_frames", "poll_period_s", "blas_threads"}
+    assert set(own) <= names | node_only
+    for k, v in own.items():
+        if k in names:
+            assert getattr(cfg, k) == v
+    # the product's file keeps the dissertation's scheme
+    prod = load_yaml(config_dir() / "tracker.yaml")["tracker"]["ros__parameters"]
+    assert prod["regress_every"] == 1 and prod["refine_top"] == 2
+
+
+def test_regression_schedule_parameters_are_validated():
+    with pytest.raises(ConfigError):
+        TrackerConfig(regress_every=0)
+    with pytest.raises(ConfigError):
+        TrackerConfig(regress_above_mm=-1.0)
