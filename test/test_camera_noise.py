@@ -139,3 +139,20 @@ def test_noise_config_is_validated():
         DepthNoiseConfig(sigma_base_m=-1.0)
     with pytest.raises(ConfigError, match="max_range_m"):
         DepthNoiseConfig(min_range_m=2.0, max_range_m=1.0)
+
+
+def test_apply_mm_is_apply_in_millimetres_on_the_valid_window():
+    """apply_mm converts only the window of valid pixels; the result is apply()'s image in
+    millimetres, for the same draws (also with the hand cut by the image border)."""
+    from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
+
+    cam = SyntheticCamera(SyntheticCameraConfig(clip="grasp", width=160, height=120))
+    cam.open()
+    res = cam._renderer.render(cam.scene_meshes(1.0, cam.truth_pose(1.0))[0], cam.intrinsics)
+    model = DepthNoiseModel(DepthNoiseConfig(flying_prob=0.5, dropout_prob=0.01))
+    for cut in (slice(None), slice(40, None)):
+        d, c = res.depth[cut, cut], res.cos_incidence[cut, cut]
+        a = model.apply(d, c, cam.intrinsics, np.random.default_rng(3))
+        b = model.apply_mm(d, c, cam.intrinsics, np.random.default_rng(3))
+        assert (b > 0).sum() > 100
+        assert np.array_equal(depth_m_to_mm(a), b)

@@ -46,6 +46,33 @@ def test_write_read_roundtrip_keeps_order_and_definitions(tmp_path: Path, storag
         assert "MSG: std_msgs/Header" in conn.msgdef.data
 
 
+def test_mcap_messages_are_written_as_rosbags_writes_them(tmp_path: Path) -> None:
+    """BagWriter appends MCAP message records itself (the recorder's per-message cost): the
+    file is byte for byte what rosbags' own writer makes, across chunk boundaries (1 MiB) and
+    flushes, with out-of-order stamps and several topics."""
+    big = bytes(range(256)) * 1200  # 300 KB: chunks close mid-stream
+    poses = [_pose(i) for i in range(40)]  # once: CDR padding bytes are not initialised
+    files = []
+    for own in (True, False):
+        w = BagWriter(tmp_path / ("own" if own else "rosbags") / "b", flush_period=3600.0)
+        if not own:
+            w._mcap = None  # through rosbags' Writer.write
+        w.add_topic("/hand/pose", "hand_msgs/msg/HandPose")
+        w.add_topic("/img", "sensor_msgs/msg/Image")
+        for i in range(40):
+            w.write("/hand/pose", 5_000 + (i * 7919) % 97, poses[i])
+            if i % 3 == 0:
+                w.write("/img", 5_000 + i, big[: 1000 * (i + 1)])
+            if i == 25:
+                w.flush()
+        w.close()
+        d = tmp_path / ("own" if own else "rosbags") / "b"
+        files.append(((d / "b.mcap").read_bytes(), (d / "metadata.yaml").read_text()))
+    assert files[0] == files[1]
+    msgs = list(BagReader(tmp_path / "own" / "b").messages())
+    assert len(msgs) == 40 + 14
+
+
 def test_unknown_storage_and_topic_are_refused(tmp_path: Path) -> None:
     with pytest.raises(BagError, match="valid: \\['mcap', 'sqlite3'\\]"):
         BagWriter(tmp_path / "x", storage="zip")

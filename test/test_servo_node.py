@@ -98,6 +98,38 @@ def test_commanded_source_follows_the_controller_and_keeps_its_stamp(ros) -> Non
     assert (goals[-1].header.stamp.sec, goals[-1].header.stamp.nanosec) == (17, 3)
 
 
+def test_inputs_drive_the_cycles_and_the_timer_runs_only_without_them(ros) -> None:
+    """Inputs near the control rate run the cycles; the fixed-rate timer then does not wake
+    the node in between (it is due 1.5 periods after the last cycle), and takes over at the
+    control rate when the inputs stop."""
+    import time
+
+    peer, add, spin_until = ros
+    node = add(ServoBridgeNode(parameter_overrides=params(source="commanded",
+                                                          control_rate_hz=50.0)))
+    timer_calls = []
+    on_timer = node._control_timer.callback
+    node._control_timer.callback = lambda: (timer_calls.append(time.monotonic()), on_timer())
+    pub = peer.create_publisher(JointCommand, "control/joint_command", 10)
+    msg = JointCommand(joint_names=NAMES, positions=[0.0] * len(NAMES))
+    last = [0.0]
+
+    def send() -> None:  # 40 Hz, slower than the 50 Hz control rate
+        if time.monotonic() - last[0] >= 0.025:
+            last[0] = time.monotonic()
+            pub.publish(msg)
+
+    spin_until(lambda: False, 0.5, tick=send)  # settle
+    c0, n0 = node.core._cycle, len(timer_calls)
+    spin_until(lambda: False, 1.5, tick=send)
+    driven, woken = node.core._cycle - c0, len(timer_calls) - n0
+    assert driven >= 30  # about 60 input cycles
+    assert woken <= driven // 4, (driven, woken)  # (before: one timer wake-up per cycle)
+    c0 = node.core._cycle
+    spin_until(lambda: False, 1.0)  # no input: the timer's fixed-rate cycles (50 Hz)
+    assert node.core._cycle - c0 >= 25
+
+
 def test_autostart_retries_a_failed_configure(ros, tmp_path) -> None:
     _, add, spin_until = ros
     port = tmp_path / "ttyUSB_later"  # not there yet: configure fails, then is retried

@@ -96,9 +96,12 @@ class DepthNoiseModel:
     def axial_sigma(self, z: np.ndarray, cos_incidence: np.ndarray | float = 1.0
                     ) -> np.ndarray:
         """Standard deviation of the axial noise [m] at depth ``z`` [m] and incidence cos."""
-        c = self.config
         z = np.asarray(z, dtype=np.float64)
-        theta = np.arccos(np.clip(cos_incidence, 0.0, 1.0))
+        return self._axial_sigma(z, np.arccos(np.clip(cos_incidence, 0.0, 1.0)))
+
+    def _axial_sigma(self, z: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """:meth:`axial_sigma` from the incidence angle ``theta`` [rad] (float64 arrays)."""
+        c = self.config
         # the angle term diverges at 90 deg; beyond grazing_full_deg pixels are dropped anyway
         theta = np.minimum(theta, math.radians(max(c.grazing_full_deg, 1e-3)) - 1e-3)
         theta = np.minimum(theta, math.pi / 2 - 1e-3)
@@ -129,44 +132,76 @@ class DepthNoiseModel:
             intr: intrinsics of the image (fx for disparity quantisation).
             rng: random generator (seeded by the caller).
         """
+        depth_m, valid = self._valid(depth_m, cos_incidence)
+        if not self.config.enabled:
+            return np.where(valid, depth_m, 0.0).astype(np.float32)
+        out = np.zeros(depth_m.shape, np.float32)
+        noisy = self._noisy_window(depth_m, valid, cos_incidence, intr, rng)
+        if noisy is not None:
+            out[noisy[0]] = noisy[1]
+        return out
+
+    def apply_mm(self, depth_m: np.ndarray, cos_incidence: np.ndarray, intr: Intrinsics,
+                 rng: np.random.Generator) -> np.ndarray:
+        """Like :meth:`apply`, quantised to a ``uint16`` millimetre image (``16UC1``)."""
+        if not self.config.enabled:
+            return depth_m_to_mm(self.apply(depth_m, cos_incidence, intr, rng))
+        depth_m, valid = self._valid(depth_m, cos_incidence)
+        out = np.zeros(depth_m.shape, np.uint16)
+        noisy = self._noisy_window(depth_m, valid, cos_incidence, intr, rng)
+        if noisy is not None:  # 0 m is 0 mm: only the window needs converting
+            out[noisy[0]] = depth_m_to_mm(noisy[1])
+        return out
+
+    def _valid(self, depth_m: np.ndarray, cos_incidence: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
         c = self.config
         depth_m = np.asarray(depth_m, dtype=np.float32)
         if depth_m.shape != np.shape(cos_incidence):
             raise InputError(f"depth {depth_m.shape} and cos_incidence "
                              f"{np.shape(cos_incidence)} differ in shape")
-        valid = (depth_m >= c.min_range_m) & (depth_m <= c.max_range_m)
-        if not c.enabled:
-            return np.where(valid, depth_m, 0.0).astype(np.float32)
-        out = np.zeros(depth_m.shape, np.float32)
+        return depth_m, (depth_m >= c.min_range_m) & (depth_m <= c.max_range_m)
+
+    def _noisy_window(self, depth_m: np.ndarray, valid: np.ndarray, cos_incidence: np.ndarray,
+                      intr: Intrinsics, rng: np.random.Generator
+                      ) -> tuple[tuple[slice, slice], np.ndarray] | None:
+        """The noise applied on the bounding box of the valid pixels: (window, float32 depth
+        in it), or None when no pixel is valid."""
         rows = np.flatnonzero(valid.any(axis=1))
         if rows.size == 0:
-            return out
+            return None
         cols = np.flatnonzero(valid.any(axis=0))
-        # work on the bounding box of the valid pixels only
         win = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
         # sides of the window on the image border: beyond them is unknown, not empty
         border = (rows[0] == 0, rows[-1] == depth_m.shape[0] - 1,
                   cols[0] == 0, cols[-1] == depth_m.shape[1] - 1)
-        cw = self._apply_window(depth_m[win], valid[win],
-                                np.asarray(cos_incidence)[win], intr, rng, border)
-        out[win] = cw
-        return out
+        # the valid pixels: flat indices in the window and their depth and incidence cosine
+        vw = valid[win]
+        idx = np.flatnonzero(vw)
+        r, cc = np.divmod(idx, vw.shape[1])
+        full = (r + rows[0]) * depth_m.shape[1] + (cc + cols[0])
+        z = depth_m.ravel()[full].astype(np.float64)
+        cos = np.asarray(cos_incidence).ravel()[full].astype(np.float64)
+        return win, self._apply_pixels(vw, idx, z, cos, intr, rng, border)
 
-    def _apply_window(self, depth_m: np.ndarray, valid: np.ndarray, cos_incidence: np.ndarray,
-                      intr: Intrinsics, rng: np.random.Generator,
+    def _apply_pixels(self, valid: np.ndarray, idx: np.ndarray, z: np.ndarray,
+                      cos: np.ndarray, intr: Intrinsics, rng: np.random.Generator,
                       border: tuple[bool, bool, bool, bool]) -> np.ndarray:
+        """Noisy (H, W) float32 window from its valid pixels (flat indices ``idx`` into the
+        (H, W) mask ``valid``, clean depth ``z`` and cosine ``cos`` there, float64)."""
         c = self.config
-        H, W = depth_m.shape
-        z_img = np.where(valid, depth_m, 0.0).astype(np.float64)
-        idx = np.flatnonzero(valid)
-        z = z_img.ravel()[idx]
-        cos = np.asarray(cos_incidence, dtype=np.float64).ravel()[idx]
+        H, W = valid.shape
         keep = np.ones(idx.size, bool)
 
         # flying pixels: mix with the neighbour across the largest depth jump
         if c.flying_prob > 0:
-            far = np.where(valid, z_img, np.inf)
-            pad = np.pad(far, 1, constant_values=np.inf)
+            # depth with an infinite frame around the window (inf = nothing seen); a side on
+            # the image border repeats its outer row/column instead
+            pad = np.full((H + 2, W + 2), np.inf)
+            r, cc = np.divmod(idx, W)
+            at = (r + 1) * (W + 2) + (cc + 1)  # the valid pixels in the padded array
+            flat = pad.ravel()
+            flat[at] = z
             top, bottom, left, right = border
             if top:
                 pad[0] = pad[1]
@@ -176,12 +211,20 @@ class DepthNoiseModel:
                 pad[:, 0] = pad[:, 1]
             if right:
                 pad[:, -1] = pad[:, -2]
-            nb = np.stack([pad[:-2, 1:-1].ravel()[idx], pad[2:, 1:-1].ravel()[idx],
-                           pad[1:-1, :-2].ravel()[idx], pad[1:-1, 2:].ravel()[idx]])
-            nb = np.where(np.isinf(nb), z + c.flying_empty_m, nb)
-            dz = nb - z
-            k = np.argmax(np.abs(dz), axis=0)
-            jump = dz[k, np.arange(idx.size)]
+            # the neighbour with the largest |jump| (the first of up, down, left, right on a
+            # tie); no neighbour (inf) counts as flying_empty_m behind the surface
+            jump = best = None
+            for off in (-(W + 2), W + 2, -1, 1):
+                nb = flat[at + off]
+                nb = np.where(np.isinf(nb), z + c.flying_empty_m, nb)
+                dz = nb - z
+                a = np.abs(dz)
+                if jump is None:
+                    jump, best = dz, a
+                else:
+                    more = a > best
+                    jump = np.where(more, dz, jump)
+                    best = np.where(more, a, best)
             edge = np.flatnonzero(np.abs(jump) > c.jump_m)
             if edge.size:
                 fly = edge[rng.random(edge.size) < c.flying_prob]
@@ -199,7 +242,7 @@ class DepthNoiseModel:
         keep &= rng.random(idx.size) >= p
 
         # axial noise, then quantisation
-        sigma = self.axial_sigma(z, cos)
+        sigma = self._axial_sigma(z, theta)
         z = z + sigma * rng.standard_normal(idx.size)
         if c.baseline_m > 0:
             fb = intr.fx * c.baseline_m
@@ -211,11 +254,6 @@ class DepthNoiseModel:
         out = np.zeros(H * W, np.float32)
         out[idx[keep]] = z[keep]
         return out.reshape(H, W)
-
-    def apply_mm(self, depth_m: np.ndarray, cos_incidence: np.ndarray, intr: Intrinsics,
-                 rng: np.random.Generator) -> np.ndarray:
-        """Like :meth:`apply`, quantised to a ``uint16`` millimetre image (``16UC1``)."""
-        return depth_m_to_mm(self.apply(depth_m, cos_incidence, intr, rng))
 
 
 def add_color_noise(rgb: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:

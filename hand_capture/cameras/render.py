@@ -3,11 +3,12 @@
 Three interchangeable renderers produce the same :class:`RenderResult` (depth in metres, the
 face and label seen at each pixel, the cosine of the incidence angle):
 
-* :class:`ZBufferRenderer` -- vectorised numpy rasteriser (the default). Triangles are
-  grouped by the size of their pixel bounding box (powers of two), every pixel centre of each
-  box is tested with edge functions at once, depth is interpolated perspective-correctly
-  (1/z is affine in screen space) and the nearest candidate per pixel wins through one
-  ``np.minimum.at`` on a packed (depth, face) key.
+* :class:`ZBufferRenderer` -- vectorised numpy rasteriser (the default). The pixel centres
+  of every triangle's bounding box are enumerated exactly (face by face, flat; boxes over
+  ``_TILE`` pixels in tiles) and tested with edge functions at once, depth is interpolated
+  perspective-correctly (1/z is affine in screen space) and the nearest candidate per pixel
+  wins through one ``np.minimum.at`` on a packed (depth, face) key, in a buffer spanning the
+  candidates' rows only.
 * :class:`RaycastRenderer` -- Open3D's ``t.geometry.RaycastingScene`` (BVH rebuilt per frame,
   rays cast only inside the projected bounding box of the scene).
 * :class:`NaiveRenderer` -- a per-triangle Python loop; the baseline of the benchmark.
@@ -42,6 +43,7 @@ _FACE_BITS = np.uint64(24)  # packed key: depth [um] << 24 | face index (16.7 M 
 _DEPTH_Q = 1e6  # depth quantum of the key: 1 um
 _TILE = 128  # faces with a larger pixel box are rasterised in tiles of this size
 _TILES_PER_CHUNK = 16  # tiles tested at once (16 * 128^2 candidates)
+_CANDIDATES = 1 << 18  # pixel centres of small faces' boxes tested at once (about)
 
 
 @dataclass
@@ -289,50 +291,72 @@ class ZBufferRenderer(Renderer):
             self._grids[s] = (ox[None, :], oy[None, :])
         return self._grids[s]
 
-    def _raster(self, fc: _Faces, sel: np.ndarray, u_org: np.ndarray, v_org: np.ndarray,
-                s: int, W: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """Candidate pixels and packed (depth, face) keys of faces ``sel`` (indices into fc),
-        testing the ``s`` x ``s`` pixel centres from the origins (u_org, v_org)."""
-        ox, oy = self._grid(s)
-        px = u_org[:, None] + ox
-        py = v_org[:, None] + oy
+    @staticmethod
+    def _test(fc: _Faces, fi: np.ndarray, px: np.ndarray, py: np.ndarray, W: int
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Pixel centres (px, py) against faces ``fi`` (indices into fc), element by element:
+        the covered ones as flat pixel indices and packed (depth, face) keys."""
         (U0, U1, U2), (V0, V1, V2), (Z0, Z1, Z2) = fc.u, fc.v, fc.iz
-        u0, u1, u2 = U0[sel, None], U1[sel, None], U2[sel, None]
-        v0, v1, v2 = V0[sel, None], V1[sel, None], V2[sel, None]
-        ia = fc.inv_area[sel, None]
+        u0, u1, u2 = U0[fi], U1[fi], U2[fi]
+        v0, v1, v2 = V0[fi], V1[fi], V2[fi]
+        ia = fc.inv_area[fi]
         # barycentric weights from edge functions (signed areas / total area)
         w0 = ((u1 - px) * (v2 - py) - (u2 - px) * (v1 - py)) * ia
         w1 = ((u2 - px) * (v0 - py) - (u0 - px) * (v2 - py)) * ia
         w2 = 1.0 - w0 - w1
         eps = -1e-9  # pixel centres on a shared edge count for both faces: no cracks
-        inside = (w0 >= eps) & (w1 >= eps) & (w2 >= eps)
-        if s > 1:
-            inside &= (px <= fc.umax[sel, None]) & (py <= fc.vmax[sel, None])
-        r, c = np.nonzero(inside)
-        if r.size == 0:
+        k = np.flatnonzero((w0 >= eps) & (w1 >= eps) & (w2 >= eps))
+        if k.size == 0:
             return None
-        fi = sel[r]
+        f = fi[k]
         # perspective-correct depth: 1/z is affine in screen space
-        invz = w0[r, c] * Z0[fi] + w1[r, c] * Z1[fi] + w2[r, c] * Z2[fi]
+        invz = w0[k] * Z0[f] + w1[k] * Z1[f] + w2[k] * Z2[f]
         key = (np.rint(_DEPTH_Q / invz).astype(np.uint64) << _FACE_BITS) | \
-            fc.idx[fi].astype(np.uint64)
-        return py[r, c] * W + px[r, c], key
+            fc.idx[f].astype(np.uint64)
+        return py[k] * W + px[k], key
+
+    def _raster_boxes(self, fc: _Faces, sel: np.ndarray, W: int
+                      ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Every pixel centre of the bounding box of each face ``sel`` (exactly the box,
+        enumerated flat: face by face, row by row)."""
+        wb = fc.umax[sel] - fc.umin[sel] + 1
+        cnt = wb * (fc.vmax[sel] - fc.vmin[sel] + 1)
+        rep = np.repeat(np.arange(sel.size), cnt)
+        off = np.arange(rep.size) - (np.cumsum(cnt) - cnt)[rep]
+        dy, dx = np.divmod(off, wb[rep])
+        fi = sel[rep]
+        return self._test(fc, fi, fc.umin[fi] + dx, fc.vmin[fi] + dy, W)
+
+    def _raster_tiles(self, fc: _Faces, sel: np.ndarray, u_org: np.ndarray,
+                      v_org: np.ndarray, W: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The ``_TILE`` x ``_TILE`` pixel centres from the origins (u_org, v_org) against the
+        faces ``sel``, one tile per row (large faces)."""
+        ox, oy = self._grid(_TILE)
+        px = u_org[:, None] + ox
+        py = v_org[:, None] + oy
+        inside = (px <= fc.umax[sel, None]) & (py <= fc.vmax[sel, None])
+        r, c = np.nonzero(inside)
+        return self._test(fc, sel[r], px[r, c], py[r, c], W)
 
     def _visible(self, scene, intr):
         fc = _project_faces(scene, intr, self.near, self.cull_backfaces)
         if fc.idx.size == 0:
             return np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64)
         W = intr.width
-        size = np.maximum(fc.umax - fc.umin, fc.vmax - fc.vmin) + 1
+        wb = fc.umax - fc.umin + 1
+        hb = fc.vmax - fc.vmin + 1
         parts = []
-        # small faces: bucket b holds boxes with a side in (2^(b-1), 2^b], all tested at once
-        small = np.flatnonzero(size <= _TILE)
-        bucket = np.ceil(np.log2(size[small])).astype(np.int64)
-        for b in np.unique(bucket):
-            sel = small[bucket == b]
-            parts.append(self._raster(fc, sel, fc.umin[sel], fc.vmin[sel], 1 << int(b), W))
+        # small faces: every pixel centre of their boxes, a bounded number at a time
+        small = np.flatnonzero((wb <= _TILE) & (hb <= _TILE))
+        if small.size:
+            ends = np.cumsum(wb[small] * hb[small])
+            cut = np.searchsorted(ends, np.arange(_CANDIDATES, ends[-1], _CANDIDATES),
+                                  side="right")
+            for sel in np.split(small, cut):
+                if sel.size:
+                    parts.append(self._raster_boxes(fc, sel, W))
         # large faces: cut their boxes into _TILE x _TILE tiles, a bounded number at a time
-        big = np.flatnonzero(size > _TILE)
+        big = np.flatnonzero((wb > _TILE) | (hb > _TILE))
         if big.size:
             tf, tu, tv = [], [], []
             for k in big:
@@ -345,19 +369,22 @@ class ZBufferRenderer(Renderer):
             tf, tu, tv = np.concatenate(tf), np.concatenate(tu), np.concatenate(tv)
             for i in range(0, tf.size, _TILES_PER_CHUNK):
                 j = slice(i, i + _TILES_PER_CHUNK)
-                parts.append(self._raster(fc, tf[j], tu[j], tv[j], _TILE, W))
+                parts.append(self._raster_tiles(fc, tf[j], tu[j], tv[j], W))
         parts = [p for p in parts if p is not None]
         if not parts:
             return np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64)
-        pix = np.concatenate([p[0] for p in parts])
-        key = np.concatenate([p[1] for p in parts])
-        buf = np.full(intr.width * intr.height, _NONE, np.uint64)
-        np.minimum.at(buf, pix, key)  # nearest candidate per pixel (depth in the high bits)
+        pix = np.concatenate([p[0] for p in parts]) if len(parts) > 1 else parts[0][0]
+        key = np.concatenate([p[1] for p in parts]) if len(parts) > 1 else parts[0][1]
+        # nearest candidate per pixel (depth in the high bits of the key), in a buffer that
+        # spans the candidates only (the rows of the hand, not the whole image)
+        lo = int(pix.min())
+        buf = np.full(int(pix.max()) - lo + 1, _NONE, np.uint64)
+        np.minimum.at(buf, pix - lo, key)
         vis = np.flatnonzero(buf != _NONE)
         k = buf[vis]
         face = (k & np.uint64((1 << 24) - 1)).astype(np.int64)
         depth = (k >> _FACE_BITS).astype(np.float64) / _DEPTH_Q
-        return vis, depth, face
+        return vis + lo, depth, face
 
 
 class NaiveRenderer(Renderer):

@@ -1,7 +1,7 @@
 """numpy <-> sensor_msgs/Image and CameraInfo, without cv_bridge (not available from PyPI).
 
-``uint8[]`` message fields are filled with an ``array.array('B')`` built from the image bytes
-(one memcpy; assigning a list or ``bytes`` would make rosidl check every element), and read
+``uint8[]`` message fields are filled with an ``array.array('B')`` filled from the image's
+buffer (one memcpy; assigning a list or ``bytes`` would make rosidl check every element), and read
 back with ``np.frombuffer`` (no copy). Supported encodings: ``16UC1`` (depth [mm]),
 ``32FC1`` (depth [m]), ``rgb8``, ``bgr8``, ``mono8``, ``mono16``.
 """
@@ -47,7 +47,9 @@ def numpy_to_image(arr: np.ndarray, encoding: str, stamp: Time | None = None,
     msg.is_bigendian = 1 if (a.dtype.byteorder == ">" or
                              (a.dtype.byteorder == "=" and sys.byteorder == "big")) else 0
     msg.step = int(a.shape[1] * a.itemsize * ch)
-    msg.data = array.array("B", a.tobytes())
+    data = array.array("B")
+    data.frombytes(a.reshape(-1).view(np.uint8))  # from the array's buffer: one copy
+    msg.data = data
     return msg
 
 

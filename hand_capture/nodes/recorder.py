@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from datetime import datetime
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -25,8 +26,10 @@ from rclpy.qos import (
 from rclpy.subscription import MessageInfo
 
 from hand_capture.bag import STORAGES, BagWriter, make_qos
+from hand_capture.cameras.threads import reuse_freed_memory
 from hand_capture.config import param, validate
 from hand_capture.errors import BagError
+from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.msgtypes import message_class
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
@@ -71,6 +74,7 @@ class RecorderNode(Node):
     def __init__(self, **kwargs: object) -> None:
         super().__init__("bag_recorder", **kwargs)
         self.cfg = declare_config(self, RecorderConfig)
+        reuse_freed_memory()  # every image / marker array received is a fresh 150-250 KB
         out = self.cfg.output or datetime.now().strftime("hand_suite_%Y%m%d_%H%M%S")
         self.writer = BagWriter(out, storage=self.cfg.storage, flush_period=self.cfg.flush_period)
         self.wanted = {self.resolve_topic_name(t) for t in self.cfg.topics}
@@ -101,8 +105,12 @@ class RecorderNode(Node):
                 self.get_logger().error(f"cannot record {topic} ({msgtype}): {e}")
                 self.subs[topic] = None
                 continue
+            # no QoS event handlers (rclpy's default ones only log incompatible QoS or types,
+            # which the QoS and type taken from the publishers rule out): each would be one
+            # more entity for the executor to wait on, per topic
             self.subs[topic] = self.create_subscription(
-                cls, topic, functools.partial(self._on_message, topic), qos, raw=True)
+                cls, topic, functools.partial(self._on_message, topic), qos, raw=True,
+                event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
             self.get_logger().info(f"subscribed to {topic} [{msgtype}]")
 
     def _on_message(self, topic: str, data: bytes, info: MessageInfo) -> None:
@@ -141,7 +149,7 @@ class RecorderNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of the bag_recorder console script."""
-    return run_node(RecorderNode, args)
+    return run_node(RecorderNode, args, executor_factory=LeanExecutor)
 
 
 if __name__ == "__main__":

@@ -32,8 +32,9 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from hand_capture.cameras.noise import DepthNoiseConfig
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
-from hand_capture.cameras.threads import limit_blas_threads
+from hand_capture.cameras.threads import limit_blas_threads, reuse_freed_memory
 from hand_capture.config import param, validate
+from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.images import (
     camera_info_msg,
     depth_image_msg,
@@ -73,6 +74,7 @@ class SyntheticCameraNode(Node):
         super().__init__("synthetic_camera", **kwargs)
         self.node_cfg = declare_config(self, SyntheticNodeConfig)
         limit_blas_threads(self.node_cfg.blas_threads)
+        reuse_freed_memory()  # the frame's image-sized buffers, every frame
         self.cfg = declare_config(self, SyntheticCameraConfig)
         self.noise_cfg = declare_config(self, DepthNoiseConfig, prefix="noise.")
         self.camera = SyntheticCamera(self.cfg, self.noise_cfg)
@@ -90,8 +92,11 @@ class SyntheticCameraNode(Node):
             if self.node_cfg.publish_mask else None
         self.pub_truth = self.create_publisher(HandPose, "hand/pose_truth", 10)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self._info = camera_info_msg(self.intr)  # reused: only the stamp changes
         self._start_ns: int | None = None
         self._created = time.monotonic()
+        self._wait_logged: list[str] = []
+        self._wait_log_t = -1e9
         self.done: Future = Future()
         self._end_t = (self.camera.motion.duration + self.node_cfg.end_after_s
                        if not self.cfg.loop and self.node_cfg.end_after_s >= 0 else None)
@@ -115,8 +120,13 @@ class SyntheticCameraNode(Node):
                                       f"{self.node_cfg.wait_timeout_s:g} s)")
             missing = []
         if missing:
-            self.get_logger().info(f"holding the first pose until {missing} have publishers",
-                                   throttle_duration_sec=5.0)
+            # throttled here: rclpy's own throttling inspects the caller's stack (about 1 ms)
+            # on every call, i.e. on every tick while the graph starts
+            now = time.monotonic()
+            if missing != self._wait_logged or now - self._wait_log_t >= 5.0:
+                self._wait_logged, self._wait_log_t = missing, now
+                self.get_logger().info(f"holding the first pose until {missing} have "
+                                       "publishers")
         elif self._start_ns is None and self.node_cfg.wait_for_topics:
             self.get_logger().info("every awaited topic has a publisher: motion starts")
         return bool(missing)
@@ -145,10 +155,11 @@ class SyntheticCameraNode(Node):
         stamp = now.to_msg()
         fid = self.intr.frame_id
         self.pub_depth.publish(depth_image_msg(frame.depth, stamp, fid))
-        self.pub_depth_info.publish(camera_info_msg(self.intr, stamp))
+        self._info.header.stamp = stamp
+        self.pub_depth_info.publish(self._info)
         if self.pub_color is not None and frame.color is not None:
             self.pub_color.publish(rgb_image_msg(frame.color, stamp, fid))
-            self.pub_color_info.publish(camera_info_msg(self.intr, stamp))
+            self.pub_color_info.publish(self._info)
         if self.pub_mask is not None:
             mask = (frame.silhouette.astype(np.uint8) * 255)
             self.pub_mask.publish(numpy_to_image(mask, "mono8", stamp, fid))
@@ -186,7 +197,7 @@ class SyntheticCameraNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of the synthetic_camera console script."""
-    return run_node(SyntheticCameraNode, args)
+    return run_node(SyntheticCameraNode, args, executor_factory=LeanExecutor)
 
 
 if __name__ == "__main__":

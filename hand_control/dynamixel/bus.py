@@ -136,7 +136,6 @@ class DynamixelBus:
         self.baud = baud
         self.port = _PortHandler(port, packet_timeout_ms)
         self.ph = _PacketHandler()
-        self._writers: dict[tuple[int, int], sdk.GroupSyncWrite] = {}
         self._readers: dict[tuple[int, int, tuple[int, ...]], sdk.GroupSyncRead] = {}
 
     # -- port ------------------------------------------------------------------------------
@@ -258,14 +257,15 @@ class DynamixelBus:
     def _sync_write(self, addr: int, size: int, values: dict[int, int]) -> bool:
         if not values:
             return True
-        w = self._writers.get((addr, size))
-        if w is None:
-            w = self._writers[(addr, size)] = sdk.GroupSyncWrite(self.port, self.ph, addr, size)
-        w.clearParam()
+        # the parameters GroupSyncWrite would assemble (ID, then the value's bytes, per servo),
+        # handed to the SDK's packet builder without its per-servo bookkeeping
         mask = (1 << (8 * size)) - 1
+        param: list[int] = []
         for dxl_id, v in values.items():
-            w.addParam(dxl_id, list((int(v) & mask).to_bytes(size, "little")))
-        return w.txPacket() == sdk.COMM_SUCCESS
+            param.append(dxl_id)
+            param += (int(v) & mask).to_bytes(size, "little")
+        return self.ph.syncWriteTxOnly(self.port, addr, size, param, len(param)) == \
+            sdk.COMM_SUCCESS
 
     def sync_read(self, addr: int, size: int, ids: tuple[int, ...]) -> dict[int, ReadResult]:
         """Sync Read ``size`` bytes at ``addr`` from ``ids``; one result per ID."""

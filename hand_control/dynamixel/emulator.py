@@ -34,6 +34,7 @@ import os
 import pty
 import select
 import signal
+import struct
 import sys
 import threading
 import time
@@ -57,11 +58,43 @@ _TICKS_PER_S_PER_VEL_UNIT = 0.229 / 60.0 * 4096.0  # 0.229 rev/min in ticks/s
 _ADDR = {name: v[0] for name, v in ITEMS.items()}
 _SIZE = {name: v[1] for name, v in ITEMS.items()}
 _SIGNED = {name: v[2] for name, v in ITEMS.items()}
+_FORMATS = {(1, False): "<B", (1, True): "<b", (2, False): "<H", (2, True): "<h",
+            (4, False): "<I", (4, True): "<i"}
+# item -> (unpack_from, address) and (pack_into, address, mask): the little-endian items of the
+# table read and written in place (set() stores the two's complement, as protocol.u_le does)
+_GET = {n: (struct.Struct(_FORMATS[(s, sg)]).unpack_from, a)
+        for n, (a, s, sg, *_r) in ITEMS.items()}
+_SET = {n: (struct.Struct(_FORMATS[(s, False)]).pack_into, a, (1 << (8 * s)) - 1)
+        for n, (a, s, *_r) in ITEMS.items()}
 # address -> item name, for every byte of every item (write checks)
 _BYTE_OWNER: dict[int, str] = {}
 for _n, (_a, _s, *_r) in ITEMS.items():
     for _k in range(_a, _a + _s):
         _BYTE_OWNER[_k] = _n
+_I8 = struct.Struct("<b").unpack_from
+_U16 = struct.Struct("<H").unpack_from
+_I16 = struct.Struct("<h").unpack_from
+_U32 = struct.Struct("<I").unpack_from
+_I32 = struct.Struct("<i").unpack_from
+_LIMITS = struct.Struct("<II").unpack_from  # Max Position Limit(48), Min Position Limit(52)
+_TICK_MOVING = struct.Struct("<HB").pack_into  # Realtime Tick(120), Moving(122)
+_PRESENT = struct.Struct("<HII").pack_into  # Present Current(126), Velocity(128), Position(132)
+_OWNERS: dict[tuple[int, int], tuple[str, ...]] = {}  # (address, end) -> items touched
+
+
+def _owners(addr: int, end: int) -> tuple[str, ...]:
+    """The items a write of bytes [addr, end) touches, in address order (cached)."""
+    names = _OWNERS.get((addr, end))
+    if names is None:
+        found: list[str] = []
+        for k in range(addr, end):
+            n = _BYTE_OWNER.get(k)
+            if n is not None and (not found or found[-1] != n):
+                found.append(n)
+        names = _OWNERS[(addr, end)] = tuple(found)
+    return names
+
+
 _GOALS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
 
 
@@ -90,12 +123,12 @@ class EmulatedServo:
 
     # -- control table ------------------------------------------------------------------------
     def get(self, name: str) -> int:
-        a, s = _ADDR[name], _SIZE[name]
-        return int.from_bytes(self.table[a:a + s], "little", signed=_SIGNED[name])
+        unpack, a = _GET[name]
+        return unpack(self.table, a)[0]
 
     def set(self, name: str, value: int) -> None:
-        a, s = _ADDR[name], _SIZE[name]
-        self.table[a:a + s] = p2.u_le(int(value), s)
+        pack, a, mask = _SET[name]
+        pack(self.table, a, int(value) & mask)
 
     def factory_reset(self) -> None:
         """Initial values of the e-manual tables (EEPROM and RAM)."""
@@ -138,20 +171,20 @@ class EmulatedServo:
         """Advance the motor to ``now``: watchdog, first-order motion, present values."""
         dt = now - self.t_last
         self.t_last = now
-        wd = self.get("bus_watchdog")
+        t = self.table
+        wd = _I8(t, 98)[0]  # Bus Watchdog(98)
         if wd > 0 and (now - self.t_comm) * 1000.0 > wd * WATCHDOG_UNIT_MS:
             self.set("bus_watchdog", -1)  # fired: stop and refuse goals until cleared
             self.set("goal_position", int(round(self.position)))
-        torque = self.table[64] == 1
+        torque = t[64] == 1
         err = 0.0
         if torque and dt > 0:
-            goal = float(self.get("goal_position"))
-            lo, hi = self.get("min_position_limit"), self.get("max_position_limit")
-            goal = min(max(goal, lo), hi)
+            hi, lo = _LIMITS(t, 48)  # Max / Min Position Limit(48, 52)
+            goal = float(min(max(_I32(t, 116)[0], lo), hi))  # Goal Position(116)
             err = goal - self.position
             new = goal - err * math.exp(-dt / self.tau)
-            prof = self.get("profile_velocity")
-            vmax = (prof or self.get("velocity_limit") or 1023) * _TICKS_PER_S_PER_VEL_UNIT
+            prof = _U32(t, 112)[0]  # Profile Velocity(112), else Velocity Limit(44)
+            vmax = (prof or _U32(t, 44)[0] or 1023) * _TICKS_PER_S_PER_VEL_UNIT
             step = max(-vmax * dt, min(vmax * dt, new - self.position))
             self.position += step
             self.velocity = step / dt
@@ -161,16 +194,16 @@ class EmulatedServo:
         self._publish_state(err)
 
     def _publish_state(self, pos_err: float) -> None:
-        mode = self.table[11]
-        limit = self.get("current_limit")
-        if mode in (0, 5):
-            limit = min(limit, abs(self.get("goal_current")))
-        current = 0 if self.table[64] != 1 else max(-limit, min(limit, int(2.0 * pos_err)))
-        self.set("present_current", current)
-        self.set("present_velocity", int(round(self.velocity / _TICKS_PER_S_PER_VEL_UNIT)))
-        self.set("present_position", int(round(self.position)))
-        self.set("realtime_tick", int(self.t_last * 1000.0) % 32768)
-        self.set("moving", int(abs(self.velocity) > 1.0))
+        t = self.table
+        limit = _U16(t, 38)[0]  # Current Limit(38)
+        if t[11] in (0, 5):  # current-based modes: Goal Current(102) limits too
+            limit = min(limit, abs(_I16(t, 102)[0]))
+        current = 0 if t[64] != 1 else max(-limit, min(limit, int(2.0 * pos_err)))
+        # Realtime Tick(120), Moving(122); Present Current(126), Velocity(128), Position(132)
+        _TICK_MOVING(t, 120, int(self.t_last * 1000.0) % 32768, int(abs(self.velocity) > 1.0))
+        _PRESENT(t, 126, current & 0xFFFF,
+                 int(round(self.velocity / _TICKS_PER_S_PER_VEL_UNIT)) & 0xFFFFFFFF,
+                 int(round(self.position)) & 0xFFFFFFFF)
 
     # -- access with protocol checks ---------------------------------------------------------
     def read(self, addr: int, length: int) -> tuple[int, bytes]:
@@ -183,11 +216,7 @@ class EmulatedServo:
         end = addr + len(data)
         if addr < 0 or end > _TABLE_SIZE or not data:
             return p2.ERR_DATA_RANGE
-        names = []
-        for k in range(addr, end):
-            n = _BYTE_OWNER.get(k)
-            if n is not None and (not names or names[-1] != n):
-                names.append(n)
+        names = _owners(addr, end)
         staged = bytearray(self.table)
         staged[addr:end] = data
         torque_on = self.table[64] == 1

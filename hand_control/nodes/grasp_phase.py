@@ -34,6 +34,7 @@ from hand_capture.cameras.transforms import pose_in_world, rotvec_to_matrix
 from hand_capture.config import param, validate
 from hand_capture.errors import ConfigError, HandSuiteError
 from hand_capture.model import matrix_to_quat
+from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import STATUS, fill_pose_msg, pose_from_msg
@@ -93,6 +94,10 @@ class GraspPhaseNode(Node):
         self.create_subscription(PoseStamped, "sim/object_pose", self._on_object,
                                  qos_profile_sensor_data)
         self.create_timer(1.0, self._diagnostics)
+        # rclpy's first log call of a process inspects every loaded module (50-250 ms): done
+        # here, not at the first phase change in the middle of a grasp
+        self.get_logger().info(f"grasp phases for {self.object_name!r} of scenario "
+                               f"{self.cfg.scenario!r}")
 
     def _on_object(self, msg: PoseStamped) -> None:
         self._object_msg = msg  # converted when a hand pose needs it (hundreds per second)
@@ -155,7 +160,7 @@ class GraspPhaseNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of the grasp_phase console script."""
-    return run_node(GraspPhaseNode, args)
+    return run_node(GraspPhaseNode, args, executor_factory=LeanExecutor)
 
 
 if __name__ == "__main__":

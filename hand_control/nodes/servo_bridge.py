@@ -30,9 +30,11 @@ Lifecycle: configure = open the port, ping and check every servo, write modes an
 
 from __future__ import annotations
 
+import array
 import sys
 import time
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from hand_msgs.msg import HandPose, JointCommand
 from rcl_interfaces.msg import SetParametersResult
@@ -42,6 +44,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
 from hand_control.dynamixel.bridge import BridgeConfig, ServoBridge
@@ -65,8 +68,12 @@ class ServoBridgeNode(LifecycleNode):
         self._sub = None
         self._srv = None
         self._control_timer = None
+        self._timer_periods = 1.0  # the control timer's period in control periods
         self._last_cycle = 0.0  # time.monotonic() of the last control cycle [s]
         self._last_input = 0.0  # time.monotonic() of the last accepted input [s]
+        # messages reused every cycle (publish serialises them at once); names set once
+        self._goal_msg: JointCommand | None = None
+        self._state_msg: JointState | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag_pub = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self._diag_timer = self.create_timer(1.0 / self.config.diagnostics_rate_hz,
@@ -126,6 +133,7 @@ class ServoBridgeNode(LifecycleNode):
             return _FAILURE
         self._control_timer = self.create_timer(1.0 / self.config.control_rate_hz,
                                                 self._on_timer)
+        self._timer_periods = 1.0
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -164,6 +172,7 @@ class ServoBridgeNode(LifecycleNode):
             if pub is not None:
                 self.destroy_lifecycle_publisher(pub)
         self._sub = self._srv = self._state_pub = self._goal_pub = None
+        self._goal_msg = self._state_msg = None
 
     # ---------------------------------------------------------------------------- callbacks
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
@@ -200,11 +209,28 @@ class ServoBridgeNode(LifecycleNode):
         if self._control_timer is not None and \
                 now - self._last_cycle >= 0.9 / self.config.control_rate_hz:
             self._on_control()
+            # the fixed-rate cycle is only for times without input: it is due 1.5 periods
+            # after this cycle, so inputs at about the control rate never wake the node twice
+            self._set_timer_period(1.5)
 
     def _on_timer(self) -> None:
         """The fixed-rate cycle, while no input drives the cycles (none for 1.5 periods)."""
         if time.monotonic() - self._last_input >= 1.5 / self.config.control_rate_hz:
+            self._set_timer_period(1.0)
             self._on_control()
+
+    def _set_timer_period(self, periods: float) -> None:
+        """Next fixed-rate cycle ``periods`` control periods from now, then one period apart
+        (the timer's period changes only when ``periods`` does)."""
+        timer = self._control_timer
+        if timer is None:
+            return
+        if periods != self._timer_periods:
+            self._timer_periods = periods
+            timer.timer_period_ns = int(round(periods * 1e9 / self.config.control_rate_hz))
+            timer.reset()
+        elif periods != 1.0:
+            timer.reset()
 
     def _on_control(self) -> None:
         self._last_cycle = time.monotonic()
@@ -212,19 +238,27 @@ class ServoBridgeNode(LifecycleNode):
         if r is None or self._state_pub is None:
             return
         if r.written and self._input_stamp is not None:
-            goal = JointCommand(joint_names=list(self.core.names),
-                                positions=[float(v) for v in r.goal])
+            goal = self._goal_msg
+            if goal is None:
+                goal = self._goal_msg = JointCommand(joint_names=list(self.core.names))
+            goal.positions = _doubles(r.goal)
             goal.header.stamp = self._input_stamp
             self._goal_pub.publish(goal)
         if not r.fresh.any():
             return
-        msg = JointState()
+        if r.fresh.all():  # the usual cycle: every servo read, the names of last time
+            msg = self._state_msg
+            if msg is None:
+                msg = self._state_msg = JointState(name=list(self.core.names))
+            pos, vel, cur = r.position, r.velocity, r.current
+        else:
+            idx = r.fresh.nonzero()[0]
+            msg = JointState(name=[self.core.names[k] for k in idx])
+            pos, vel, cur = r.position[idx], r.velocity[idx], r.current[idx]
         msg.header.stamp = self.get_clock().now().to_msg()
-        idx = r.fresh.nonzero()[0]
-        msg.name = [self.core.names[k] for k in idx]
-        msg.position = r.position[idx].tolist()
-        msg.velocity = r.velocity[idx].tolist()
-        msg.effort = r.current[idx].tolist()
+        msg.position = _doubles(pos)
+        msg.velocity = _doubles(vel)
+        msg.effort = _doubles(cur)
         self._state_pub.publish(msg)
 
     def _on_reboot(self, request: Trigger.Request, response: Trigger.Response):
@@ -251,8 +285,13 @@ class ServoBridgeNode(LifecycleNode):
         self._diag_pub.publish(arr)
 
 
+def _doubles(a) -> array.array:
+    """A float64[] message field from a numpy array: one copy, no per-element checks."""
+    return array.array("d", np.ascontiguousarray(a, dtype=np.float64).tobytes())
+
+
 def main(args: list[str] | None = None) -> int:
-    return run_node(ServoBridgeNode, args)
+    return run_node(ServoBridgeNode, args, executor_factory=LeanExecutor)
 
 
 if __name__ == "__main__":

@@ -67,14 +67,26 @@ _MCPS = [KEYPOINT_NAMES.index(f"{f}_mcp") for f in ("index", "middle", "ring", "
 _WRIST = KEYPOINT_NAMES.index("wrist")
 
 
+_PALM = [_WRIST, *_MCPS]
+
+
 def palm_center(keypoints: np.ndarray) -> np.ndarray:
     """Palm centre [m]: mean of the wrist and the four finger MCP keypoints; (21,3) -> (3,)."""
-    return keypoints[[_WRIST, *_MCPS]].mean(axis=0)
+    return keypoints[_PALM].sum(axis=0) / len(_PALM)  # = .mean(axis=0), without its overhead
 
 
-def grip_size(keypoints: np.ndarray) -> np.ndarray:
-    """Grip size [m]: mean distance of the five fingertips from the palm centre."""
-    return np.linalg.norm(keypoints[_TIPS] - palm_center(keypoints), axis=1).mean()
+def grip_size(keypoints: np.ndarray, palm: np.ndarray | None = None) -> np.ndarray:
+    """Grip size [m]: mean distance of the five fingertips from the palm centre (``palm``
+    when the caller has computed it)."""
+    d = keypoints[_TIPS] - (palm_center(keypoints) if palm is None else palm)
+    return np.sqrt(np.add.reduce(d * d, axis=1)).sum() / len(_TIPS)  # as norm(axis=1).mean()
+
+
+def _median(values) -> float:
+    """np.median of a few floats (the same value), without numpy's overhead."""
+    v = sorted(values)
+    n = len(v)
+    return float(v[n // 2]) if n % 2 else float((v[n // 2 - 1] + v[n // 2]) / 2)
 
 
 @dataclass(frozen=True)
@@ -115,7 +127,7 @@ class GraspPhaseDetector:
         return np.array([g for _, g in self._grips])
 
     def update(self, t: float, keypoints: np.ndarray, wrist: np.ndarray,
-               object_pose: np.ndarray) -> PhaseUpdate:
+               object_pose: np.ndarray, raw_grip: float | None = None) -> PhaseUpdate:
         """Advance the detector.
 
         Args:
@@ -123,6 +135,7 @@ class GraspPhaseDetector:
             keypoints: (21, 3) hand keypoints [m] in the object's frame of reference.
             wrist: (4, 4) wrist pose in the same frame.
             object_pose: (4, 4) current object pose in the same frame.
+            raw_grip: ``grip_size(keypoints)`` when the caller has it (else computed).
 
         Raises:
             InputError: non-finite or wrongly shaped input.
@@ -134,9 +147,10 @@ class GraspPhaseDetector:
         if not (np.isfinite(kp).all() and np.isfinite(wrist).all()
                 and np.isfinite(object_pose).all() and np.isfinite(t)):
             raise InputError("non-finite hand or object pose")
-        self._raw.append(float(grip_size(kp)))
-        grip = float(np.median(self._raw))
-        dist = float(np.linalg.norm(palm_center(kp) - object_pose[:3, 3]))
+        palm = palm_center(kp)
+        self._raw.append(float(grip_size(kp, palm)) if raw_grip is None else raw_grip)
+        grip = _median(self._raw)
+        dist = float(np.linalg.norm(palm - object_pose[:3, 3]))
         self._grips.append((t, grip))
         before = self.phase
         c = self.cfg

@@ -205,6 +205,6 @@ class PerformanceInterface:
             raise InputError("the hand pose must be 27 finite values")
         T_op = self.filter(t, pose_matrix(q))
         kp = self.model.joint_positions(q)
-        up = self.detector.update(t, kp, T_op, object_pose)
-        return InterfaceStep(up, self.retarget.target(q, T_op, up.phase, object_pose,
-                                                      float(grip_size(kp))))
+        grip = float(grip_size(kp))
+        up = self.detector.update(t, kp, T_op, object_pose, raw_grip=grip)
+        return InterfaceStep(up, self.retarget.target(q, T_op, up.phase, object_pose, grip))
