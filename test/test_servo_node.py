@@ -246,3 +246,24 @@ def test_exception_in_the_control_loop_switches_torque_off() -> None:
         signal.signal(signal.SIGTERM, old)
     emu = made["emu"]
     assert [emu.servo(i).get("torque_enable") for i in (1, 2, 3)] == [0, 0, 0]
+
+
+def test_an_input_with_a_new_stamp_gets_its_own_cycle(ros) -> None:
+    """Repeated stamps are held to the control rate; a new stamp (new information) is written
+    at once, even right after a cycle."""
+    import time
+
+    _, add, spin_until = ros
+    node = add(ServoBridgeNode(parameter_overrides=params(source="commanded",
+                                                          control_rate_hz=20.0)))
+    msg = JointCommand(joint_names=NAMES, positions=[0.0] * len(NAMES))
+    msg.header.stamp.sec = 1
+    assert spin_until(lambda: node.core._cycle > 0, 5.0)
+    node._on_command(msg)
+    for repeat in (True, False):
+        c0 = node.core._cycle
+        node._last_cycle = time.monotonic() - 0.015  # a cycle ran 0.3 periods ago
+        msg = JointCommand(joint_names=NAMES, positions=[0.0] * len(NAMES))
+        msg.header.stamp.sec = 1 if repeat else 2
+        node._on_command(msg)  # as the subscription calls it, with a new message
+        assert (node.core._cycle > c0) != repeat

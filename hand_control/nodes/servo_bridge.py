@@ -202,12 +202,15 @@ class ServoBridgeNode(LifecycleNode):
 
     def _accepted(self, stamp) -> None:
         """A new input: run the cycle now rather than at the next tick, unless a cycle ran
-        less than 0.9 of a period ago (the bus sees at most about ``control_rate_hz``)."""
+        less than 0.9 of a period ago (the bus sees at most about ``control_rate_hz``). An
+        input with a new stamp (new information from the source, e.g. a controller's answer
+        to a new camera frame) waits only if a cycle ran less than a quarter period ago."""
+        new = stamp != self._input_stamp
         self._input_stamp = stamp
         now = time.monotonic()
         self._last_input = now
-        if self._control_timer is not None and \
-                now - self._last_cycle >= 0.9 / self.config.control_rate_hz:
+        gap = (0.25 if new else 0.9) / self.config.control_rate_hz
+        if self._control_timer is not None and now - self._last_cycle >= gap:
             self._on_control()
             # the fixed-rate cycle is only for times without input: it is due 1.5 periods
             # after this cycle, so inputs at about the control rate never wake the node twice
