@@ -30,6 +30,7 @@ the same ``f_k, l_k`` (the pyramid coefficients ``lambda_k`` themselves are not 
 from __future__ import annotations
 
 import math
+import struct
 import time
 from dataclasses import dataclass, fields
 from functools import lru_cache
@@ -124,6 +125,9 @@ class ContactForceResult:
         objective: value of the objective (eq. III.23, or eq. 10 + eq. 11).
         solve_time_s: wall time of the whole solve, building included [s].
         method: the formulation used.
+        contact_wrench: (K, 6) each contact's force and its moment about the centre of mass,
+            ``(f_k, r_k x f_k + l_k n_k)``, when the solver formed it on the way (the fast
+            path of eq. III.23); ``None`` otherwise.
     """
 
     found: bool
@@ -135,6 +139,7 @@ class ContactForceResult:
     objective: float
     solve_time_s: float
     method: str
+    contact_wrench: np.ndarray | None = None
 
 
 def _check_targets(
@@ -183,7 +188,7 @@ def _result(
     if residual is None:
         residual = math.sqrt(float(wrench_error @ wrench_error))
     return _new_result(solution is not None, status, forces, torsion, wrench_error, residual,
-                       float(objective), time.perf_counter() - t0, method)
+                       float(objective), time.perf_counter() - t0, method, None)
 
 
 _RESULT_FIELDS = tuple(f.name for f in fields(ContactForceResult))
@@ -266,9 +271,33 @@ class _ContactForceSolver:
             return self._solve_seed000(contacts, r, tf, tt, t0)
         return self._solve_dissertation(contacts, r, tf, tt, t0)
 
+    def solve_arrays(
+        self, points: np.ndarray, normals: np.ndarray, mu: np.ndarray, com: np.ndarray,
+        wrench: list[float],
+    ) -> ContactForceResult:
+        """:meth:`solve` of ``ContactSet.trusted(points, normals, mu)`` without the checks
+        (``check=False``), the target wrench given as six floats ``force_target +
+        torque_target``: the in-process control loop's path (unit normals, finite arrays of
+        matching shapes, ``mu >= 0``; the caller vouches)."""
+        t0 = time.perf_counter()
+        if self.config.method != "dissertation" or points.shape[0] == 0:
+            return self.solve(ContactSet.trusted(points, normals, mu), com,
+                              np.array(wrench[0:3]), np.array(wrench[3:6]), check=False)
+        return self._dissertation(points, normals, mu, points - com, wrench[0:3], wrench[3:6],
+                                  t0)
+
     def _solve_dissertation(
         self, contacts: ContactSet, r: np.ndarray, tf: np.ndarray, tt: np.ndarray, t0: float
     ) -> ContactForceResult:
+        return self._dissertation(contacts.points, contacts.normals, contacts.mu, r,
+                                  tf.tolist(), tt.tolist(), t0)
+
+    def _dissertation(
+        self, points: np.ndarray, normals: np.ndarray, mu: np.ndarray, r: np.ndarray,
+        tfl: list[float], ttl: list[float], t0: float,
+    ) -> ContactForceResult:
+        """:meth:`_solve_dissertation` on the contacts' arrays, the targets as lists of three
+        floats."""
         raise NotImplementedError
 
     def _solve_seed000(
@@ -290,7 +319,9 @@ class _Layout:
     passive set ``P`` needs (``H_PP``, ``g_P``).
     """
 
-    __slots__ = ("c", "gen_l", "hb", "hbt", "n", "reg")
+    __slots__ = ("c", "g", "gen_l", "hb", "hbt", "k", "n", "pack", "reg", "sets")
+
+    _MAX_SETS = 256
 
     def __init__(self, h: np.ndarray, reg_weights: np.ndarray) -> None:
         k, _, g = h.shape
@@ -309,6 +340,29 @@ class _Layout:
         self.c = np.zeros((n + 1, n + 1))
         self.c[:n, :n] = self.reg.T @ self.reg
         self.gen_l = self.hb[3::4].sum(axis=0).tolist()  # torsion of each generator
+        self.k, self.g = k, g
+        # struct packing the (4K + 1, 6) rows of _contact_rows and the target as doubles
+        self.pack = struct.Struct(f"{24 * k + 6}d").pack
+        # passive set -> what does not depend on the step (a control loop keeps its passive
+        # set for long runs): see gathers()
+        self.sets: dict[tuple[int, ...], tuple[np.ndarray, ...]] = {}
+
+    def gathers(self, p: list[int]) -> tuple[np.ndarray, ...]:
+        """For the passive set ``p``: ``(P + [n]`` as an index array, ``c[:, P + [n]]``, the
+        (K, |P|) 0/1 matrix of the contact of each generator in ``P``, the torsion per unit
+        of each generator in ``P``, the regulariser's columns ``reg[:, P]``)."""
+        key = tuple(p)
+        ent = self.sets.get(key)
+        if ent is None:
+            if len(self.sets) >= self._MAX_SETS:
+                self.sets.clear()
+            idx = np.array(p + [self.n])
+            contact = np.zeros((self.k, len(p)))
+            contact[np.array(p, dtype=np.int64) // self.g, np.arange(len(p))] = 1.0
+            torsion = np.array([self.gen_l[i] for i in p])
+            ent = self.sets[key] = (idx, self.c.take(idx, 1), contact, torsion,
+                                    self.reg.take(idx[:-1], 1))
+        return ent
 
 
 def _contact_rows(
@@ -322,6 +376,18 @@ def _contact_rows(
     for a few contacts, plain arithmetic costs less than numpy's per-call overhead.
     """
     out: list[float] = []
+    if wf == 1.0 and wt == 1.0:  # the default weights (alpha1 = alpha2 = 1): no products
+        for (nx, ny, nz), (rx, ry, rz) in zip(normals, r, strict=True):
+            sg = math.copysign(1.0, nz)
+            vz = nz + sg
+            c = 2.0 / (nx * nx + ny * ny + vz * vz)
+            ax, ay, az = (1.0 - c * (nx * nx)) * sg, -(c * (ny * nx)) * sg, -(c * (vz * nx)) * sg
+            bx, by, bz = -(c * (nx * ny)), 1.0 - c * (ny * ny), -(c * (vz * ny))
+            out += (ax, ay, az, ry * az - rz * ay, rz * ax - rx * az, rx * ay - ry * ax,
+                    bx, by, bz, ry * bz - rz * by, rz * bx - rx * bz, rx * by - ry * bx,
+                    nx, ny, nz, ry * nz - rz * ny, rz * nx - rx * nz, rx * ny - ry * nx,
+                    0.0, 0.0, 0.0, nx, ny, nz)
+        return out
     for (nx, ny, nz), (rx, ry, rz) in zip(normals, r, strict=True):
         sg = math.copysign(1.0, nz)
         vz = nz + sg
@@ -343,37 +409,41 @@ _MINUS_ONE = np.array([-1.0])
 
 
 def _ls(
-    a6t: np.ndarray, c: np.ndarray, p: list[int], n: int
+    a6t: np.ndarray, lay: _Layout, p: list[int]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Least squares on the passive set ``p``: ``H_pp z = g_p`` by Cholesky (LAPACK dposv).
 
     ``a6t`` (n + 1, 6): the weighted wrench rows of every generator, then the target ``b6``;
-    ``c``: the constant (regulariser) part of the bordered normal matrix. Only the columns
+    ``lay.c``: the constant (regulariser) part of the bordered normal matrix. Only the columns
     ``p + [n]`` of ``[[H, g], [g', b'b]] = a6t a6t' + c`` are formed (the rest is never
-    needed). Returns ``(sub, cols, z)`` with ``sub = a6t[p + [n]]``, ``cols`` those columns
-    (for the gradient), or ``None`` if ``H_pp`` is not positive definite (dependent
-    generators on ``p``).
+    needed). Returns ``(sub, cols, zz)`` with ``sub = a6t[p + [n]]``, ``cols`` those columns
+    (for the gradient) and ``zz = [z, -1]`` (``cols zz`` is the gradient, ``zz sub`` the
+    weighted wrench residual ``A_p z - b``), or ``None`` if ``H_pp`` is not positive definite
+    (dependent generators on ``p``).
     """
-    idx = np.array(p + [n])  # one conversion for the three gathers
+    gathers = lay.sets.get(tuple(p)) or lay.gathers(p)  # cached per passive set
+    idx, c_cols = gathers[0], gathers[1]
     sub = a6t.take(idx, 0)
     cols = a6t.dot(sub.T)
-    cols += c.take(idx, 1)
+    cols += c_cols
     s = cols.take(idx, 0)
-    _, z, info = _dposv(s[:-1, :-1], s[:-1, -1])
-    return None if info else (sub, cols, z)
+    zz = s[-1].copy()  # [g_p, b'b] (s is symmetric), then z solved in its place
+    zz[-1] = -1.0
+    info = _dposv(s[:-1, :-1], zz[:-1], overwrite_b=1)[2]
+    return None if info else (sub, cols, zz)
 
 
 def _active_set(
-    a6t: np.ndarray, c: np.ndarray, passive: Any, tol: float, maxiter: int
-) -> tuple[list[int], np.ndarray, str, int, np.ndarray | None]:
+    a6t: np.ndarray, lay: _Layout, passive: Any, tol: float, maxiter: int
+) -> tuple[list[int], np.ndarray, str, int, np.ndarray | None, np.ndarray | None]:
     """``argmin 1/2 x'Hx - g'x, x >= 0`` (``= argmin |A x - b|^2`` for ``H = A'A, g = A'b``,
-    given through ``a6t`` and ``c``, see :func:`_ls`) by the Lawson-Hanson active-set method
+    given through ``a6t`` and ``lay.c``, see :func:`_ls`) by the Lawson-Hanson active-set method
     on the normal equations, warm-started.
 
     ``passive``: the indices expected to be positive (the last solve's passive set). The
     least-squares solution on it, shrunk until every coefficient is positive, is the feasible
     start; when the problem moved little it already passes the KKT test and no iteration
-    runs. Returns ``(P, x_P, status, iterations, a6t[P + [n]])``; the status is
+    runs. Returns ``(P, x_P, status, iterations, a6t[P + [n]], [x_P, -1])``; the status is
     ``"optimal"`` only when the exact KKT conditions hold at ``x``: ``H x - g >= -tol``
     everywhere (gradient >= 0), ``|H x - g| <= tol`` where ``x > 0``, and ``x_P > 0``.
     """
@@ -381,15 +451,16 @@ def _active_set(
     enter_tol = 1e-4 * tol  # kkt_tol 1e-9 -> 1e-13 x max(1, |b|^2)
     p: list[int] = list(passive)
     z = _EMPTY
-    sub = cols = None
+    sub = cols = zz = None
     for _ in range(2):  # the warm set, then its positive part; else start from nothing
         if not p:
             break
-        sol = _ls(a6t, c, p, n)
+        sol = _ls(a6t, lay, p)
         if sol is None:
             p = []
             break
-        sub, cols, z = sol
+        sub, cols, zz = sol
+        z = zz[:-1]
         zl = z.tolist()
         if min(zl) > 0.0:
             break
@@ -397,39 +468,40 @@ def _active_set(
     else:
         p = []
     if not p:
-        z, sub = _EMPTY, None
+        z, sub, zz = _EMPTY, None, None
     it = 0
     while True:
         # the gradient H x - g (and, last, g_P' z - b'b, dropped)
         if p:
-            vl = cols.dot(np.concatenate((z, _MINUS_ONE))).tolist()
+            vl = cols.dot(zz).tolist()
         else:
             vl = (-a6t.dot(a6t[n])).tolist()
         vl.pop()
         if not math.isfinite(sum(vl)):
-            return p, z, "non_finite", it, sub
+            return p, z, "non_finite", it, sub, zz
         vmin = min(vl)
         # stop only when no generator can still lower the objective (down to rounding, as
         # scipy's NNLS): the weak curvature of the regulariser (alpha3 = 1e-3) turns a
         # gradient left at the acceptance tolerance into ~1e-3 N of force error
         if vmin >= -enter_tol or (it >= maxiter and vmin >= -tol):
             if p and max([abs(vl[i]) for i in p]) > tol:
-                return p, z, "inaccurate", it, sub
-            return p, z, "optimal", it, sub
+                return p, z, "inaccurate", it, sub, zz
+            return p, z, "optimal", it, sub, zz
         j = vl.index(vmin)
         if j in p:
-            return p, z, "inaccurate", it, sub
+            return p, z, "inaccurate", it, sub, zz
         xl = z.tolist()
         p.append(j)
         xl.append(0.0)
         while True:  # Lawson-Hanson inner loop: keep the coefficients positive
             it += 1
             if it > maxiter:
-                return p, z, "max_iter", it, None
-            sol = _ls(a6t, c, p, n)
+                return p, z, "max_iter", it, None, None
+            sol = _ls(a6t, lay, p)
             if sol is None:
-                return p, z, "inaccurate", it, None
-            sub, cols, z = sol
+                return p, z, "inaccurate", it, None, None
+            sub, cols, zz = sol
+            z = zz[:-1]
             zl = z.tolist()
             if min(zl) > 0.0:
                 break
@@ -438,7 +510,7 @@ def _active_set(
                               for q, (xi, zi) in enumerate(zip(xl, zl, strict=True))
                               if zi <= 0.0)
             if alpha <= 0.0 and p[drop] == j:
-                return p, z, "inaccurate", it, None  # the new generator cannot enter
+                return p, z, "inaccurate", it, None, None  # the new generator cannot enter
             xl = [xi + alpha * (zi - xi) for xi, zi in zip(xl, zl, strict=True)]
             xl[drop] = 0.0
             keep = [q for q, v in enumerate(xl) if v > 0.0]
@@ -446,7 +518,7 @@ def _active_set(
             xl = [xl[q] for q in keep]
             if not p:
                 z = _EMPTY
-                sub = None
+                sub = zz = None
                 break
 
 
@@ -481,6 +553,7 @@ class ContactForceQP(_ContactForceSolver):
         self.config = cfg = config or ContactQPConfig()
         s1, s2, s3, s4 = (math.sqrt(a) for a in (cfg.alpha1, cfg.alpha2, cfg.alpha3, cfg.alpha4))
         self._s12 = (s1, s2)
+        self._s6 = np.array([s1, s1, s1, s2, s2, s2])
         self._reg_weights = np.array([s3, s3, s3, s4])[None, :, None]
         self._basis = _local_generator_basis(
             cfg.friction_edges, cfg.torsion_bound, cfg.torsional_friction
@@ -488,12 +561,17 @@ class ContactForceQP(_ContactForceSolver):
         self._n_gen = self._basis.shape[1] // 4
         self._maxiter = cfg.max_iter or None
         self._layouts: dict[tuple[int, bytes], _Layout] = {}
+        self._last_layout: tuple[bytes | None, _Layout | None] = (None, None)
         self._passive: dict[Any, Any] = {}  # warm start: last passive set per shape
         self.warm_hits = 0  # solves the warm start answered without an iteration
         self.fallback_solves = 0  # solves the fallback answered (diagnostics)
 
     def _layout(self, mu: np.ndarray) -> _Layout:
-        key = (mu.shape[0], mu.tobytes())
+        mu_bytes = mu.tobytes()
+        last = self._last_layout
+        if last[0] == mu_bytes:  # the last step's contacts (the control loop's usual case)
+            return last[1]
+        key = (mu.shape[0], mu_bytes)
         lay = self._layouts.get(key)
         if lay is None:
             k, g = mu.shape[0], self._n_gen
@@ -504,25 +582,29 @@ class ContactForceQP(_ContactForceSolver):
             if len(self._layouts) >= self._MAX_LAYOUTS:
                 self._layouts.clear()
             lay = self._layouts[key] = _Layout(h, self._reg_weights)
+        self._last_layout = (mu_bytes, lay)
         return lay
 
     # -- eq. (III.23) ---------------------------------------------------------------------
-    def _solve_dissertation(
-        self, contacts: ContactSet, r: np.ndarray, tf: np.ndarray, tt: np.ndarray, t0: float
+    def _dissertation(
+        self, points: np.ndarray, normals: np.ndarray, mu: np.ndarray, r: np.ndarray,
+        tfl: list[float], ttl: list[float], t0: float,
     ) -> ContactForceResult:
-        k = len(contacts)
-        lay = self._layout(contacts.mu)
+        last = self._last_layout
+        lay = last[1] if last[0] == mu.tobytes() else self._layout(mu)
+        k = lay.k
         s1, s2 = self._s12
-        tfl, ttl = tf.tolist(), tt.tolist()
         b6 = [s1 * tfl[0], s1 * tfl[1], s1 * tfl[2], s2 * ttl[0], s2 * ttl[1], s2 * ttl[2]]
         # (4K + 1, 6): the weighted wrench (eq. III.23's first two terms) of every contact's
         # local (f_t1, f_t2, f_n, l), then the target; through the generators: (K G + 1, 6)
-        nl, rl = contacts.normals.tolist(), r.tolist()
+        nl, rl = normals.tolist(), r.tolist()
         rows = _contact_rows(nl, rl, s1, s2)
-        a6t = lay.hbt.dot(np.fromiter(rows + b6, np.float64, 24 * k + 6).reshape(4 * k + 1, 6))
-        bb = math.fsum([v * v for v in b6])
+        a6t = lay.hbt.dot(np.ndarray((4 * k + 1, 6), buffer=lay.pack(*rows, *b6)))
+        b0, b1, b2, b3, b4, b5 = b6
+        bb = math.fsum((b0 * b0, b1 * b1, b2 * b2, b3 * b3, b4 * b4, b5 * b5))
         if not math.isfinite(bb):  # an overflow while the problem was built
-            return _result("non_finite", contacts, r, (tf, tt), t0, "dissertation")
+            return _result("non_finite", ContactSet.trusted(points, normals, mu), r, (tfl, ttl),
+                           t0, "dissertation")
         # |grad| <= |a| |b| at the optimum, and the entries of a are O(1) (unit generators,
         # lever arms well under 1 m): scale the tolerance with |b|^2 (>= |b| when |b| >= 1).
         tol = self.config.kkt_tol * max(1.0, bb)
@@ -533,30 +615,64 @@ class ContactForceQP(_ContactForceSolver):
             # beats the Python iterations from an empty set; it seeds the warm start
             passive, z, status = self._fallback(a6t, lay, tol, maxiter, "cold")
             self.fallback_solves -= int(status == "optimal")  # not a fallback
-            it, sub = 0, a6t.take(passive + [lay.n], 0)
+            it, sub, zz = 0, a6t.take(passive + [lay.n], 0), None
         else:
             status = "cold"
         if status != "optimal":
             # a few active-set iterations from the last passive set (the loop's usual case
             # needs none); beyond that scipy's compiled Lawson-Hanson is quicker
             short = self.config.fallback == "nnls" and maxiter > 2
-            passive, z, status, it, sub = _active_set(
-                a6t, lay.c, () if warm is None else warm, tol, 2 if short else maxiter)
+            passive, z, status, it, sub, zz = _active_set(
+                a6t, lay, () if warm is None else warm, tol, 2 if short else maxiter)
             if status == "max_iter" and short:
                 passive, z, status = self._fallback(a6t, lay, tol, maxiter, status)
                 self.fallback_solves -= int(status == "optimal")  # the planned path
-                it, sub = 1, a6t.take(passive + [lay.n], 0)
+                it, sub, zz = 1, a6t.take(passive + [lay.n], 0), None
         if status == "optimal":
             self.warm_hits += int(it == 0 and warm is not None)
         elif self.config.fallback != "none":
             passive, z, status = self._fallback(a6t, lay, tol, maxiter, status)
-            sub = a6t.take(passive + [lay.n], 0)
+            sub, zz = a6t.take(passive + [lay.n], 0), None
         if status != "optimal":
-            return _result(status, contacts, r, (tf, tt), t0, "dissertation")
+            return _result(status, ContactSet.trusted(points, normals, mu), r, (tfl, ttl), t0,
+                           "dissertation")
         self._passive[k] = passive
-        # Forces and torsions from the generators in use: row p of a6t holds s1 x the world
-        # force of generator p (and its torque); lay.gen_l[p] its torsion per unit.
         cfg = self.config
+        if passive and s1 > 0.0 and s2 > 0.0:
+            # Forces and torsions from the generators in use: row p of a6t holds the weighted
+            # world wrench of generator p, s1 x its force first; torsion[p] its torsion per
+            # unit; contact[c, p] = 1 for the generators of contact c.
+            _, _, contact, torsion, reg_p = lay.sets.get(tuple(passive)) or \
+                lay.gathers(passive)
+            per_contact = contact * z
+            # (K, 6): s1 f_k and s2 (r_k x f_k + l_k n_k) of every contact
+            wrench = per_contact.dot(sub[:-1])
+            if s1 != 1.0 or s2 != 1.0:
+                wrench /= self._s6
+            forces = wrench[:, 0:3]
+            # the net wrench error: the weighted residual A_P z - b of eq. (III.23)'s first two
+            # terms, unweighted
+            if zz is None:
+                zz = np.concatenate((z, _MINUS_ONE))
+            err = zz.dot(sub)
+            if s1 != 1.0 or s2 != 1.0:
+                err /= self._s6
+            e0, e1, e2, e3, e4, e5 = err.tolist()
+            ef, et = e0 * e0 + e1 * e1 + e2 * e2, e3 * e3 + e4 * e4 + e5 * e5
+            lk = per_contact.dot(torsion)
+            # a3 sum |f_k|^2 + a4 sum l_k^2 = |reg_P z|^2 (the regulariser rows in the contact
+            # frames: a rotation keeps |f_k|)
+            reg = reg_p.dot(z)
+            res = object.__new__(ContactForceResult)  # the frozen dataclass, no __init__
+            res.__dict__.update(
+                found=True, status=status, forces=forces, torsion=lk, wrench_error=err,
+                residual=math.sqrt(ef + et),
+                objective=cfg.alpha1 * ef + cfg.alpha2 * et + float(reg.dot(reg)),
+                solve_time_s=time.perf_counter() - t0, method="dissertation",
+                contact_wrench=wrench)
+            return res
+        # the same on floats (a weight alpha1 or alpha2 of zero, no generator in use): row p of
+        # a6t holds s1 x the world force of generator p; lay.gen_l[p] its torsion per unit
         g = self._n_gen
         fk = [0.0] * (3 * k)
         lk = [0.0] * k
@@ -572,7 +688,7 @@ class ContactForceQP(_ContactForceSolver):
                 fk = [v / s1 for v in fk]
         elif passive:  # alpha1 = 0: the force rows are zero; through the contact frames
             y = z.dot(lay.hbt.take(passive, 0)[:, :4 * k]).reshape(k, 4)
-            fk = np.einsum("kij,kj->ki", contact_frames(contacts.normals), y[:, :3]).ravel()
+            fk = np.einsum("kij,kj->ki", contact_frames(normals), y[:, :3]).ravel()
             fk, lk = fk.tolist(), y[:, 3].tolist()
         # net wrench error and objective (eq. III.23) on floats
         fx = fy = fz = mx = my = mz = fsq = lsq = 0.0
@@ -591,7 +707,7 @@ class ContactForceQP(_ContactForceSolver):
         # what _result makes of the solution, inline (one result per control step)
         return _new_result(True, status, np.array(fk).reshape(k, 3), np.array(lk),
                            np.array(err), math.sqrt(ef + et), float(objective),
-                           time.perf_counter() - t0, "dissertation")
+                           time.perf_counter() - t0, "dissertation", None)
 
     def _fallback(
         self, a6t: np.ndarray, lay: _Layout, tol: float, maxiter: int, status: str,
@@ -624,7 +740,7 @@ class ContactForceQP(_ContactForceSolver):
             return [], _EMPTY, "osqp_" + str(res.info.status).replace(" ", "_")
         # OSQP's support as the warm start of the exact active-set solve (KKT-checked)
         seed = np.flatnonzero(res.x > 1e-12 * max(1.0, float(res.x.max()))).tolist()
-        p, z, st, _, _ = _active_set(a6t, lay.c, seed, tol, maxiter)
+        p, z, st, _, _, _ = _active_set(a6t, lay, seed, tol, maxiter)
         if st == "optimal":
             self.fallback_solves += 1
         return p, z, st

@@ -159,13 +159,25 @@ def _virtual_wrench(
     weight: tuple[float, float, float],
 ) -> list[float]:
     """``f_v - weight`` and ``tau_v`` (eq. 9 / III.22) as six floats (tiny vectors: no numpy)."""
+    return _wrench_floats(config, state.position.tolist(), state.quaternion.tolist(),
+                          state.linear_velocity.tolist(), state.angular_velocity.tolist(),
+                          target.position.tolist(), target.quaternion.tolist(), weight)
+
+
+def _wrench_floats(
+    config: CompositeControlConfig, position: Sequence[float], quaternion: Sequence[float],
+    velocity: Sequence[float], omega: Sequence[float], target_position: Sequence[float],
+    target_quaternion: Sequence[float], weight: Sequence[float],
+) -> list[float]:
+    """:func:`_virtual_wrench` on plain floats: the object's position, unit quaternion (w, x,
+    y, z), linear and angular velocity (world frame), the target pose and the weight."""
     kp_t, kd_t = config.object_kp_translate, config.object_kd_translate
     kp_r, kd_r = config.object_kp_rotate, config.object_kd_rotate
-    px, py, pz = state.position.tolist()
-    tx, ty, tz = target.position.tolist()
-    vx, vy, vz = state.linear_velocity.tolist()
-    wx, wy, wz = state.angular_velocity.tolist()
-    ex, ey, ez = _quaternion_error(*target.quaternion.tolist(), *state.quaternion.tolist())
+    px, py, pz = position
+    tx, ty, tz = target_position
+    vx, vy, vz = velocity
+    wx, wy, wz = omega
+    ex, ey, ez = _quaternion_error(*target_quaternion, *quaternion)
     gx, gy, gz = weight
     return [kp_t * (tx - px) - kd_t * vx - gx, kp_t * (ty - py) - kd_t * vy - gy,
             kp_t * (tz - pz) - kd_t * vz - gz,

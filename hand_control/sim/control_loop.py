@@ -15,19 +15,22 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from hand_capture.config import param, validate
 from hand_control.contact import ContactQPConfig, ContactSet
+from hand_control.contact.qp import ContactForceResult
 from hand_control.control import (
     CompositeControlConfig,
     CompositeController,
+    ControlOutput,
     ObjectState,
     ObjectTarget,
 )
+from hand_control.control.composite import _wrench_floats, pd_torques
 from hand_control.errors import HandSuiteError, InputError
 from hand_control.sim.scenario import Reference, RefSample
 from hand_control.sim.world import SimWorld
@@ -169,12 +172,18 @@ class ControllerCore:
             joint_names=world.joint_names)
         self.joint_names = world.joint_names
         self._no_gravity = not self.controller.config.gravity_compensation
+        self._composite = self.controller.config.mode == "composite"
+        r = reference
+        self._reference_finite = all(
+            bool(np.isfinite(np.asarray(a, dtype=np.float64)).all()) for a in (
+                r.q_start, r.plan.q_pregrasp, r.plan.q_grasp, r.p0, r.quat0))
         self._zeros = np.zeros(len(self.joint_names))  # read-only use: finiteness checks
         self._zeros.setflags(write=False)
         self._index = {n: i for i, n in enumerate(self.joint_names)}
         self.counters = {"steps": 0, "qp_fallbacks": 0, "rejected_inputs": 0,
                          "non_finite_outputs": 0}
-        self.last_output = None  # the controller's last ControlOutput (for diagnostics)
+        self._live: tuple | None = None  # see last_output
+        self._last_output: ControlOutput | None = None
         self.object_target_override: tuple[np.ndarray, np.ndarray] | None = None
         self.hand_target_override: np.ndarray | None = None
         # grasp torques on/off from outside (teleoperation: on in the manipulation phase of
@@ -242,14 +251,7 @@ class ControllerCore:
         """
         self.counters["steps"] += 1
         ref = self.reference(t)
-        q_target = ref.q_target if self.hand_target_override is None else \
-            self.hand_target_override
-        obj_pos, obj_quat = ref.object_position, ref.object_quaternion
-        if self.object_target_override is not None:
-            obj_pos, obj_quat = self.object_target_override
-        if self.config.target_cutoff > 0 and (self.hand_target_override is not None
-                                              or self.object_target_override is not None):
-            q_target, obj_pos, obj_quat = self._low_pass(t, q_target, obj_pos, obj_quat)
+        q_target, obj_pos, obj_quat = self._targets(t, ref)
         effort = None
         k = len(contact_bodies)
         forces = torsion = None
@@ -280,37 +282,188 @@ class ControllerCore:
                     forces, torsion = out.qp.forces, out.qp.torsion
             except HandSuiteError:
                 self.counters["rejected_inputs"] += 1
-        pd_only = effort is None
-        q_target = np.array(q_target, dtype=np.float64)  # the command's own copy
-        zeros = self._zeros
-        if not ((pd_only or effort.dot(zeros) == 0.0) and q_target.dot(zeros) == 0.0):
-            self.counters["non_finite_outputs"] += 1
-            q_target = np.where(np.isfinite(q_target), q_target, q)
-            pd_only = True
-        if pd_only:
-            empty3 = np.zeros((0, 3))
-            return _command(self.joint_names, q_target, np.zeros(len(self.joint_names)),
-                            ref.phase, empty3 if forces is None else forces,
-                            np.zeros(0) if torsion is None else torsion, empty3, empty3, (),
-                            True)
-        if not trusted:
+        if effort is not None and not trusted:
             contact_points = np.asarray(contact_points).reshape(-1, 3)
             contact_normals = np.asarray(contact_normals).reshape(-1, 3)
             contact_bodies = tuple(contact_bodies)
         # trusted: (K, 3) arrays and a tuple of names from SimWorld.contacts, as they are
-        return _command(self.joint_names, q_target, effort, ref.phase, forces, torsion,
-                        contact_points, contact_normals, contact_bodies, False)
+        return self._command(q, q_target, effort, ref.phase, forces, torsion, contact_points,
+                             contact_normals, contact_bodies)
+
+    def step_world(self, t: float, world: SimWorld, object_body: int, q: np.ndarray,
+                   qd: np.ndarray, object_views: tuple[np.ndarray, ...]) -> Command:
+        """One control step on the live state of a :class:`SimWorld` in this process (the
+        lockstep loop): what :meth:`step` computes with ``trusted=True`` and the world's
+        contacts, without its intermediate objects.
+
+        The contacts come from :meth:`SimWorld.object_contacts`, and the Jacobian-transpose
+        map of eq. (12) / (III.21) from MuJoCo (:meth:`SimWorld.contact_torques`,
+        ``mj_applyFT`` at the contact points of the current state) instead of stacked contact
+        Jacobians: the same torques up to rounding (the order of the sums).
+
+        Args:
+            t: simulation time [s].
+            world: the simulated world; its ``data`` holds the state of this step.
+            object_body: the grasped object's body id.
+            q, qd: (n_hand,) live views (or copies) of the hand's joint positions / velocities.
+            object_views: :meth:`SimWorld.object_state_views` of the object.
+        """
+        counters = self.counters
+        counters["steps"] += 1
+        ref = self.reference(t)
+        if self.hand_target_override is None and self.object_target_override is None:
+            q_target, obj_pos, obj_quat = ref.q_target, ref.object_position, \
+                ref.object_quaternion
+        else:
+            q_target, obj_pos, obj_quat = self._targets(t, ref)
+        # the scenario's reference is finite when its inputs are (a validated spec, a finite
+        # grasp plan and start pose: see __init__): then only a hand target from outside is
+        # checked with the output
+        trusted = self._reference_finite and self.hand_target_override is None
+        grasp = ref.grasp if self.grasp_override is None else self.grasp_override
+        if not (grasp and self._composite):
+            return self._command(q, q_target, None, ref.phase, None, None, None, None, (),
+                                 trusted)
+        k, points, normals, mu, hand = world.object_contacts(object_body)
+        effort = forces = torsion = None
+        if k:
+            try:
+                effort, forces, torsion = self._grasp_world(
+                    world, q, qd, q_target, obj_pos, obj_quat, object_views, points, normals,
+                    mu, hand)
+            except HandSuiteError:
+                counters["rejected_inputs"] += 1
+        if effort is None:
+            return self._command(q, q_target, None, ref.phase, forces, torsion, None, None, (),
+                                 trusted)
+        names = world._body_names
+        return self._command(q, q_target, effort, ref.phase, forces, torsion, points, normals,
+                             tuple([names[b] for b in hand]), trusted)
+
+    def _grasp_world(self, world: SimWorld, q: np.ndarray, qd: np.ndarray,
+                     q_target: np.ndarray, obj_pos: np.ndarray, obj_quat: np.ndarray,
+                     object_views: tuple[np.ndarray, ...], points: np.ndarray,
+                     normals: np.ndarray, mu: np.ndarray, hand: list[int]
+                     ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """The grasp part of :meth:`step_world` (steps 2-4 of
+        :meth:`CompositeController.compute`): ``(tau_grasp, forces, torsion)``, all ``None``
+        when the QP finds no solution (counted as a fallback)."""
+        ctrl = self.controller
+        pos, quat, vel, omega_body, rot = object_views
+        omega = rot.dot(omega_body)  # angular velocity, world frame
+        mass = self.object_mass
+        gx, gy, gz = ctrl._g
+        weight = (mass * gx, mass * gy, mass * gz)
+        if self.object_target_override is None:
+            # the simulator's state and the reference (as step(trusted=True)): floats as they
+            # are; f_v - m g (weight compensated, eq. 9) and tau_v (eq. III.22)
+            w6 = _wrench_floats(ctrl.config, pos.tolist(), quat.tolist(), vel.tolist(),
+                                omega.tolist(), obj_pos.tolist(), obj_quat.tolist(), weight)
+        else:  # a target from outside: checked and normalised, as step() does
+            obj = ObjectState(pos, quat, vel, omega, self.object_mass)
+            target = ObjectTarget(obj_pos, obj_quat)
+            w6 = _wrench_floats(ctrl.config, obj.position.tolist(), obj.quaternion.tolist(),
+                                obj.linear_velocity.tolist(), obj.angular_velocity.tolist(),
+                                target.position.tolist(), target.quaternion.tolist(), weight)
+        res = ctrl.qp.solve_arrays(points, normals, mu, pos, w6)
+        ctrl.steps += 1
+        if not res.found:
+            ctrl.fallbacks += 1
+            self.counters["qp_fallbacks"] += 1
+            self._live = (q.copy(), qd.copy(), q_target, w6, res, None)
+            return None, None, None
+        ctrl.grasp_steps += 1
+        # eq. (12) / (III.21): tau_grasp = sum_k Jp_k^T f_k + Jr_k^T (l_k n_k); tau_gravity is
+        # zero here (gravity compensated inside MuJoCo)
+        forces, torsion = res.forces, res.torsion
+        if res.contact_wrench is not None:  # each contact's wrench about the object's com
+            tau = world.wrench_torques(hand, pos, res.contact_wrench)
+        else:
+            tau = world.contact_torques(hand, points, forces, torsion, normals)
+        # the ingredients of last_output (built when asked for; q, qd may be live views)
+        self._live = (q.copy(), qd.copy(), q_target, w6, res, tau)
+        return tau, forces, torsion
+
+    @property
+    def last_output(self) -> ControlOutput | None:
+        """The controller's :class:`ControlOutput` of the last step that attempted a grasp
+        (for diagnostics)."""
+        live = self._live
+        if live is not None:  # a step_world: the output from its ingredients, once
+            self._live = None
+            self._last_output = self._live_output(*live)
+        return self._last_output
+
+    @last_output.setter
+    def last_output(self, out: ControlOutput | None) -> None:
+        self._live = None
+        self._last_output = out
+
+    def _live_output(self, q: np.ndarray, qd: np.ndarray, q_target: np.ndarray,
+                     wrench: list[float], res: ContactForceResult,
+                     tau: np.ndarray | None) -> ControlOutput:
+        """What :meth:`CompositeController.compute` returns for a :meth:`step_world`."""
+        ctrl = self.controller
+        tau_pd = pd_torques(ctrl.kp, ctrl.kd, q, qd, np.asarray(q_target, dtype=np.float64))
+        found = tau is not None
+        tau_grasp = tau if found else np.zeros(len(q))
+        return ControlOutput(tau=tau_pd + tau_grasp if found else tau_pd.copy(), tau_pd=tau_pd,
+                             tau_gravity=np.zeros(len(q)), tau_grasp=tau_grasp,
+                             force_target=np.array(wrench[0:3]),
+                             torque_target=np.array(wrench[3:6]), qp=res, grasp_active=found,
+                             fallback=not found)
+
+    def _targets(self, t: float, ref: RefSample
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The hand target and the object's target pose at ``t``: the reference's, or the
+        overrides (low-passed, ``target_cutoff``)."""
+        q_target = ref.q_target if self.hand_target_override is None else \
+            self.hand_target_override
+        obj_pos, obj_quat = ref.object_position, ref.object_quaternion
+        if self.object_target_override is not None:
+            obj_pos, obj_quat = self.object_target_override
+        if self.config.target_cutoff > 0 and (self.hand_target_override is not None
+                                              or self.object_target_override is not None):
+            q_target, obj_pos, obj_quat = self._low_pass(t, q_target, obj_pos, obj_quat)
+        return q_target, obj_pos, obj_quat
+
+    def _command(self, q: np.ndarray, q_target: np.ndarray, effort: np.ndarray | None,
+                 phase: str, forces: np.ndarray | None, torsion: np.ndarray | None,
+                 points: np.ndarray | None, normals: np.ndarray | None,
+                 bodies: tuple[str, ...], trusted_target: bool = False) -> Command:
+        """The step's :class:`Command`: PD only (zero efforts) without grasp torques or when
+        an output is not finite (counted), else the grasp torques with their contacts.
+        ``trusted_target``: ``q_target`` is known to be finite (not checked again)."""
+        pd_only = effort is None
+        q_target = np.array(q_target, dtype=np.float64)  # the command's own copy
+        zeros = self._zeros
+        if not ((pd_only or effort.dot(zeros) == 0.0)
+                and (trusted_target or q_target.dot(zeros) == 0.0)):
+            self.counters["non_finite_outputs"] += 1
+            q_target = np.where(np.isfinite(q_target), q_target, q)
+            pd_only = True
+        cmd = object.__new__(Command)  # the frozen dataclass without its __init__
+        if pd_only:
+            cmd.__dict__.update(
+                joint_names=self.joint_names, positions=q_target,
+                efforts=np.zeros(len(self.joint_names)), phase=phase,
+                planned_forces=_EMPTY3 if forces is None else forces,
+                planned_torsion=_EMPTY if torsion is None else torsion,
+                contact_points=_EMPTY3, contact_normals=_EMPTY3, contact_bodies=(),
+                pd_only=True)
+        else:
+            cmd.__dict__.update(
+                joint_names=self.joint_names, positions=q_target, efforts=effort, phase=phase,
+                planned_forces=forces, planned_torsion=torsion, contact_points=points,
+                contact_normals=normals, contact_bodies=bodies, pd_only=False)
+        return cmd
 
 
-_COMMAND_FIELDS = tuple(f.name for f in fields(Command))
-
-
-def _command(*values: object) -> Command:
-    """A :class:`Command` from its field values in order, without the frozen-dataclass
-    ``__init__`` (one per control step)."""
-    cmd = object.__new__(Command)
-    cmd.__dict__.update(zip(_COMMAND_FIELDS, values, strict=True))
-    return cmd
+# the empty arrays of a PD-only command (read-only: shared by every such command)
+_EMPTY3 = np.zeros((0, 3))
+_EMPTY = np.zeros(0)
+_EMPTY3.setflags(write=False)
+_EMPTY.setflags(write=False)
 
 
 def _all_finite(x: np.ndarray) -> bool:

@@ -132,8 +132,10 @@ class LockstepRunner:
             control_period=self.control_every * self.world.model.opt.timestep)
         self.controller = self.core.controller
         self._no_contacts = ContactFrame.empty(0.0)
-        # the simulator's contact forces: only seed 000's eq. (10) uses them
+        # the simulator's contact forces: only seed 000's eq. (10) uses them; the other
+        # methods take the lean path (ControllerCore.step_world)
         self._contact_forces = self.controller.qp.config.method == "seed000"
+        self._object_body = int(self.world.objects[self.obj.name]["body"])
         # Live views into MjData (its arrays never move), read at every step: the object's
         # state and the hand's joints. The controller uses them within the step only.
         w = self.world
@@ -159,6 +161,17 @@ class LockstepRunner:
         """One controller update: references, state, contacts -> servo command."""
         w = self.world
         q, qd = w.hand_state() if self._hand_views is None else self._hand_views
+        if not self._contact_forces:
+            cmd = self.core.step_world(t, w, self._object_body, q, qd, self._obj_views)
+            w.set_command(cmd.positions, cmd.efforts, check=False)  # fresh, finite (n_hand,)
+            self.last_command = cmd
+            return
+        self._control_step_frame(t, q, qd)
+
+    def _control_step_frame(self, t: float, q: np.ndarray, qd: np.ndarray) -> None:
+        """:meth:`control_step` through a :class:`ContactFrame` with the contact Jacobians
+        and :meth:`ControllerCore.step` (every contact-force method, seed 000's included)."""
+        w = self.world
         pos, quat, vel, omega_body, rot = self._obj_views
         composite = self.core.needs_contacts(t)
         cf = w.contacts(self.obj.name, jacobians=True, forces=self._contact_forces) \
@@ -227,12 +240,13 @@ class LockstepRunner:
         # the object's pose after every step from lifting on, for the tracking errors
         # (computed once after the loop)
         times: list[float] = []
-        poses = np.empty((n, 7))
+        poses: list[list[float]] = []
         every = self.control_every
         control_step, step, perf = self.control_step, w.step, time.perf_counter
+        d = w.data
         t0 = time.perf_counter()
         for i in range(n):
-            t = w.time
+            t = d.time
             if schedule or not dropped[0]:
                 self._events(t, schedule, dropped)
             if i % every == 0:
@@ -242,10 +256,8 @@ class LockstepRunner:
                 control_steps += 1
             step()
             if t >= t_lift0:
-                j = len(times)
                 times.append(t)
-                poses[j, 0:3] = obj_pos
-                poses[j, 3:7] = obj_quat
+                poses.append(obj_pos.tolist() + obj_quat.tolist())
             if trace and i % 10 == 0:
                 ref = self.reference(t)
                 op = w.object_pose(self.obj.name)
@@ -260,7 +272,7 @@ class LockstepRunner:
         lifted = float(op.position[2] - p_init[2])
         success = final < spec.success_tolerance and (
             spec.lift_height == 0 or lifted > 0.5 * spec.lift_height)
-        e, re = self._tracking_errors(times, poses[:len(times)])
+        e, re = self._tracking_errors(times, np.array(poses).reshape(len(times), 7))
         return EpisodeResult(
             scenario=spec.name, mode=self.controller_config.mode, success=bool(success),
             feasible=self.feasibility(), final_error_mm=final * 1e3,

@@ -55,6 +55,18 @@ SOFT_WARNINGS: dict[int, str] = {
 _INTEGRATORS = {"Euler": 0, "RK4": 1, "implicit": 2, "implicitfast": 3}
 
 
+def _clip_two_calls(x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                    out: np.ndarray | None = None) -> np.ndarray:
+    """``min(max(x, lo), hi)``, elementwise (NaN stays NaN)."""
+    return np.minimum(np.maximum(x, lo), hi, out=out)
+
+
+try:  # numpy's clip ufunc: the same values as _clip_two_calls in one call
+    from numpy._core.umath import clip as _clip
+except ImportError:  # pragma: no cover - numpy < 2
+    _clip = _clip_two_calls
+
+
 def _as_slice(idx: np.ndarray) -> slice | np.ndarray:
     """``idx`` as a slice when it is a run of consecutive integers (a view, no gather)."""
     if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
@@ -247,6 +259,10 @@ class SimWorld:
         self._jacp = np.zeros((3, m.nv))
         self._jacr = np.zeros((3, m.nv))
         self._f6 = np.zeros(6)
+        self._ft_buf = np.zeros((0, 3, 3))  # contact_torques' rows
+        self._ft_rows: list[tuple[np.ndarray, ...]] = []
+        self._w_buf = np.zeros((0, 6))  # wrench_torques' rows
+        self._w_rows: list[tuple[np.ndarray, np.ndarray]] = []
         # views into MjData (its arrays never move): the guard reads them every step
         self._warn_number = self.data.warning.number
         self._ctrl_view = self._qfrc_view = None  # the servos' ctrl / qfrc_applied entries
@@ -432,13 +448,12 @@ class SimWorld:
         # the control range); the root servos' effort through qfrc_applied
         setpoint = eff / self._kp_fold
         setpoint += target
-        np.maximum(setpoint, self._servo_lo, out=setpoint)
         if self._ctrl_view is not None:
-            np.minimum(setpoint, self._servo_hi, out=self._ctrl_view)
+            _clip(setpoint, self._servo_lo, self._servo_hi, out=self._ctrl_view)
             np.multiply(eff, self._ff_mask, out=self._qfrc_view)
         else:
             d = self.data
-            d.ctrl[self._servo_a_idx] = np.minimum(setpoint, self._servo_hi)
+            d.ctrl[self._servo_a_idx] = _clip(setpoint, self._servo_lo, self._servo_hi)
             d.qfrc_applied[self._servo_dof_idx] = eff * self._ff_mask
 
     def _apply_free(self) -> None:
@@ -473,12 +488,12 @@ class SimWorld:
         timeout = self.config.command_timeout
         warn, v, speed_sq = self._warn_number, self._qvel_hand, self._max_speed_sq
         for _ in range(n):
+            t_before = d.time
             if (timeout > 0 and not self.timed_out
-                    and d.time - self.last_command_time > timeout):
+                    and t_before - self.last_command_time > timeout):
                 self._check_timeout()
             if free:
                 self._apply_free()
-            t_before = d.time
             mujoco.mj_step(m, d)
             self.steps += 1
             # the guard (see _check), its usual case inline
@@ -551,6 +566,106 @@ class SimWorld:
     def body_name(self, b: int, geom: int) -> str:
         """A body's name; for the world body, the geom's (e.g. "table")."""
         return self._geom_names[geom] if b == 0 else self._body_names[b]
+
+    def object_contacts(self, body: int
+                        ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, list[int]]:
+        """The hand-object contacts of the current state, lean (the in-process control loop).
+
+        The same contacts, points, normals and friction as ``contacts(object_name)`` (hand =
+        body 1, normal from the hand into the object), without names, penetrations, forces
+        or Jacobians: the controller maps its forces through :meth:`contact_torques`.
+
+        Args:
+            body: the object's body id (``objects[name]["body"]``).
+
+        Returns:
+            ``(K, points (K, 3), normals (K, 3), friction (K,), hand body ids [K])``, ``None``
+            arrays when K = 0. Points and normals are copies; the friction may be a view into
+            MjData, valid until the next step.
+        """
+        d = self.data
+        n = d.ncon
+        if n == 0:
+            return 0, None, None, None, []
+        con = d.contact
+        geom = con.geom.tolist()
+        dist = con.dist.tolist()
+        gbody, is_hand = self._geom_body, self._is_hand_list
+        margin = self.config.contact_margin_report
+        sel: list[int] = []
+        hand: list[int] = []
+        flip: list[int] = []  # rows whose hand is geom 2 (their normal is flipped)
+        for i in range(n):
+            if dist[i] > margin:
+                continue
+            g1, g2 = geom[i]
+            b1, b2 = gbody[g1], gbody[g2]
+            if b2 == body and is_hand[b1]:
+                hand.append(b1)
+            elif b1 == body and is_hand[b2]:
+                flip.append(len(sel))
+                hand.append(b2)
+            else:
+                continue
+            sel.append(i)
+        k = len(sel)
+        if k == 0:
+            return 0, None, None, None, []
+        i0 = sel[0]
+        # the selected rows: a slice when consecutive (the usual case), else an index list
+        idx = slice(i0, i0 + k) if sel[-1] == i0 + k - 1 else sel
+        normals = np.array(con.frame[idx, 0:3])  # the frame's first row: the normal
+        if flip:
+            normals[flip] *= -1.0
+        return k, np.array(con.pos[idx]), normals, con.friction[idx, 0], hand
+
+    def contact_torques(self, bodies: Sequence[int], points: np.ndarray, forces: np.ndarray,
+                        torsion: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Joint torques over the hand DoFs that make the hand bodies ``bodies[k]`` apply the
+        forces ``forces[k]`` at ``points[k]`` and the torsional torques ``torsion[k]`` about
+        ``normals[k]``, in the current state: ``tau = sum_k Jp_k^T f_k + Jr_k^T (l_k n_k)``
+        (seed 000 eq. 12, eq. III.21; ``Jp_k``, ``Jr_k`` the Jacobians of body k's material
+        point at ``points[k]``), computed by MuJoCo (``mj_applyFT``) without forming the
+        Jacobians.
+
+        Returns:
+            (n_hand,) torques, ``joint_names`` order (a fresh array).
+        """
+        m, d = self.model, self.data
+        k = len(bodies)
+        if k > len(self._ft_rows):  # (point, force, torque) rows of every contact, reused
+            self._ft_buf = np.zeros((k, 3, 3))
+            self._ft_rows = [tuple(self._ft_buf[i]) for i in range(k)]
+        buf = self._ft_buf[:k]
+        buf[:, 0] = points
+        buf[:, 1] = forces
+        np.multiply(torsion[:, None], normals, out=buf[:, 2])  # l_k n_k
+        qfrc = np.zeros(m.nv)
+        for b, (p, f, t) in zip(bodies, self._ft_rows, strict=False):
+            mujoco.mj_applyFT(m, d, f, t, p, b, qfrc)
+        return qfrc[self._dof_cols]
+
+    def wrench_torques(self, bodies: Sequence[int], point: np.ndarray,
+                       wrenches: np.ndarray) -> np.ndarray:
+        """:meth:`contact_torques` with every contact's force and torque moved to one point:
+        the hand bodies ``bodies[k]`` apply ``wrenches[k] = (f_k, t_k)`` at ``point`` (a
+        force ``f`` at ``p`` on a rigid body is ``f`` at ``c`` with the torque ``(p - c) x
+        f``: the same joint torques). ``tau = sum_k Jp_k(point)^T f_k + Jr_k^T t_k``
+        (eq. 12 / III.21), computed by MuJoCo (``mj_applyFT``).
+
+        Returns:
+            (n_hand,) torques, ``joint_names`` order (a fresh array).
+        """
+        m, d = self.model, self.data
+        k = len(bodies)
+        if k > len(self._w_rows):  # (force, torque) rows of every contact, reused
+            self._w_buf = np.zeros((k, 6))
+            self._w_rows = [(row[0:3], row[3:6]) for row in self._w_buf]
+        self._w_buf[:k] = wrenches
+        qfrc = np.zeros(m.nv)
+        for b, (f, t) in zip(bodies, self._w_rows, strict=False):
+            mujoco.mj_applyFT(m, d, f, t, point, b, qfrc)
+        return qfrc[self._dof_cols]
 
     def contacts(self, object_name: str | None = None, hand_only: bool = False,
                  jacobians: bool = False, forces: bool = True) -> ContactFrame:
