@@ -343,3 +343,40 @@ def test_warm_start_from_a_stale_passive_set_still_gives_the_optimum():
         assert a.found and a.status == "optimal"
         np.testing.assert_allclose(a.forces, b.forces, rtol=0, atol=1e-6)
         np.testing.assert_allclose(a.torsion, b.torsion, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["dissertation", "torsion_bound"])
+def test_solve_arrays_and_the_fast_result(name):
+    """The control loop's entry (arrays, the target wrench as floats) gives solve()'s result;
+    the fast result's contact wrench is (f_k, r_k x f_k + l_k n_k), its diagnostics (computed
+    when read) those of the forces, and it copies, pickles and replaces like any result."""
+    import copy
+    import dataclasses
+    import pickle
+
+    cfg = CONFIGS[name]
+    for contacts, com, tf, tt in random_problems(seed=11, n=8):
+        a = ContactForceQP(cfg).solve(contacts, com, tf, tt)
+        qp = ContactForceQP(cfg)
+        b = qp.solve_arrays(contacts.points, contacts.normals, contacts.mu, com,
+                            tf.tolist() + tt.tolist())
+        c = qp.solve_arrays(contacts.points, contacts.normals, contacts.mu, com,
+                            tf.tolist() + tt.tolist())  # warm
+        for res in (b, c):
+            assert res.found and res.status == "optimal"
+            np.testing.assert_allclose(res.forces, a.forces, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(res.torsion, a.torsion, rtol=0, atol=1e-9)
+        r = contacts.points - com
+        moment = np.cross(r, c.forces) + c.torsion[:, None] * contacts.normals
+        np.testing.assert_allclose(c.contact_wrench, np.hstack((c.forces, moment)), atol=1e-12)
+        np.testing.assert_allclose(c.wrench_error, np.r_[c.forces.sum(0) - tf,
+                                                         moment.sum(0) - tt], atol=1e-12)
+        assert c.residual == pytest.approx(np.linalg.norm(c.wrench_error))
+        assert c.objective == pytest.approx(
+            objective_iii23(cfg, contacts, com, tf, tt, c.forces, c.torsion), rel=1e-9)
+        for other in (copy.copy(c), copy.deepcopy(c), pickle.loads(pickle.dumps(c))):
+            np.testing.assert_array_equal(other.wrench_error, c.wrench_error)
+            assert other.objective == c.objective and other.residual == c.residual
+        plain = dataclasses.replace(c, status="x")
+        assert plain.status == "x" and plain.objective == c.objective
+    assert qp.warm_hits >= 1

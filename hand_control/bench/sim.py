@@ -3,8 +3,9 @@
 * ``baseline_rtf``: bare ``mj_step`` on the lift-box world while the box is held (1 ms steps,
   no Python around it): the ceiling every figure below is compared with.
 * ``lockstep_rtf``: the lift-box scenario in one process (:class:`LockstepRunner`: servos,
-  contact extraction with Jacobians, contact QP and composite controller) with the controller
-  at every 1 ms step (1 kHz); ``lockstep_rtf_250hz`` with the controller every 4th step.
+  contact extraction, contact QP, Jacobian transpose and composite controller) with the
+  controller at every 1 ms step (1 kHz); ``lockstep_rtf_250hz`` with the controller every 4th
+  step.
   Real-time factor = simulated seconds / wall seconds, on one core (one Python thread).
 * ``topics_control_hz``: the sim and controller as two ROS 2 nodes in one process (one
   executor, Fast DDS in-process), the sim paced to real time and publishing every 2 steps:

@@ -194,6 +194,49 @@ def _result(
 _RESULT_FIELDS = tuple(f.name for f in fields(ContactForceResult))
 
 
+class _FastResult(ContactForceResult):
+    """A solution of the fast path of eq. (III.23) whose diagnostics (``wrench_error``,
+    ``residual``, ``objective``) are computed when first read: the control loop never reads
+    them. Everything else is a :class:`ContactForceResult`."""
+
+    def __new__(cls, *args: Any, **kwargs: Any) -> ContactForceResult:
+        # built with field values (dataclasses.replace): a plain ContactForceResult
+        if args or kwargs:
+            return ContactForceResult(*args, **kwargs)
+        return super().__new__(cls)
+
+    @property
+    def wrench_error(self) -> np.ndarray:
+        return self._diagnose()[0]
+
+    @property
+    def residual(self) -> float:
+        return self._diagnose()[1]
+
+    @property
+    def objective(self) -> float:
+        return self._diagnose()[2]
+
+    def _diagnose(self) -> tuple[np.ndarray, float, float]:
+        d = self.__dict__
+        out = d.get("_diagnosed")
+        if out is None:
+            cfg, s6, z, zz, sub, reg_p = d["_diagnostics"]
+            # the net wrench error: the weighted residual A_P z - b of eq. (III.23)'s first
+            # two terms, unweighted
+            if zz is None:
+                zz = np.concatenate((z, _MINUS_ONE))
+            err = zz.dot(sub) / s6
+            e0, e1, e2, e3, e4, e5 = err.tolist()
+            ef, et = e0 * e0 + e1 * e1 + e2 * e2, e3 * e3 + e4 * e4 + e5 * e5
+            # a3 sum |f_k|^2 + a4 sum l_k^2 = |reg_P z|^2 (the regulariser rows in the contact
+            # frames: a rotation keeps |f_k|)
+            reg = reg_p.dot(z)
+            objective = cfg.alpha1 * ef + cfg.alpha2 * et + float(reg.dot(reg))
+            out = d["_diagnosed"] = (err, math.sqrt(ef + et), objective)
+        return out
+
+
 def _new_result(*values: Any) -> ContactForceResult:
     """A :class:`ContactForceResult` from its field values in order, without the
     frozen-dataclass ``__init__`` (one per control step)."""
@@ -366,7 +409,8 @@ class _Layout:
 
 
 def _contact_rows(
-    normals: list[list[float]], r: list[list[float]], wf: float, wt: float
+    normals: list[list[float]], r: list[list[float]], wf: float, wt: float,
+    copysign: Any = math.copysign,
 ) -> list[float]:
     """The map from every contact's local ``(f_t1, f_t2, f_n, l)`` to the weighted wrench on
     the object about its COM, ``[wf R_k, 0; wt [r_k]x R_k, wt n_k]``, transposed: a flat
@@ -378,7 +422,7 @@ def _contact_rows(
     out: list[float] = []
     if wf == 1.0 and wt == 1.0:  # the default weights (alpha1 = alpha2 = 1): no products
         for (nx, ny, nz), (rx, ry, rz) in zip(normals, r, strict=True):
-            sg = math.copysign(1.0, nz)
+            sg = copysign(1.0, nz)
             vz = nz + sg
             c = 2.0 / (nx * nx + ny * ny + vz * vz)
             ax, ay, az = (1.0 - c * (nx * nx)) * sg, -(c * (ny * nx)) * sg, -(c * (vz * nx)) * sg
@@ -429,7 +473,8 @@ def _ls(
     s = cols.take(idx, 0)
     zz = s[-1].copy()  # [g_p, b'b] (s is symmetric), then z solved in its place
     zz[-1] = -1.0
-    info = _dposv(s[:-1, :-1], zz[:-1], overwrite_b=1)[2]
+    # (lower=0, overwrite_a=0, overwrite_b=1) positionally: f2py parses keywords slower
+    info = _dposv(s[:-1, :-1], zz[:-1], 0, 0, 1)[2]
     return None if info else (sub, cols, zz)
 
 
@@ -525,6 +570,36 @@ def _active_set(
 _EMPTY = np.zeros(0)
 
 
+def _warm_hit(
+    a6t: np.ndarray, lay: _Layout, p: list[int], tol: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, ...]] | None:
+    """The first step of :func:`_active_set` from the passive set ``p`` when it ends there:
+    the least squares on ``p`` is positive and passes the KKT test (the control loop's usual
+    case). Returns ``(x_P, [x_P, -1], a6t[P + [n]], lay.gathers(p))``, else ``None`` (then
+    :func:`_active_set` takes it from the start: the same steps, the same result)."""
+    ent = lay.sets.get(tuple(p)) or lay.gathers(p)
+    idx = ent[0]
+    sub = a6t.take(idx, 0)  # :func:`_ls`, inline
+    cols = a6t.dot(sub.T)
+    cols += ent[1]
+    s = cols.take(idx, 0)
+    zz = s[-1].copy()
+    zz[-1] = -1.0
+    if _dposv(s[:-1, :-1], zz[:-1], 0, 0, 1)[2]:
+        return None
+    z = zz[:-1]
+    if min(z.tolist()) <= 0.0:
+        return None
+    vl = cols.dot(zz).tolist()
+    vl.pop()
+    # _active_set's acceptance (the gradient, finite, >= -enter_tol everywhere, within tol of
+    # zero on p)
+    if not (min(vl) >= -1e-4 * tol and math.isfinite(sum(vl))
+            and max([abs(vl[i]) for i in p]) <= tol):
+        return None
+    return z, zz, sub, ent
+
+
 class ContactForceQP(_ContactForceSolver):
     """Fast contact-force solver for the control loop (exact, warm-started active set).
 
@@ -610,29 +685,14 @@ class ContactForceQP(_ContactForceSolver):
         tol = self.config.kkt_tol * max(1.0, bb)
         maxiter = self._maxiter or 3 * lay.n
         warm = self._passive.get(k)
-        if warm is None and self.config.fallback == "nnls":
-            # cold (first problem of this contact count): scipy's compiled Lawson-Hanson
-            # beats the Python iterations from an empty set; it seeds the warm start
-            passive, z, status = self._fallback(a6t, lay, tol, maxiter, "cold")
-            self.fallback_solves -= int(status == "optimal")  # not a fallback
-            it, sub, zz = 0, a6t.take(passive + [lay.n], 0), None
+        hit = _warm_hit(a6t, lay, warm, tol) if warm else None
+        if hit is not None:  # the loop's usual case: the last passive set is still optimal
+            z, zz, sub, ent = hit
+            passive, status = warm, "optimal"
+            self.warm_hits += 1
         else:
-            status = "cold"
-        if status != "optimal":
-            # a few active-set iterations from the last passive set (the loop's usual case
-            # needs none); beyond that scipy's compiled Lawson-Hanson is quicker
-            short = self.config.fallback == "nnls" and maxiter > 2
-            passive, z, status, it, sub, zz = _active_set(
-                a6t, lay, () if warm is None else warm, tol, 2 if short else maxiter)
-            if status == "max_iter" and short:
-                passive, z, status = self._fallback(a6t, lay, tol, maxiter, status)
-                self.fallback_solves -= int(status == "optimal")  # the planned path
-                it, sub, zz = 1, a6t.take(passive + [lay.n], 0), None
-        if status == "optimal":
-            self.warm_hits += int(it == 0 and warm is not None)
-        elif self.config.fallback != "none":
-            passive, z, status = self._fallback(a6t, lay, tol, maxiter, status)
-            sub, zz = a6t.take(passive + [lay.n], 0), None
+            passive, z, status, sub, zz = self._solve_active_set(a6t, lay, warm, tol, maxiter)
+            ent = None
         if status != "optimal":
             return _result(status, ContactSet.trusted(points, normals, mu), r, (tfl, ttl), t0,
                            "dissertation")
@@ -642,34 +702,20 @@ class ContactForceQP(_ContactForceSolver):
             # Forces and torsions from the generators in use: row p of a6t holds the weighted
             # world wrench of generator p, s1 x its force first; torsion[p] its torsion per
             # unit; contact[c, p] = 1 for the generators of contact c.
-            _, _, contact, torsion, reg_p = lay.sets.get(tuple(passive)) or \
-                lay.gathers(passive)
+            if ent is None:
+                ent = lay.sets.get(tuple(passive)) or lay.gathers(passive)
+            contact, torsion, reg_p = ent[2], ent[3], ent[4]
             per_contact = contact * z
             # (K, 6): s1 f_k and s2 (r_k x f_k + l_k n_k) of every contact
             wrench = per_contact.dot(sub[:-1])
             if s1 != 1.0 or s2 != 1.0:
                 wrench /= self._s6
-            forces = wrench[:, 0:3]
-            # the net wrench error: the weighted residual A_P z - b of eq. (III.23)'s first two
-            # terms, unweighted
-            if zz is None:
-                zz = np.concatenate((z, _MINUS_ONE))
-            err = zz.dot(sub)
-            if s1 != 1.0 or s2 != 1.0:
-                err /= self._s6
-            e0, e1, e2, e3, e4, e5 = err.tolist()
-            ef, et = e0 * e0 + e1 * e1 + e2 * e2, e3 * e3 + e4 * e4 + e5 * e5
-            lk = per_contact.dot(torsion)
-            # a3 sum |f_k|^2 + a4 sum l_k^2 = |reg_P z|^2 (the regulariser rows in the contact
-            # frames: a rotation keeps |f_k|)
-            reg = reg_p.dot(z)
-            res = object.__new__(ContactForceResult)  # the frozen dataclass, no __init__
+            res = object.__new__(_FastResult)  # the frozen dataclass, no __init__
             res.__dict__.update(
-                found=True, status=status, forces=forces, torsion=lk, wrench_error=err,
-                residual=math.sqrt(ef + et),
-                objective=cfg.alpha1 * ef + cfg.alpha2 * et + float(reg.dot(reg)),
-                solve_time_s=time.perf_counter() - t0, method="dissertation",
-                contact_wrench=wrench)
+                found=True, status=status, forces=wrench[:, 0:3],
+                torsion=per_contact.dot(torsion), solve_time_s=time.perf_counter() - t0,
+                method="dissertation", contact_wrench=wrench,
+                _diagnostics=(cfg, self._s6, z, zz, sub, reg_p))
             return res
         # the same on floats (a weight alpha1 or alpha2 of zero, no generator in use): row p of
         # a6t holds s1 x the world force of generator p; lay.gen_l[p] its torsion per unit
@@ -708,6 +754,36 @@ class ContactForceQP(_ContactForceSolver):
         return _new_result(True, status, np.array(fk).reshape(k, 3), np.array(lk),
                            np.array(err), math.sqrt(ef + et), float(objective),
                            time.perf_counter() - t0, "dissertation", None)
+
+    def _solve_active_set(
+        self, a6t: np.ndarray, lay: _Layout, warm: list[int] | None, tol: float, maxiter: int,
+    ) -> tuple[list[int], np.ndarray, str, np.ndarray | None, np.ndarray | None]:
+        """The solve when the last passive set ``warm`` is not the optimum as it is (or there
+        is none): ``(passive set, x on it, status, a6t[P + [n]], [x, -1] or None)``."""
+        if warm is None and self.config.fallback == "nnls":
+            # cold (first problem of this contact count): scipy's compiled Lawson-Hanson
+            # beats the Python iterations from an empty set; it seeds the warm start
+            passive, z, status = self._fallback(a6t, lay, tol, maxiter, "cold")
+            self.fallback_solves -= int(status == "optimal")  # not a fallback
+            it, sub, zz = 0, a6t.take(passive + [lay.n], 0), None
+        else:
+            status = "cold"
+        if status != "optimal":
+            # a few active-set iterations from the last passive set (the loop's usual case
+            # needs none); beyond that scipy's compiled Lawson-Hanson is quicker
+            short = self.config.fallback == "nnls" and maxiter > 2
+            passive, z, status, it, sub, zz = _active_set(
+                a6t, lay, () if warm is None else warm, tol, 2 if short else maxiter)
+            if status == "max_iter" and short:
+                passive, z, status = self._fallback(a6t, lay, tol, maxiter, status)
+                self.fallback_solves -= int(status == "optimal")  # the planned path
+                it, sub, zz = 1, a6t.take(passive + [lay.n], 0), None
+        if status == "optimal":
+            self.warm_hits += int(it == 0 and warm is not None)
+        elif self.config.fallback != "none":
+            passive, z, status = self._fallback(a6t, lay, tol, maxiter, status)
+            sub, zz = a6t.take(passive + [lay.n], 0), None
+        return passive, z, status, sub, zz
 
     def _fallback(
         self, a6t: np.ndarray, lay: _Layout, tol: float, maxiter: int, status: str,

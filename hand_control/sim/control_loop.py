@@ -7,6 +7,10 @@ into the contact Jacobians of eq. (12) with ``mj_jac``. Each :meth:`ControllerCo
 
     joint state + object state + contacts + time  ->  servo targets + feed-forward efforts
 
+:meth:`ControllerCore.step_world` is the same step for a controller in the simulator's process
+(the lockstep loop): it reads the contacts from the live :class:`SimWorld` and lets MuJoCo apply
+the Jacobian transpose (``mj_applyFT``), with the same equations and results up to rounding.
+
 Failures never reach a joint: a QP without solution, bad input or a non-finite result gives a
 PD-only command (zero efforts), counted in :attr:`ControllerCore.counters`.
 """
@@ -296,10 +300,13 @@ class ControllerCore:
         lockstep loop): what :meth:`step` computes with ``trusted=True`` and the world's
         contacts, without its intermediate objects.
 
-        The contacts come from :meth:`SimWorld.object_contacts`, and the Jacobian-transpose
-        map of eq. (12) / (III.21) from MuJoCo (:meth:`SimWorld.contact_torques`,
-        ``mj_applyFT`` at the contact points of the current state) instead of stacked contact
-        Jacobians: the same torques up to rounding (the order of the sums).
+        The contacts come from :meth:`SimWorld.object_contacts`, the contact forces from the
+        QP on their arrays (:meth:`ContactForceQP.solve_arrays`, method ``dissertation``; seed
+        000's eq. 10 needs the simulator's contact forces: use :meth:`step`), and the
+        Jacobian-transpose map of eq. (12) / (III.21) from MuJoCo (``mj_applyFT`` on the
+        current state: :meth:`SimWorld.wrench_torques` with each contact's wrench about the
+        object's centre of mass) instead of stacked contact Jacobians: the same torques up to
+        rounding (the order of the sums).
 
         Args:
             t: simulation time [s].

@@ -4,9 +4,12 @@ The same core classes the nodes wrap (:class:`SimWorld`, :class:`CompositeContro
 :class:`Reference`) run one scenario here for benchmarks, tests and offline work. Per control
 step (every ``control_every`` physics steps; 1 = the 1 kHz of the dissertation):
 
-1. read the hand state, the object state and the hand-object contacts with their Jacobians;
+1. read the hand state, the object state and the hand-object contacts;
 2. the composite controller (seed 000 eq. 8-13) computes the grasp torques ``tau_grasp``
-   realising the virtual object wrench (eq. 9) through the contact-force QP (III.23);
+   realising the virtual object wrench (eq. 9) through the contact-force QP (III.23) and the
+   Jacobian transpose (eq. 12, computed by MuJoCo at the contacts of the live state:
+   :meth:`ControllerCore.step_world`; seed 000's eq. 10, which needs the simulator's contact
+   forces, goes through a :class:`ContactFrame` and :meth:`ControllerCore.step`);
 3. the sim's servos get the reference pose as PD targets (eq. 8, applied at every physics
    step) and ``tau_grasp`` as feed-forward effort. Gravity on the hand is cancelled inside
    MuJoCo (``hand_gravcomp``), which is ``tau_gravity`` of eq. (III.19).
@@ -163,7 +166,10 @@ class LockstepRunner:
         q, qd = w.hand_state() if self._hand_views is None else self._hand_views
         if not self._contact_forces:
             cmd = self.core.step_world(t, w, self._object_body, q, qd, self._obj_views)
-            w.set_command(cmd.positions, cmd.efforts, check=False)  # fresh, finite (n_hand,)
+            if cmd.pd_only:  # zero efforts
+                w.set_targets(cmd.positions)
+            else:
+                w.set_command(cmd.positions, cmd.efforts, check=False)  # fresh, finite
             self.last_command = cmd
             return
         self._control_step_frame(t, q, qd)

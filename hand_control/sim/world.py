@@ -270,6 +270,9 @@ class SimWorld:
             self._ctrl_view = self.data.ctrl[self._servo_a_idx]
             self._qfrc_view = self.data.qfrc_applied[self._servo_dof_idx]
         self._qvel_hand = self.data.qvel[self._dof_slice]
+        self._no_effort = np.zeros(self.n_hand)  # set_targets' efforts (never written)
+        self._no_effort.setflags(write=False)
+        self._has_free = self._free_k.size > 0
         self._max_speed_sq = self.config.max_joint_speed ** 2
         self.resets = 0
         self.divergences: list[Divergence] = []
@@ -407,6 +410,21 @@ class SimWorld:
         self.timed_out = False
         self._write_command()
 
+    def set_targets(self, target: np.ndarray) -> None:
+        """``set_command(target, zeros, check=False)``: new servo targets without feed-forward
+        efforts (the in-process controller's PD-only steps). The caller vouches for a finite
+        (n_hand,) float64 array, which the world then owns (not copied)."""
+        self.target = target
+        self.effort = self._no_effort
+        self.last_command_time = self.data.time
+        self.timed_out = False
+        if self._ctrl_view is not None and self._all_servo:
+            # _write_command with zero efforts: the set point is the target, clipped
+            _clip(target, self._servo_lo, self._servo_hi, self._ctrl_view)
+            self._qfrc_view.fill(0.0)
+        else:
+            self._write_command()
+
     def command_by_name(self, names: Sequence[str], positions: Sequence[float] = (),
                         efforts: Sequence[float] = ()) -> None:
         """Apply a command carried by joint name (``hand_msgs/JointCommand``).
@@ -484,7 +502,7 @@ class SimWorld:
     def step(self, n: int = 1) -> None:
         """Advance ``n`` physics steps (servo update + ``mj_step`` + guard each)."""
         m, d = self.model, self.data
-        free = self._free_k.size > 0
+        free = self._has_free
         timeout = self.config.command_timeout
         warn, v, speed_sq = self._warn_number, self._qvel_hand, self._max_speed_sq
         for _ in range(n):
