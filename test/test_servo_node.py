@@ -267,3 +267,27 @@ def test_an_input_with_a_new_stamp_gets_its_own_cycle(ros) -> None:
         msg.header.stamp.sec = 1 if repeat else 2
         node._on_command(msg)  # as the subscription calls it, with a new message
         assert (node.core._cycle > c0) != repeat
+
+
+def test_a_new_stamp_right_after_a_cycle_is_written_a_quarter_period_later(ros) -> None:
+    """A new stamp that arrives just after a cycle does not wait for the next fixed-rate cycle
+    (1.5 periods after the last input): the timer is set for the end of the quarter period,
+    and that cycle writes it."""
+
+    _, add, spin_until = ros
+    node = add(ServoBridgeNode(parameter_overrides=params(source="commanded",
+                                                          control_rate_hz=20.0)))
+    msg = JointCommand(joint_names=NAMES, positions=[0.0] * len(NAMES))
+    msg.header.stamp.sec = 1
+    assert spin_until(lambda: node.core._cycle > 0, 5.0)
+    node._on_command(msg)  # a cycle now; the fixed-rate timer is due in 1.5 periods (75 ms)
+    c0 = node.core._cycle
+    new = JointCommand(joint_names=NAMES, positions=[0.1] * len(NAMES))
+    new.header.stamp.sec = 2
+    node._on_command(new)  # right after that cycle: not written at once ...
+    assert node.core._cycle == c0
+    due_ms = node._control_timer.time_until_next_call() * 1e-6
+    assert 0.0 < due_ms <= 12.5, due_ms  # ... but a quarter period (12.5 ms) after the cycle
+    assert spin_until(lambda: node.core._cycle > c0, 5.0)
+    assert node.core._cycle == c0 + 1
+    assert node._input_stamp.sec == 2 and not node._pending

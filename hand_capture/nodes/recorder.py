@@ -29,7 +29,6 @@ from hand_capture.bag import STORAGES, BagWriter, make_qos
 from hand_capture.cameras.threads import reuse_freed_memory
 from hand_capture.config import param, validate
 from hand_capture.errors import BagError
-from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.msgtypes import message_class
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
@@ -149,7 +148,7 @@ class RecorderNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of the bag_recorder console script."""
-    return run_node(RecorderNode, args, executor_factory=LeanExecutor)
+    return run_node(RecorderNode, args)
 
 
 if __name__ == "__main__":

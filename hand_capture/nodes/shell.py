@@ -3,7 +3,9 @@
 ``run_node(MyNode)`` does what ros2/demos do by hand in each file: ``rclpy.init`` with the
 process arguments, build the node, spin it, and shut down cleanly on Ctrl-C, SIGTERM or an
 external shutdown. A node that raises while starting or spinning has its traceback printed with
-its name and the process exits non-zero, which the graph runner reports.
+its name and the process exits non-zero, which the graph runner reports. Nodes spin on
+:class:`~hand_capture.nodes.executor.LeanExecutor` (rclpy's single-threaded executor without its
+per-wake-up Python cost) unless ``executor_factory`` names another.
 """
 
 from __future__ import annotations
@@ -14,9 +16,11 @@ import traceback
 from collections.abc import Callable, Sequence
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
+
+from hand_capture.nodes.executor import LeanExecutor
 
 _stop_signal: list[int] = []  # the SIGINT/SIGTERM that asked this process to stop
 
@@ -32,7 +36,7 @@ def _signal_to_keyboardinterrupt(signum: int, frame: object) -> None:
 def run_node(
     factory: Callable[[], Node],
     args: Sequence[str] | None = None,
-    executor_factory: Callable[[], object] = SingleThreadedExecutor,
+    executor_factory: Callable[[], object] = LeanExecutor,
 ) -> int:
     """Run one node until shutdown; returns the process exit code (0 on a clean stop).
 

@@ -34,7 +34,6 @@ from hand_capture.cameras.noise import DepthNoiseConfig
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
 from hand_capture.cameras.threads import limit_blas_threads, reuse_freed_memory
 from hand_capture.config import param, validate
-from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.images import (
     camera_info_msg,
     depth_image_msg,
@@ -197,7 +196,7 @@ class SyntheticCameraNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of the synthetic_camera console script."""
-    return run_node(SyntheticCameraNode, args, executor_factory=LeanExecutor)
+    return run_node(SyntheticCameraNode, args)
 
 
 if __name__ == "__main__":

@@ -34,7 +34,6 @@ from hand_capture.cameras.transforms import pose_in_world, rotvec_to_matrix
 from hand_capture.config import param, validate
 from hand_capture.errors import ConfigError, HandSuiteError
 from hand_capture.model import matrix_to_quat
-from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import STATUS, fill_pose_msg, pose_from_msg
@@ -160,7 +159,7 @@ class GraspPhaseNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of the grasp_phase console script."""
-    return run_node(GraspPhaseNode, args, executor_factory=LeanExecutor)
+    return run_node(GraspPhaseNode, args)
 
 
 if __name__ == "__main__":

@@ -44,7 +44,6 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
 from hand_control.dynamixel.bridge import BridgeConfig, ServoBridge
@@ -71,6 +70,7 @@ class ServoBridgeNode(LifecycleNode):
         self._timer_periods = 1.0  # the control timer's period in control periods
         self._last_cycle = 0.0  # time.monotonic() of the last control cycle [s]
         self._last_input = 0.0  # time.monotonic() of the last accepted input [s]
+        self._pending = False  # a new input waits for its cycle (the timer is set for it)
         # messages reused every cycle (publish serialises them at once); names set once
         self._goal_msg: JointCommand | None = None
         self._state_msg: JointState | None = None
@@ -134,6 +134,7 @@ class ServoBridgeNode(LifecycleNode):
         self._control_timer = self.create_timer(1.0 / self.config.control_rate_hz,
                                                 self._on_timer)
         self._timer_periods = 1.0
+        self._pending = False
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -204,20 +205,32 @@ class ServoBridgeNode(LifecycleNode):
         """A new input: run the cycle now rather than at the next tick, unless a cycle ran
         less than 0.9 of a period ago (the bus sees at most about ``control_rate_hz``). An
         input with a new stamp (new information from the source, e.g. a controller's answer
-        to a new camera frame) waits only if a cycle ran less than a quarter period ago."""
+        to a new camera frame) waits at most until a quarter period after the last cycle."""
         new = stamp != self._input_stamp
         self._input_stamp = stamp
         now = time.monotonic()
         self._last_input = now
-        gap = (0.25 if new else 0.9) / self.config.control_rate_hz
-        if self._control_timer is not None and now - self._last_cycle >= gap:
+        if self._control_timer is None:
+            return
+        rate = self.config.control_rate_hz
+        gap = (0.25 if new else 0.9) / rate
+        since = now - self._last_cycle
+        if since >= gap:
             self._on_control()
             # the fixed-rate cycle is only for times without input: it is due 1.5 periods
             # after this cycle, so inputs at about the control rate never wake the node twice
             self._set_timer_period(1.5)
+        elif new:  # its cycle when the quarter period is over, not at the next fixed cycle
+            self._pending = True
+            self._set_timer_period((gap - since) * rate)
 
     def _on_timer(self) -> None:
-        """The fixed-rate cycle, while no input drives the cycles (none for 1.5 periods)."""
+        """A pending new input's cycle, or the fixed-rate cycle while no input drives the
+        cycles (none for 1.5 periods)."""
+        if self._pending:
+            self._on_control()
+            self._set_timer_period(1.5)
+            return
         if time.monotonic() - self._last_input >= 1.5 / self.config.control_rate_hz:
             self._set_timer_period(1.0)
             self._on_control()
@@ -237,6 +250,7 @@ class ServoBridgeNode(LifecycleNode):
 
     def _on_control(self) -> None:
         self._last_cycle = time.monotonic()
+        self._pending = False  # this cycle writes the newest input
         r = self.core.step() if self.core is not None else None
         if r is None or self._state_pub is None:
             return
@@ -294,7 +308,7 @@ def _doubles(a) -> array.array:
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(ServoBridgeNode, args, executor_factory=LeanExecutor)
+    return run_node(ServoBridgeNode, args)
 
 
 if __name__ == "__main__":
