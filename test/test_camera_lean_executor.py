@@ -195,3 +195,29 @@ def test_lifecycle_transitions_through_services(lean) -> None:
     finally:
         ex.remove_node(lc)
         lc.destroy_node()
+
+
+def test_a_node_can_ask_for_batched_wake_ups(lean) -> None:
+    """A node's ``min_wake_interval`` (the recorder's batch_period): messages that arrive
+    meanwhile are all taken at the next wake-up, none is lost."""
+    make_node, ex = lean
+    node = make_node("lean_batch")
+    node.min_wake_interval = 0.0  # added before the attribute is set: no batching yet
+    assert ex.min_wake_interval == 0.0
+    got, wakes = [], []
+    node.create_subscription(String, "batch", lambda m: (got.append(m.data),
+                                                         wakes.append(time.monotonic())), 100)
+    batched = make_node("lean_batch_2")
+    batched.min_wake_interval = 0.25
+    ex.add_node(batched)  # re-adding reads the attribute (rclpy ignores the duplicate)
+    assert ex.min_wake_interval == 0.25
+    pub = batched.create_publisher(String, "batch", 100)
+    assert spin_for(ex, lambda: pub.get_subscription_count() == 1, 5.0)
+    ex.spin_once(timeout_sec=0.0)  # a wake-up now: the next one is 0.25 s later
+    t0 = time.monotonic()
+    for i in range(10):
+        pub.publish(String(data=str(i)))
+    assert spin_for(ex, lambda: len(got) == 10, 5.0)
+    assert got == [str(i) for i in range(10)]
+    assert wakes[0] - t0 >= 0.2  # taken together after the interval, not one by one
+    assert wakes[-1] - wakes[0] < 0.1

@@ -223,3 +223,34 @@ def test_image_and_camera_info_conversions_round_trip():
     intr = Intrinsics(640, 480, 600.0, 601.0, 320.5, 240.5, distortion=(0.1, 0, 0, 0, 0),
                       frame_id="cam")
     assert intrinsics_from_msg(camera_info_msg(intr)) == intr
+
+
+def test_synthetic_camera_holds_the_motion_until_awaited_topics_carry_messages(ros):
+    """wait_for_topics: a publisher alone (a node still setting up) does not start the
+    motion; the first message on every awaited topic does, and the probes are dropped."""
+    from std_msgs.msg import String
+
+    cam = SyntheticCameraNode(parameter_overrides=[
+        Parameter("fps", value=30.0), Parameter("width", value=80),
+        Parameter("height", value=60), Parameter("clip", value="fist"),
+        Parameter("render_color", value=False),
+        Parameter("wait_for_topics", value=["probe/a", "probe/b"])])
+    peer = rclpy.create_node("camera_wait_peer")
+    _spin([cam, peer], 0.3)
+    assert cam._start_ns is None  # no publishers yet
+    pub_a = peer.create_publisher(String, "probe/a", 10)
+    pub_b = peer.create_publisher(String, "probe/b", 10)
+    _spin([cam, peer], 0.5, until=lambda: len(cam._wait_subs) == 2)
+    assert set(cam._wait_subs) == {"probe/a", "probe/b"}
+    _spin([cam, peer], 0.3)
+    assert cam._start_ns is None  # publishers, but no message
+    for _ in range(3):
+        pub_a.publish(String(data="up"))
+        _spin([cam, peer], 0.1)
+    assert cam._start_ns is None and cam._heard == {"probe/a"}  # b has said nothing
+    pub_b.publish(String(data="up"))
+    _spin([cam, peer], 1.0, until=lambda: cam._start_ns is not None)
+    assert cam._start_ns is not None
+    assert not cam._wait_subs and cam.count_subscribers("probe/a") == 0
+    cam.destroy_node()
+    peer.destroy_node()

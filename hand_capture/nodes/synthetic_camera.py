@@ -26,7 +26,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from hand_msgs.msg import HandPose
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.task import Future
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -34,12 +34,14 @@ from hand_capture.cameras.noise import DepthNoiseConfig
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
 from hand_capture.cameras.threads import limit_blas_threads, reuse_freed_memory
 from hand_capture.config import param, validate
+from hand_capture.errors import InputError
 from hand_capture.nodes.images import (
     camera_info_msg,
     depth_image_msg,
     numpy_to_image,
     rgb_image_msg,
 )
+from hand_capture.nodes.msgtypes import message_class
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import fill_pose_msg
@@ -53,8 +55,9 @@ class SyntheticNodeConfig:
     blas_threads: int = param(1, "BLAS threads of the process (1 avoids oversubscription)",
                               lo=1, hi=256)
     wait_for_topics: tuple[str, ...] = param(
-        (), "hold the motion's first pose (publishing it) until each of these topics has a "
-        "publisher, i.e. the graph's other nodes are up; then start the motion")
+        (), "hold the motion's first pose (publishing it) until a message has arrived on each "
+        "of these topics, i.e. the graph's other nodes are up and running; then start the "
+        "motion")
     wait_timeout_s: float = param(60.0, "start the motion anyway after waiting this long [s]",
                                   lo=0.0)
     end_after_s: float = param(
@@ -95,6 +98,8 @@ class SyntheticCameraNode(Node):
         self._start_ns: int | None = None
         self._created = time.monotonic()
         self._wait_logged: list[str] = []
+        self._wait_subs: dict[str, object] = {}  # awaited topic -> its probe subscription
+        self._heard: set[str] = set()  # awaited topics a message has arrived on
         self._wait_log_t = -1e9
         self.done: Future = Future()
         self._end_t = (self.camera.motion.duration + self.node_cfg.end_after_s
@@ -112,11 +117,19 @@ class SyntheticCameraNode(Node):
             f"{'on' if self.noise_cfg.enabled else 'off'}")
 
     def _waiting(self) -> bool:
-        """Whether the motion still waits for ``wait_for_topics`` (logs what it waits for)."""
-        missing = [t for t in self.node_cfg.wait_for_topics if self.count_publishers(t) == 0]
+        """Whether the motion still waits for ``wait_for_topics`` (logs what it waits for).
+
+        A topic counts once a message has arrived on it: a publisher alone can belong to a
+        node that is still setting up (e.g. the sim building its world), and a motion started
+        then would be answered late at first. Each awaited topic with a publisher gets a probe
+        subscription (raw, best effort: it matches every publisher), dropped at the start."""
+        missing = [t for t in self.node_cfg.wait_for_topics if t not in self._heard]
+        for t in missing:
+            if t not in self._wait_subs:
+                self._probe(t)
         if missing and time.monotonic() - self._created > self.node_cfg.wait_timeout_s:
-            self.get_logger().warning(f"starting the motion without {missing} (waited "
-                                      f"{self.node_cfg.wait_timeout_s:g} s)")
+            self.get_logger().warning(f"starting the motion without messages on {missing} "
+                                      f"(waited {self.node_cfg.wait_timeout_s:g} s)")
             missing = []
         if missing:
             # throttled here: rclpy's own throttling inspects the caller's stack (about 1 ms)
@@ -124,11 +137,30 @@ class SyntheticCameraNode(Node):
             now = time.monotonic()
             if missing != self._wait_logged or now - self._wait_log_t >= 5.0:
                 self._wait_logged, self._wait_log_t = missing, now
-                self.get_logger().info(f"holding the first pose until {missing} have "
-                                       "publishers")
+                self.get_logger().info(f"holding the first pose until messages arrive on "
+                                       f"{missing}")
         elif self._start_ns is None and self.node_cfg.wait_for_topics:
-            self.get_logger().info("every awaited topic has a publisher: motion starts")
+            self.get_logger().info("a message has arrived on every awaited topic: motion "
+                                   "starts")
+            for sub in self._wait_subs.values():
+                self.destroy_subscription(sub)
+            self._wait_subs.clear()
         return bool(missing)
+
+    def _probe(self, topic: str) -> None:
+        """Subscribe to an awaited topic once it has a publisher (its type is known then)."""
+        infos = self.get_publishers_info_by_topic(topic)
+        if not infos:
+            return
+        try:
+            cls = message_class(infos[0].topic_type)
+        except InputError as e:  # not installed here: its publisher has to do
+            self.get_logger().warning(f"cannot subscribe to awaited topic {topic}: {e}")
+            self._heard.add(topic)
+            return
+        qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self._wait_subs[topic] = self.create_subscription(
+            cls, topic, lambda _msg, t=topic: self._heard.add(t), qos, raw=True)
 
     def _tick(self) -> None:
         now = self.get_clock().now()
