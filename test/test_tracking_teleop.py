@@ -97,6 +97,54 @@ def test_doubtful_frames_trigger_the_regression(cam, regressor):
         [True, False, False]
 
 
+def test_a_deferred_regression_runs_after_the_frame_and_feeds_the_next_one(cam, regressor):
+    """defer_regression: a regression due while tracking is not in process() (the pose is
+    out first) but in run_deferred() on the same frame; a candidate better than the tracked
+    pose joins the next frame's pool. After a loss it runs at once."""
+    spy = _Counting(regressor)
+    cfg = TrackerConfig(regress_every=3, refine_top=1, defer_regression=True)
+    tr = HybridTracker(cam.model, cfg, spy)
+    flags, deferred = [], []
+    for i in range(7):
+        f = cam.render(i / 30)
+        r = tr.process(f.depth, f.depth_intrinsics)
+        flags.append(r.regressed)
+        deferred.append(tr.run_deferred() is not None)
+        assert r.success
+    # the first frame has no previous pose: at once; then every third frame, deferred
+    assert flags == [True, False, False, False, False, False, False]
+    assert deferred == [False, False, False, True, False, False, True]
+    assert spy.calls == 3
+    assert tr.run_deferred() is None  # once only
+    # a deferred candidate that fits its frame better than the tracked pose: next frame's
+    # pool holds it and the previous pose (screened, the better one refined)
+    f = cam.render(7 / 30)
+    tr.process(f.depth, f.depth_intrinsics)
+    tr.process(f.depth, f.depth_intrinsics)
+    r = tr.process(f.depth, f.depth_intrinsics)  # a regression is due: deferred
+    assert not r.regressed and tr._deferred is not None
+    obs, intr, pts, obs_ds, q, c = tr._deferred
+    bad = q.copy()
+    bad[6:] += 0.4  # as if the tracked fingers had drifted: the regression fits better
+    tr._deferred = (obs, intr, pts, obs_ds, bad, tr._costs([bad], obs, obs_ds)[0][0])
+    tr.run_deferred()
+    assert tr._carry is not None
+    sizes = []
+    costs = tr._costs
+    tr._costs = lambda qs, *a: (sizes.append(len(qs)), costs(qs, *a))[1]
+    r = tr.process(f.depth, f.depth_intrinsics)
+    assert sizes == [2, 1] and tr._carry is None and r.success  # screened 2, refined 1
+    sizes.clear()
+    tr.process(f.depth, f.depth_intrinsics)
+    assert sizes == [1]  # no candidate carried: the previous pose alone, not screened
+    tr._costs = costs
+    # after a loss: at once
+    tr.process(np.zeros_like(f.depth), f.depth_intrinsics)
+    f = cam.render(1.3)
+    r = tr.process(f.depth, f.depth_intrinsics)
+    assert r.regressed and tr.run_deferred() is None
+
+
 def test_product_settings_regress_on_every_frame(cam, regressor):
     cfg = TrackerConfig()
     assert cfg.regress_every == 1 and cfg.regress_above_mm == 0.0

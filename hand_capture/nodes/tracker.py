@@ -253,6 +253,15 @@ class TrackerNode(Node):
         self.status_count[res.status] += 1
         self.last_result = res
         self._publish(msg, res, intr)
+        # a regression the frame deferred (defer_regression): after its pose is out
+        t1, c1 = time.perf_counter(), time.process_time()
+        deferred = self.tracker.run_deferred()
+        if deferred is not None:
+            self.proc_s += time.perf_counter() - t1
+            self.cpu_s += time.process_time() - c1
+            self.regressed += 1
+            for k, v in deferred.items():
+                self.stage_s[k] += v
         return res
 
     def _calibration_step(self, depth: np.ndarray, intr: object) -> None:

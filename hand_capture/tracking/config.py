@@ -78,6 +78,12 @@ class TrackerConfig:
     regress_above_mm: float = param(0.0, "with regress_every > 1: run the regression anyway "
                                     "when the previous frame's E_d (eq. II.19) is above this, "
                                     "i.e. tracked but doubtful [mm]; 0 = never", lo=0.0)
+    defer_regression: bool = param(False, "with regress_every > 1: a regression due while "
+                                   "the previous frame tracked runs after the frame's pose "
+                                   "is out (HybridTracker.run_deferred), on the same frame; "
+                                   "its best candidate joins the next frame's pool if it "
+                                   "beat the tracked pose there. After a failure it runs at "
+                                   "once, as without this")
     model_file: str = param("", "trained regressor (.npz); empty = data/tracker/"
                             "regressor.npz when present")
     mode: str = param("hybrid", "tracking mode", choices=("hybrid", "icp", "regressor"))

@@ -27,6 +27,10 @@ and the regression re-anchors it. After a failure the regression runs on every f
 recovery is automatic as above. ``refine_top`` 1, fewer ``icp_iterations`` and no
 ``palm_iterations`` cut the rest; ``hand-suite bench tracking`` measures the trade-off (row
 ``teleop``). A pool no larger than ``refine_top`` is not screened (all of it is refined).
+With ``defer_regression`` a regression due while tracking is taken off the frame's latency:
+the frame is tracked from the previous pose and published first, then
+:meth:`HybridTracker.run_deferred` runs steps 1-2 on the same frame and keeps its best
+candidate for the next frame's pool when it fits that frame better than the tracked pose.
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -138,6 +142,8 @@ class HybridTracker:
         self.frame_count = 0
         self._since_regression = 0
         self._prev_cost = 0.0   # E_d of the previous frame [mm]
+        self._deferred: tuple | None = None  # (obs, intr, pts, tracked pose): run_deferred
+        self._carry: np.ndarray | None = None  # a deferred regression's candidate (27,)
 
     # ------------------------------------------------------------------------------ frame
     def process(self, depth: np.ndarray, intr: Intrinsics) -> TrackResult:
@@ -166,16 +172,15 @@ class HybridTracker:
             regress = (self._since_regression + 1 >= cfg.regress_every
                        or 0.0 < cfg.regress_above_mm < self._prev_cost)
         self._since_regression = 0 if regress else self._since_regression + 1
+        self._deferred = None
+        defer = regress and cfg.defer_regression and mode == "hybrid" and self.delta \
+            and self.prev is not None
+        if defer:  # tracking: after this frame's pose is out (run_deferred)
+            regress = False
         palms: list[np.ndarray] = []
         if regress:  # step 1: palm modes
             t = time.perf_counter()
-            # the features read depth in the hand's bounding box (off it: background, as off
-            # the hand anywhere)
-            r0, r1, c0, c1 = obs.box if obs.box is not None else (0, intr.height, 0,
-                                                                  intr.width)
-            lookup = DepthLookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
-            q0 = palm_init_pca(obs.points, self.frames)
-            palms = self.regressor.palm_modes(self.frames, lookup, q0, cfg.n_modes)
+            lookup, palms = self._palm_modes(obs, intr)
             timing["regression"] += time.perf_counter() - t
         prev = None
         if mode in ("hybrid", "icp"):  # step 3: the previous pose
@@ -195,6 +200,9 @@ class HybridTracker:
                                                    cfg.ik_iterations)
             pool += [(qc, qc.copy()) for qc in cands]
             timing["regression"] += time.perf_counter() - t
+        if self._carry is not None:  # the last frame's deferred regression
+            pool.append((self._carry, self._carry.copy()))
+            self._carry = None
         if prev is not None:
             pool.append((prev, prev.copy()))
         if not pool:  # regressor mode without a regressor
@@ -233,9 +241,56 @@ class HybridTracker:
         self.prev = q.copy()
         self.delta = success
         self._prev_cost = e_d
+        if defer:
+            self._deferred = (obs, intr, pts, obs_ds, q.copy(), costs[best][0])
         conf = float(np.clip(1.0 - e_d / cfg.depth_cap_mm, 0.0, 1.0))
         return TrackResult(q.copy(), success, status, e_d, conf, self.last_good, len(costs),
                            timing, obs, regress)
+
+    def _palm_modes(self, obs: HandObservation, intr: Intrinsics
+                    ) -> tuple[DepthLookup, list[np.ndarray]]:
+        """Step 1: the regressor's palm modes of a frame, and its depth lookup."""
+        # the features read depth in the hand's bounding box (off it: background, as off the
+        # hand anywhere)
+        r0, r1, c0, c1 = obs.box if obs.box is not None else (0, intr.height, 0, intr.width)
+        lookup = DepthLookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
+        q0 = palm_init_pca(obs.points, self.frames)
+        return lookup, self.regressor.palm_modes(self.frames, lookup, q0, self.cfg.n_modes)
+
+    def run_deferred(self) -> dict[str, float] | None:
+        """Steps 1-2 for the last frame, when it deferred them (``defer_regression``).
+
+        The candidates are scored on that frame with the cost of eq. (II.20); the best one
+        joins the next frame's pool if it scored lower than the pose tracked there.
+
+        Returns:
+            seconds per stage spent (``STAGES`` keys), or None when nothing was deferred.
+        """
+        d, self._deferred = self._deferred, None
+        if d is None:
+            return None
+        obs, intr, pts, obs_ds, q_tracked, c_tracked = d
+        cfg = self.cfg
+        timing = dict.fromkeys(STAGES, 0.0)
+        t = time.perf_counter()
+        lookup, palms = self._palm_modes(obs, intr)
+        timing["regression"] += time.perf_counter() - t
+        if cfg.palm_iterations:
+            t = time.perf_counter()
+            palms = list(self.icp.refine_batch(palms, obs, cfg.palm_iterations,
+                                               palm_only=True, points=pts))
+            timing["icp"] += time.perf_counter() - t
+        t = time.perf_counter()
+        cands = list(self.regressor.regress_fingers(self.frames, lookup, np.array(palms),
+                                                    cfg.ik_iterations))
+        timing["regression"] += time.perf_counter() - t
+        t = time.perf_counter()
+        costs = self._costs(cands, obs, obs_ds)
+        best = int(np.argmin([c[0] for c in costs]))
+        if costs[best][0] < c_tracked:
+            self._carry = cands[best]
+        timing["selection"] += time.perf_counter() - t
+        return timing
 
     def _costs(self, qs: list[np.ndarray], obs: HandObservation, obs_ds: np.ndarray
                ) -> list[tuple[float, float]]:
