@@ -119,12 +119,15 @@ def format_value(value: Any) -> str:
 
 def ros_args(node: NodeSpec, params_files: list[Path],
              overrides: dict[str, Any] | None = None) -> list[str]:
-    """``--ros-args`` for one node: name, parameter files, per-node parameters, remappings."""
+    """``--ros-args`` for one node: name, parameter files, per-node parameters, remappings.
+
+    The per-node parameters are given for the node by name (``-p node:key:=value``): a bare
+    ``-p key:=value`` would lose to an entry for the node in a parameter file."""
     args = ["--ros-args", "-r", f"__node:={node.name}"]
     for f in params_files:
         args += ["--params-file", str(f)]
     for key, value in {**node.parameters, **(overrides or {})}.items():
-        args += ["-p", f"{key}:={format_value(value)}"]
+        args += ["-p", f"{node.name}:{key}:={format_value(value)}"]
     for src, dst in node.remappings.items():
         args += ["-r", f"{src}:={dst}"]
     return args

@@ -116,11 +116,32 @@ def test_ros_args_and_overrides() -> None:
     g = load_graph("replay")
     args = ros_args(g.node("bag_player"), [Path("/p.yaml")], {"rate": 2, "loop": True})
     assert args == ["--ros-args", "-r", "__node:=bag_player", "--params-file", "/p.yaml",
-                    "-p", "rate:=2", "-p", "loop:=true"]
+                    "-p", "bag_player:rate:=2", "-p", "bag_player:loop:=true"]
     assert format_value(["/a", "/b"]) == "[/a,/b]"
     assert parse_overrides(["bag_player.rate:=0.5"]) == {"bag_player": {"rate": 0.5}}
     with pytest.raises(Exception, match="node.param:=value"):
         parse_overrides(["rate:=1"])
+
+
+def test_an_override_beats_the_nodes_entry_in_a_parameter_file(tmp_path: Path) -> None:
+    """``hand-suite run G -p node.key:=v`` wins over ``node: {key: ...}`` in the graph's
+    files (a bare ``-p key:=v`` loses to a node's own entry, as rcl ranks them)."""
+    import rclpy
+
+    f = tmp_path / "p.yaml"
+    f.write_text("/**:\n  ros__parameters:\n    other: 1\n"
+                 "bag_player:\n  ros__parameters:\n    rate: 3.0\n")
+    node_spec = load_graph("replay").node("bag_player")
+    ctx = rclpy.Context()
+    rclpy.init(args=["x", *ros_args(node_spec, [f], {"rate": 0.5})], context=ctx)
+    try:
+        node = rclpy.create_node("player_under_test", context=ctx)  # renamed by __node
+        assert node.get_name() == "bag_player"
+        assert node.declare_parameter("rate", 1.0).value == 0.5
+        assert node.declare_parameter("other", 0).value == 1
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
 
 
 def test_bag_roundtrip_graph_runs_to_completion_and_round_trips(tmp_path: Path) -> None:

@@ -162,7 +162,8 @@ def test_teleop_parameters_are_the_cheaper_hybrid_settings():
     own = load_yaml(config_dir() / "teleop.yaml")["tracker"]["ros__parameters"]
     names = {f.name for f in dataclasses.fields(TrackerConfig)}
     node_only = {"debug_image_every", "markers_every", "subject_id", "shape_folder",
-                 "calibrate_on_start", "calibration_frames", "poll_period_s", "blas_threads"}
+                 "calibrate_on_start", "calibration_frames", "poll_period_s", "blas_threads",
+                 "realtime_priority"}
     assert set(own) <= names | node_only
     for k, v in own.items():
         if k in names:

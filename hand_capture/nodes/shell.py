@@ -5,7 +5,8 @@ process arguments, build the node, spin it, and shut down cleanly on Ctrl-C, SIG
 external shutdown. A node that raises while starting or spinning has its traceback printed with
 its name and the process exits non-zero, which the graph runner reports. Nodes spin on
 :class:`~hand_capture.nodes.executor.LeanExecutor` (rclpy's single-threaded executor without its
-per-wake-up Python cost) unless ``executor_factory`` names another.
+per-wake-up Python cost) unless ``executor_factory`` names another. Every node gets the
+``realtime_priority`` parameter (:mod:`hand_capture.nodes.realtime`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from rclpy.node import Node
 from rclpy.task import Future
 
 from hand_capture.nodes.executor import LeanExecutor
+from hand_capture.nodes.realtime import apply_realtime_priority
 
 _stop_signal: list[int] = []  # the SIGINT/SIGTERM that asked this process to stop
 
@@ -53,6 +55,7 @@ def run_node(
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     try:
         node = factory()
+        apply_realtime_priority(node)  # the realtime_priority parameter
         executor = executor_factory()
         executor.add_node(node)
         done = getattr(node, "done", None)

@@ -8,9 +8,12 @@ image stamp): image -> hand/pose -> control/hand_target -> control/joint_command
 (the goals written to the bus). Throughput: hand poses per second while the performance runs;
 CPU: each node's share of one core over the performance (``psutil``, sampled every 0.5 s).
 
-Baseline in the same run: the same graph with the tracker replaced by the camera's ground
-truth (grasp_phase follows ``hand/pose_truth``), i.e. the latency of everything but tracking.
-``--quick`` plays the performance at double speed.
+Baselines in the same run: the same graph with the tracker replaced by the camera's ground
+truth (grasp_phase follows ``hand/pose_truth``), i.e. the latency of everything but tracking;
+and the same graph with normal scheduling (``realtime_priority`` 0 for every node; the teleop
+parameters put the chain camera -> servo bridge under ``SCHED_FIFO`` where the machine permits
+it, and the table says on how many nodes it took effect). ``--quick`` plays the performance at
+double speed.
 """
 
 from __future__ import annotations
@@ -64,7 +67,8 @@ def _cpu_share(samples: list[tuple[float, dict[str, float]]], t0: float, t1: flo
     return {k: 100.0 * (b[k] - a.get(k, 0.0)) / dt for k in b if dt > 0}
 
 
-def _run_graph(graph, out: Path, quick: bool, log: StringIO) -> dict[str, Any]:
+def _run_graph(graph, out: Path, quick: bool, log: StringIO,
+               normal_scheduling: bool = False) -> dict[str, Any]:
     from hand_control.report.series import (
         SAME_CLOCK_MS,
         latency_ms,
@@ -85,9 +89,13 @@ def _run_graph(graph, out: Path, quick: bool, log: StringIO) -> dict[str, Any]:
             samples.append((now, dict(cpu)))
         return False
 
-    over = {"bag_recorder": {"output": str(out)}}
+    over: dict[str, dict[str, Any]] = {n.name: {} for n in graph.nodes}
+    over["bag_recorder"]["output"] = str(out)
     if quick:
-        over["synthetic_camera"] = {"speed": 2.0}
+        over["synthetic_camera"]["speed"] = 2.0
+    if normal_scheduling:
+        for n in graph.nodes:
+            over[n.name]["realtime_priority"] = 0
     run = run_graph(graph, overrides=over, out=log, install_signal_handlers=False,
                     should_stop=poll, cpu=cpu)
     if run.code != 0:
@@ -95,7 +103,8 @@ def _run_graph(graph, out: Path, quick: bool, log: StringIO) -> dict[str, Any]:
     data = load_bag(out, skip=("camera/color/image_raw", "hand/debug_image", "hand/markers",
                                "control/contact_markers"))
     w0, w1 = _motion_window(data)
-    res: dict[str, Any] = {"stages": {}}
+    res: dict[str, Any] = {"stages": {},
+                           "realtime_nodes": log.getvalue().count("real-time scheduling: ")}
     for label, topic in STAGES:
         td = data.topics.get(topic)
         if td is None or not td.msgs:
@@ -139,23 +148,26 @@ def run(quick: bool = False) -> dict[str, Any]:
     graph = load_graph("teleop")
     results = {}
     with tempfile.TemporaryDirectory(prefix="hand_suite_pipeline_") as tmp:
-        for key, g in (("tracked", graph), ("truth", _truth_graph(graph))):
+        for key, g, normal in (("tracked", graph, False), ("truth", _truth_graph(graph), False),
+                               ("normal", graph, True)):
             t0 = time.monotonic()
-            results[key] = _run_graph(g, Path(tmp) / key, quick, StringIO())
-            print(f"[bench pipeline] {g.name}: {time.monotonic() - t0:.1f} s", flush=True)
+            results[key] = _run_graph(g, Path(tmp) / key, quick, StringIO(), normal)
+            print(f"[bench pipeline] {key}: {time.monotonic() - t0:.1f} s, real-time "
+                  f"scheduling on {results[key]['realtime_nodes']} nodes", flush=True)
     rows = []
-    for key in ("tracked", "truth"):
+    for key in ("tracked", "truth", "normal"):
         for label, v in results[key]["stages"].items():
             rows.append([key, label, len(v), float(np.percentile(v, 50)),
                          float(np.percentile(v, 99)), float(v.max())])
-    print_table("latency since the source image stamp [ms] (first message per stamp)",
+    print_table("latency since the source image stamp [ms] (first message per stamp; normal = "
+                "tracked with normal scheduling)",
                 ["graph", "stage", "n", "p50", "p99", "max"], rows)
     tr, base = results["tracked"], results["truth"]
     print_table("throughput while the performance runs",
-                ["graph", "camera fps", "hand poses / s", "box lift mm"],
-                [[k, results[k]["camera_fps"], results[k]["fps"], results[k].get("lift_mm",
-                                                                                 float("nan"))]
-                 for k in ("tracked", "truth")])
+                ["graph", "real-time nodes", "camera fps", "hand poses / s", "box lift mm"],
+                [[k, results[k]["realtime_nodes"], results[k]["camera_fps"], results[k]["fps"],
+                  results[k].get("lift_mm", float("nan"))]
+                 for k in ("tracked", "truth", "normal")])
     nodes = sorted(set(tr["cpu"]) | set(base["cpu"]))
     print_table("CPU per node [% of one core] while the performance runs",
                 ["node", "tracked", "truth (no tracker)"],
@@ -163,6 +175,7 @@ def run(quick: bool = False) -> dict[str, Any]:
                  for n in nodes])
     end = tr["stages"].get("servo write", np.array([np.nan]))
     end_b = base["stages"].get("servo write", np.array([np.nan]))
+    end_n = results["normal"]["stages"].get("servo write", np.array([np.nan]))
     p50, p99 = float(np.percentile(end, 50)), float(np.percentile(end, 99))
     b50 = float(np.percentile(end_b, 50))
     return {
@@ -172,6 +185,9 @@ def run(quick: bool = False) -> dict[str, Any]:
         "command_latency_p50_ms": float(np.percentile(tr["stages"].get("command", [np.nan]),
                                                       50)),
         "truth_latency_p50_ms": b50, "latency_vs_truth": p50 / b50 if b50 > 0 else None,
+        "realtime_nodes": tr["realtime_nodes"],
+        "normal_latency_p50_ms": float(np.percentile(end_n, 50)),
+        "normal_latency_p99_ms": float(np.percentile(end_n, 99)),
         "cpu_percent": {k: round(v, 1) for k, v in tr["cpu"].items()},
         "lift_mm": tr.get("lift_mm"), "truth_lift_mm": base.get("lift_mm"),
     }
