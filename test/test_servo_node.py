@@ -248,11 +248,9 @@ def test_exception_in_the_control_loop_switches_torque_off() -> None:
     assert [emu.servo(i).get("torque_enable") for i in (1, 2, 3)] == [0, 0, 0]
 
 
-def test_an_input_with_a_new_stamp_gets_its_own_cycle(ros) -> None:
-    """Repeated stamps are held to the control rate; a new stamp (new information) is written
-    at once, even right after a cycle."""
-    import time
-
+def _commanded_bridge_after_a_cycle(ros):
+    """A bridge following control/joint_command at 20 Hz that has just cycled on a command
+    with stamp 1 s; returns ``(node, spin_until)``."""
     _, add, spin_until = ros
     node = add(ServoBridgeNode(parameter_overrides=params(source="commanded",
                                                           control_rate_hz=20.0)))
@@ -260,6 +258,15 @@ def test_an_input_with_a_new_stamp_gets_its_own_cycle(ros) -> None:
     msg.header.stamp.sec = 1
     assert spin_until(lambda: node.core._cycle > 0, 5.0)
     node._on_command(msg)
+    return node, spin_until
+
+
+def test_an_input_with_a_new_stamp_gets_its_own_cycle(ros) -> None:
+    """Repeated stamps are held to the control rate; a new stamp (new information) is written
+    at once, even right after a cycle."""
+    import time
+
+    node, _ = _commanded_bridge_after_a_cycle(ros)
     for repeat in (True, False):
         c0 = node.core._cycle
         node._last_cycle = time.monotonic() - 0.015  # a cycle ran 0.3 periods ago
@@ -274,13 +281,8 @@ def test_a_new_stamp_right_after_a_cycle_is_written_a_quarter_period_later(ros) 
     (1.5 periods after the last input): the timer is set for the end of the quarter period,
     and that cycle writes it."""
 
-    _, add, spin_until = ros
-    node = add(ServoBridgeNode(parameter_overrides=params(source="commanded",
-                                                          control_rate_hz=20.0)))
-    msg = JointCommand(joint_names=NAMES, positions=[0.0] * len(NAMES))
-    msg.header.stamp.sec = 1
-    assert spin_until(lambda: node.core._cycle > 0, 5.0)
-    node._on_command(msg)  # a cycle now; the fixed-rate timer is due in 1.5 periods (75 ms)
+    # a cycle now; the fixed-rate timer is due in 1.5 periods (75 ms)
+    node, spin_until = _commanded_bridge_after_a_cycle(ros)
     c0 = node.core._cycle
     new = JointCommand(joint_names=NAMES, positions=[0.1] * len(NAMES))
     new.header.stamp.sec = 2
