@@ -227,14 +227,16 @@ def test_image_and_camera_info_conversions_round_trip():
 
 def test_synthetic_camera_holds_the_motion_until_awaited_topics_carry_messages(ros):
     """wait_for_topics: a publisher alone (a node still setting up) does not start the
-    motion; the first message on every awaited topic does, and the probes are dropped."""
+    motion; the first message on every awaited topic does, start_delay_s later, and the
+    probes are dropped."""
     from std_msgs.msg import String
 
     cam = SyntheticCameraNode(parameter_overrides=[
         Parameter("fps", value=30.0), Parameter("width", value=80),
         Parameter("height", value=60), Parameter("clip", value="fist"),
         Parameter("render_color", value=False),
-        Parameter("wait_for_topics", value=["probe/a", "probe/b"])])
+        Parameter("wait_for_topics", value=["probe/a", "probe/b"]),
+        Parameter("start_delay_s", value=0.3)])
     peer = rclpy.create_node("camera_wait_peer")
     _spin([cam, peer], 0.3)
     assert cam._start_ns is None  # no publishers yet
@@ -249,8 +251,10 @@ def test_synthetic_camera_holds_the_motion_until_awaited_topics_carry_messages(r
         _spin([cam, peer], 0.1)
     assert cam._start_ns is None and cam._heard == {"probe/a"}  # b has said nothing
     pub_b.publish(String(data="up"))
-    _spin([cam, peer], 1.0, until=lambda: cam._start_ns is not None)
+    t_heard = time.monotonic()
+    _spin([cam, peer], 2.0, until=lambda: cam._start_ns is not None)
     assert cam._start_ns is not None
+    assert time.monotonic() - t_heard >= 0.3  # start_delay_s after the last first message
     assert not cam._wait_subs and cam.count_subscribers("probe/a") == 0
     cam.destroy_node()
     peer.destroy_node()

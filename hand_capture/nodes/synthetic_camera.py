@@ -60,6 +60,10 @@ class SyntheticNodeConfig:
         "motion")
     wait_timeout_s: float = param(60.0, "start the motion anyway after waiting this long [s]",
                                   lo=0.0)
+    start_delay_s: float = param(
+        0.0, "with wait_for_topics: hold the first pose this much longer once every awaited "
+        "topic has a message, so that the graph's late subscriptions (a recorder's) have "
+        "settled when the motion starts [s]", lo=0.0, hi=60.0)
     end_after_s: float = param(
         -1.0, "with loop false: end the node this long after the motion's last pose [s] (a "
         "graph whose camera is required then stops, e.g. the README's main job); "
@@ -100,6 +104,7 @@ class SyntheticCameraNode(Node):
         self._wait_logged: list[str] = []
         self._wait_subs: dict[str, object] = {}  # awaited topic -> its probe subscription
         self._heard: set[str] = set()  # awaited topics a message has arrived on
+        self._ready_t: float | None = None  # time.monotonic() when all of them had one [s]
         self._wait_log_t = -1e9
         self.done: Future = Future()
         self._end_t = (self.camera.motion.duration + self.node_cfg.end_after_s
@@ -140,11 +145,16 @@ class SyntheticCameraNode(Node):
                 self.get_logger().info(f"holding the first pose until messages arrive on "
                                        f"{missing}")
         elif self._start_ns is None and self.node_cfg.wait_for_topics:
-            self.get_logger().info("a message has arrived on every awaited topic: motion "
-                                   "starts")
-            for sub in self._wait_subs.values():
-                self.destroy_subscription(sub)
-            self._wait_subs.clear()
+            now = time.monotonic()
+            if self._ready_t is None:
+                self._ready_t = now
+                for sub in self._wait_subs.values():
+                    self.destroy_subscription(sub)
+                self._wait_subs.clear()
+                self.get_logger().info(
+                    f"a message has arrived on every awaited topic: motion starts in "
+                    f"{self.node_cfg.start_delay_s:g} s")
+            return now - self._ready_t < self.node_cfg.start_delay_s
         return bool(missing)
 
     def _probe(self, topic: str) -> None:
