@@ -30,6 +30,7 @@ the same ``f_k, l_k`` (the pyramid coefficients ``lambda_k`` themselves are not 
 from __future__ import annotations
 
 import math
+import operator
 import struct
 import time
 from dataclasses import dataclass, fields
@@ -326,8 +327,11 @@ class _ContactForceSolver:
         if self.config.method != "dissertation" or points.shape[0] == 0:
             return self.solve(ContactSet.trusted(points, normals, mu), com,
                               np.array(wrench[0:3]), np.array(wrench[3:6]), check=False)
-        return self._dissertation(points, normals, mu, points - com, wrench[0:3], wrench[3:6],
-                                  t0)
+        # the lever arms r_k = p_k - com as rows of floats (the same subtractions as numpy's,
+        # without its per-call overhead on a few contacts)
+        cx, cy, cz = com.tolist()
+        rl = [[x - cx, y - cy, z - cz] for x, y, z in points.tolist()]
+        return self._dissertation(points, normals, mu, rl, wrench[0:3], wrench[3:6], t0)
 
     def _solve_dissertation(
         self, contacts: ContactSet, r: np.ndarray, tf: np.ndarray, tt: np.ndarray, t0: float
@@ -336,11 +340,11 @@ class _ContactForceSolver:
                                   tf.tolist(), tt.tolist(), t0)
 
     def _dissertation(
-        self, points: np.ndarray, normals: np.ndarray, mu: np.ndarray, r: np.ndarray,
-        tfl: list[float], ttl: list[float], t0: float,
+        self, points: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+        r: np.ndarray | list[list[float]], tfl: list[float], ttl: list[float], t0: float,
     ) -> ContactForceResult:
         """:meth:`_solve_dissertation` on the contacts' arrays, the targets as lists of three
-        floats."""
+        floats; ``r``: the (K, 3) lever arms ``p_k - com`` [m], an array or rows of floats."""
         raise NotImplementedError
 
     def _solve_seed000(
@@ -388,12 +392,14 @@ class _Layout:
         self.pack = struct.Struct(f"{24 * k + 6}d").pack
         # passive set -> what does not depend on the step (a control loop keeps its passive
         # set for long runs): see gathers()
-        self.sets: dict[tuple[int, ...], tuple[np.ndarray, ...]] = {}
+        self.sets: dict[tuple[int, ...], tuple[Any, ...]] = {}
 
-    def gathers(self, p: list[int]) -> tuple[np.ndarray, ...]:
+    def gathers(self, p: list[int]) -> tuple[Any, ...]:
         """For the passive set ``p``: ``(P + [n]`` as an index array, ``c[:, P + [n]]``, the
         (K, |P|) 0/1 matrix of the contact of each generator in ``P``, the torsion per unit
-        of each generator in ``P``, the regulariser's columns ``reg[:, P]``)."""
+        of each generator in ``P``, the regulariser's columns ``reg[:, P]``, a function that
+        picks the entries of ``P`` from a list of n values (a tuple, or a list for
+        ``|P| <= 1``))."""
         key = tuple(p)
         ent = self.sets.get(key)
         if ent is None:
@@ -403,8 +409,11 @@ class _Layout:
             contact = np.zeros((self.k, len(p)))
             contact[np.array(p, dtype=np.int64) // self.g, np.arange(len(p))] = 1.0
             torsion = np.array([self.gen_l[i] for i in p])
+            # picks the entries of P from a list of all n (a list for |P| <= 1)
+            pick = operator.itemgetter(*p) if len(p) > 1 else operator.itemgetter(
+                slice(p[0], p[0] + 1) if p else slice(0, 0))
             ent = self.sets[key] = (idx, self.c.take(idx, 1), contact, torsion,
-                                    self.reg.take(idx[:-1], 1))
+                                    self.reg.take(idx[:-1], 1), pick)
         return ent
 
 
@@ -450,6 +459,11 @@ def _contact_rows(
 
 
 _MINUS_ONE = np.array([-1.0])
+
+
+def _rows_array(rows: list[list[float]]) -> np.ndarray:
+    """(K, 3) array of K rows of three floats (the lever arms of a failed solve's result)."""
+    return np.array(rows, dtype=np.float64).reshape(len(rows), 3)
 
 
 def _ls(
@@ -593,9 +607,10 @@ def _warm_hit(
     vl = cols.dot(zz).tolist()
     vl.pop()
     # _active_set's acceptance (the gradient, finite, >= -enter_tol everywhere, within tol of
-    # zero on p)
+    # zero on p: max |v_p| = max(max(v_p), -min(v_p)), the entries of p picked once)
+    vp = ent[5](vl)
     if not (min(vl) >= -1e-4 * tol and math.isfinite(sum(vl))
-            and max([abs(vl[i]) for i in p]) <= tol):
+            and max(vp) <= tol and -min(vp) <= tol):
         return None
     return z, zz, sub, ent
 
@@ -662,9 +677,10 @@ class ContactForceQP(_ContactForceSolver):
 
     # -- eq. (III.23) ---------------------------------------------------------------------
     def _dissertation(
-        self, points: np.ndarray, normals: np.ndarray, mu: np.ndarray, r: np.ndarray,
-        tfl: list[float], ttl: list[float], t0: float,
+        self, points: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+        r: np.ndarray | list[list[float]], tfl: list[float], ttl: list[float], t0: float,
     ) -> ContactForceResult:
+        rl = r if type(r) is list else r.tolist()  # rows of floats from solve_arrays
         last = self._last_layout
         lay = last[1] if last[0] == mu.tobytes() else self._layout(mu)
         k = lay.k
@@ -672,14 +688,14 @@ class ContactForceQP(_ContactForceSolver):
         b6 = [s1 * tfl[0], s1 * tfl[1], s1 * tfl[2], s2 * ttl[0], s2 * ttl[1], s2 * ttl[2]]
         # (4K + 1, 6): the weighted wrench (eq. III.23's first two terms) of every contact's
         # local (f_t1, f_t2, f_n, l), then the target; through the generators: (K G + 1, 6)
-        nl, rl = normals.tolist(), r.tolist()
+        nl = normals.tolist()
         rows = _contact_rows(nl, rl, s1, s2)
         a6t = lay.hbt.dot(np.ndarray((4 * k + 1, 6), buffer=lay.pack(*rows, *b6)))
         b0, b1, b2, b3, b4, b5 = b6
         bb = math.fsum((b0 * b0, b1 * b1, b2 * b2, b3 * b3, b4 * b4, b5 * b5))
         if not math.isfinite(bb):  # an overflow while the problem was built
-            return _result("non_finite", ContactSet.trusted(points, normals, mu), r, (tfl, ttl),
-                           t0, "dissertation")
+            return _result("non_finite", ContactSet.trusted(points, normals, mu),
+                           _rows_array(rl), (tfl, ttl), t0, "dissertation")
         # |grad| <= |a| |b| at the optimum, and the entries of a are O(1) (unit generators,
         # lever arms well under 1 m): scale the tolerance with |b|^2 (>= |b| when |b| >= 1).
         tol = self.config.kkt_tol * max(1.0, bb)
@@ -694,8 +710,8 @@ class ContactForceQP(_ContactForceSolver):
             passive, z, status, sub, zz = self._solve_active_set(a6t, lay, warm, tol, maxiter)
             ent = None
         if status != "optimal":
-            return _result(status, ContactSet.trusted(points, normals, mu), r, (tfl, ttl), t0,
-                           "dissertation")
+            return _result(status, ContactSet.trusted(points, normals, mu), _rows_array(rl),
+                           (tfl, ttl), t0, "dissertation")
         self._passive[k] = passive
         cfg = self.config
         if passive and s1 > 0.0 and s2 > 0.0:

@@ -343,9 +343,8 @@ class ControllerCore:
         if effort is None:
             return self._command(q, q_target, None, ref.phase, forces, torsion, None, None, (),
                                  trusted)
-        names = world._body_names
         return self._command(q, q_target, effort, ref.phase, forces, torsion, points, normals,
-                             tuple([names[b] for b in hand]), trusted)
+                             tuple(map(world._body_names.__getitem__, hand)), trusted)
 
     def _grasp_world(self, world: SimWorld, q: np.ndarray, qd: np.ndarray,
                      q_target: np.ndarray, obj_pos: np.ndarray, obj_quat: np.ndarray,
@@ -442,7 +441,9 @@ class ControllerCore:
         an output is not finite (counted), else the grasp torques with their contacts.
         ``trusted_target``: ``q_target`` is known to be finite (not checked again)."""
         pd_only = effort is None
-        q_target = np.array(q_target, dtype=np.float64)  # the command's own copy
+        # the command's own copy (of a float64 array: its copy method, the quicker call)
+        q_target = q_target.copy() if type(q_target) is np.ndarray and \
+            q_target.dtype == _F64 else np.array(q_target, dtype=np.float64)
         zeros = self._zeros
         if not ((pd_only or effort.dot(zeros) == 0.0)
                 and (trusted_target or q_target.dot(zeros) == 0.0)):
@@ -466,6 +467,7 @@ class ControllerCore:
         return cmd
 
 
+_F64 = np.dtype(np.float64)
 # the empty arrays of a PD-only command (read-only: shared by every such command)
 _EMPTY3 = np.zeros((0, 3))
 _EMPTY = np.zeros(0)

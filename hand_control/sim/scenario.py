@@ -214,6 +214,7 @@ class Reference:
         self._last: RefSample | None = None
         self._index: dict[float, int] = {}  # tabulated times -> row (see precompute)
         self._table: tuple[np.ndarray, ...] = ()
+        self._rows: tuple[list, ...] = ()  # the table's rows (see precompute)
 
     def precompute(self, dt: float, t0: float = 0.0, steps: int | None = None) -> None:
         """Tabulate the references at the times a simulation stepping by ``dt`` from ``t0``
@@ -233,8 +234,11 @@ class Reference:
         for _ in range(max(n, 0)):
             t += dt
             times.append(t)
-        self._table = self._sample_many(np.array(times))
+        self._table = q, pos, quat, phase, grasp = self._sample_many(np.array(times))
         self._index = {t: i for i, t in enumerate(times)}
+        # the rows as __call__ hands them out, once: read-only views and plain values
+        self._rows = (list(q), list(pos), list(quat), [PHASES[p] for p in phase.tolist()],
+                      grasp.tolist())
         self._last_t = math.nan
 
     def _sample_many(self, t: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -302,8 +306,8 @@ class Reference:
         if i is None:
             self._last = self._sample(t)
         else:  # a tabulated time (see precompute): the row, read-only views
-            q, pos, quat, phase, grasp = self._table
-            self._last = _ref_sample(PHASES[phase[i]], q[i], pos[i], quat[i], bool(grasp[i]))
+            q, pos, quat, phase, grasp = self._rows
+            self._last = _ref_sample(phase[i], q[i], pos[i], quat[i], grasp[i])
         self._last_t = t
         return self._last
 

@@ -632,10 +632,10 @@ class SimWorld:
         i0 = sel[0]
         # the selected rows: a slice when consecutive (the usual case), else an index list
         idx = slice(i0, i0 + k) if sel[-1] == i0 + k - 1 else sel
-        normals = np.array(con.frame[idx, 0:3])  # the frame's first row: the normal
+        normals = con.frame[idx, 0:3].copy()  # the frame's first row: the normal
         if flip:
             normals[flip] *= -1.0
-        return k, np.array(con.pos[idx]), normals, con.friction[idx, 0], hand
+        return k, con.pos[idx].copy(), normals, con.friction[idx, 0], hand
 
     def contact_torques(self, bodies: Sequence[int], points: np.ndarray, forces: np.ndarray,
                         torsion: np.ndarray, normals: np.ndarray) -> np.ndarray:
