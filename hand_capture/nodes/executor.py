@@ -196,18 +196,10 @@ class LeanExecutor(SingleThreadedExecutor):
                  if not w._executor_event and w.is_ready(ws)]
         for w, n in ready:
             self._run_handler(w, n, self._take_waitable)
-        if len(timers) > 1:
-            timers = sorted(timers, key=lambda p: tables.timer_order.get(p, 0))
-        for ptr in timers:
-            hit = tables.timer_by_ptr.get(ptr)
-            if hit is not None:
-                self._run_timer(hit[0])
-        if len(subs) > 1:
-            subs = sorted(subs, key=lambda p: tables.sub_order.get(p, 0))
-        for ptr in subs:
-            hit = tables.sub_by_ptr.get(ptr)
-            if hit is not None:
-                self._run_subscription(hit[0])
+        for tmr in _in_order(timers, tables.timer_by_ptr, tables.timer_order):
+            self._run_timer(tmr)
+        for sub in _in_order(subs, tables.sub_by_ptr, tables.sub_order):
+            self._run_subscription(sub)
         for g, n in tables.guards:
             if g._executor_triggered:
                 self._run_handler(g, n, self._take_guard_condition)
@@ -305,6 +297,14 @@ class LeanExecutor(SingleThreadedExecutor):
     def _drop_done_tasks(self) -> None:
         with self._tasks_lock:
             self._tasks = [t for t in self._tasks if not (t[0].done() or t[0].cancelled())]
+
+
+def _in_order(ptrs, by_ptr: dict, order: dict) -> list:
+    """The entities of the ready handle pointers ``ptrs`` that the tables know, in the order
+    they were created (as rclpy's executor runs them)."""
+    if len(ptrs) > 1:
+        ptrs = sorted(ptrs, key=lambda p: order.get(p, 0))
+    return [hit[0] for p in ptrs if (hit := by_ptr.get(p)) is not None]
 
 
 async def _await(coroutine):

@@ -244,11 +244,7 @@ class TrackerNode(Node):
             self.rejected["bad_image"] += 1
             self.get_logger().warning(f"rejected a depth image: {e}", throttle_duration_sec=5.0)
             return None
-        self.proc_s += time.perf_counter() - t0
-        self.cpu_s += time.process_time() - c0
-        self.regressed += int(res.regressed)
-        for k, v in res.timing.items():
-            self.stage_s[k] += v
+        self._account(t0, c0, res.timing, res.regressed)
         self.processed += 1
         self.status_count[res.status] += 1
         self.last_result = res
@@ -257,12 +253,17 @@ class TrackerNode(Node):
         t1, c1 = time.perf_counter(), time.process_time()
         deferred = self.tracker.run_deferred()
         if deferred is not None:
-            self.proc_s += time.perf_counter() - t1
-            self.cpu_s += time.process_time() - c1
-            self.regressed += 1
-            for k, v in deferred.items():
-                self.stage_s[k] += v
+            self._account(t1, c1, deferred, True)
         return res
+
+    def _account(self, t0: float, c0: float, timing: dict[str, float], regressed: bool
+                 ) -> None:
+        """Add work begun at wall time t0 and CPU time c0 [s] to the diagnostics' totals."""
+        self.proc_s += time.perf_counter() - t0
+        self.cpu_s += time.process_time() - c0
+        self.regressed += int(regressed)
+        for k, v in timing.items():
+            self.stage_s[k] += v
 
     def _calibration_step(self, depth: np.ndarray, intr: object) -> None:
         from hand_capture.tracking.preprocess import segment_hand

@@ -142,7 +142,8 @@ class HybridTracker:
         self.frame_count = 0
         self._since_regression = 0
         self._prev_cost = 0.0   # E_d of the previous frame [mm]
-        self._deferred: tuple | None = None  # (obs, intr, pts, tracked pose): run_deferred
+        # run_deferred's inputs: (obs, intr, pts, obs_ds, tracked pose, its E_c)
+        self._deferred: tuple | None = None
         self._carry: np.ndarray | None = None  # a deferred regression's candidate (27,)
 
     # ------------------------------------------------------------------------------ frame
@@ -166,15 +167,15 @@ class HybridTracker:
         pool: list[tuple[np.ndarray, np.ndarray]] = []  # (pose, regression reference)
         mode = cfg.mode
         regress = mode in ("hybrid", "regressor") and self.regressor is not None
-        if regress and mode == "hybrid" and self.delta and self.prev is not None:
+        tracking = mode == "hybrid" and self.delta and self.prev is not None
+        if regress and tracking:
             # tracking well: the regression every regress_every-th frame only, or when the
             # last fit was doubtful
             regress = (self._since_regression + 1 >= cfg.regress_every
                        or 0.0 < cfg.regress_above_mm < self._prev_cost)
         self._since_regression = 0 if regress else self._since_regression + 1
         self._deferred = None
-        defer = regress and cfg.defer_regression and mode == "hybrid" and self.delta \
-            and self.prev is not None
+        defer = regress and tracking and cfg.defer_regression
         if defer:  # tracking: after this frame's pose is out (run_deferred)
             regress = False
         palms: list[np.ndarray] = []

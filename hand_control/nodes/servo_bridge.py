@@ -236,8 +236,9 @@ class ServoBridgeNode(LifecycleNode):
             self._on_control()
 
     def _set_timer_period(self, periods: float) -> None:
-        """Next fixed-rate cycle ``periods`` control periods from now, then one period apart
-        (the timer's period changes only when ``periods`` does)."""
+        """The control timer's next call ``periods`` control periods from now, and every
+        ``periods`` after that until this is called again (the timer's period is only set
+        when ``periods`` changes)."""
         timer = self._control_timer
         if timer is None:
             return
