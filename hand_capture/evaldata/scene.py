@@ -95,8 +95,9 @@ def clutter_primitives(rng: np.random.Generator, kp: np.ndarray) -> list:
     tilt = math.radians(rng.uniform(-10, 10))
     n = np.array([0.0, -math.cos(tilt), math.sin(tilt)])
     e2 = np.array([0.0, math.sin(tilt), math.cos(tilt)])
-    prims: list = [BoundedPlane(np.array([0.0, y_table, zc + 0.4]), n,
-                                np.array([1.0, 0.0, 0.0]), e2, (0.8, 0.6), CLUTTER)]
+    # the table runs from just behind the hand's mean depth away from the camera
+    prims: list = [BoundedPlane(np.array([0.0, y_table, zc + 0.5]), n,
+                                np.array([1.0, 0.0, 0.0]), e2, (0.8, 0.5), CLUTTER)]
     # an object standing on the table, left or right of the hand, not nearer than the hand
     side = 1.0 if rng.random() < 0.5 else -1.0
     x = (hi[0] + rng.uniform(0.05, 0.15)) if side > 0 else (lo[0] - rng.uniform(0.05, 0.15))
