@@ -12,6 +12,8 @@
 * **Settings split**: ``cost_temporal_weight`` (lambda_2 of eq. II.20) chosen on a
   validation split (synthetic-camera shapes 21, 22) and reported on a test split (the
   bench's shapes 11..13), both from the training family.
+* **Resolution**: the same held-out sequences at 424x240, 640x480 and 848x480 (tracker CPU
+  time per frame and accuracy), for the camera defaults.
 * **Transport**: share of 640x480 16UC1 frames published at 30 Hz that reach a subscriber
   with the tracker's QoS in another process, with the graphs' DDS profile and, as the
   baseline, with Fast DDS defaults.
@@ -210,6 +212,41 @@ def split_section(reg, config, quick: bool) -> dict:
                 config.cost_temporal_weight, float("nan"))}
 
 
+def resolution_section(reg, config, quick: bool) -> dict:
+    """The same held-out sequences seen by a D435 at 424x240, 640x480 and 848x480: tracker
+    CPU time per frame and accuracy (what ``config/camera.yaml`` defaults to)."""
+    from hand_capture.evaldata import calibration_frames, make_sequence
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import CALIBRATION_POSES, calibrate
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    seeds = (401,) if quick else (401, 402, 403)
+    n, step = (10, 3) if quick else (60, 1)
+    base = HandModel()
+    rows, out = [], {}
+    for cam in ("d435_424", "d435_640", "d435_848"):
+        errs, cpu = [], []
+        for seed in seeds:
+            seq = make_sequence(seed, n, cam, step=step)
+            cal = calibrate(calibration_frames(seq.model, seq.surface,
+                                               list(CALIBRATION_POSES.values()), cam,
+                                               np.random.default_rng(seed)), model=base)
+            s = _score(HybridTracker(base.with_shape(cal.shape), config, reg), seq.frames,
+                       seq.keypoints)
+            errs.append(s["errs"])
+            cpu.append(s["cpu"])
+        e, c = np.concatenate(errs), np.concatenate(cpu)
+        r = {"mean_mm": float(e.mean()), "success_20mm": float(np.mean(e.max(axis=1) < 20)),
+             "cpu_ms": 1e3 * float(c.mean()), "cpu_ms_p99": 1e3 * float(np.percentile(c, 99))}
+        out[cam] = r
+        rows.append([cam, len(e), r["mean_mm"], r["success_20mm"], r["cpu_ms"],
+                     r["cpu_ms_p99"]])
+    print_table("camera resolution (held-out, no forearm, same subjects and motions): the "
+                "tracker's CPU time per frame (30 Hz leaves 33 ms)",
+                ["camera", "frames", "mean mm", "succ@20", "cpu ms", "cpu ms p99"], rows)
+    return {"resolution": out}
+
+
 def transport_section(quick: bool) -> dict:
     """640x480 frames at 30 Hz to the tracker's QoS: graphs' profile vs Fast DDS defaults."""
     from hand_capture.bench.delivery import measure_delivery
@@ -231,5 +268,6 @@ def run_sections(reg, config, quick: bool) -> dict:
     out.update(heldout_section(reg, config, quick))
     out.update(calibration_section(quick))
     out.update(split_section(reg, config, quick))
+    out.update(resolution_section(reg, config, quick))
     out.update(transport_section(quick))
     return out
