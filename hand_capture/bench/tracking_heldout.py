@@ -69,10 +69,12 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
     cpu = {"heldout": [], "forearm": []}
     for arm in (False, True):
         key = "forearm" if arm else "heldout"
-        for cam, clutter, seed in cases:
+        for k, (cam, clutter, seed) in enumerate(cases):
             seed = seed + (100 if arm else 0)
             t0 = time.perf_counter()
-            seq = make_sequence(seed, n, cam, forearm=arm, clutter=clutter, step=step)
+            # with a forearm: bare arm and sleeve alternate (each camera gets both)
+            seq = make_sequence(seed, n, cam, forearm=arm, clutter=clutter, step=step,
+                                sleeve=bool((k + k // 2) % 2))
             t_render = (time.perf_counter() - t0) / n
             cal = calibrate(calibration_frames(seq.model, seq.surface,
                                                list(CALIBRATION_POSES.values()), cam,
