@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hand_capture.dds import dds_environment
 from hand_capture.errors import HandSuiteError
 
 BENCH_PACKAGES = ("hand_capture.bench", "hand_control.bench")
@@ -36,6 +37,8 @@ def _setup_environment() -> None:
         os.environ.setdefault("MUJOCO_GL", "osmesa")
         os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    # the Fast DDS profile for large images, for this process and the ones it starts
+    os.environ.update(dds_environment(os.environ))
 
 
 def _parse_value(text: str) -> Any:
