@@ -3,7 +3,7 @@
     hand-suite run GRAPH [--params FILE] [-p node.param:=value ...] | run --list
     hand-suite record -o DIR [--storage mcap|sqlite3] [--all] TOPIC ...
     hand-suite play DIR [--rate R] [--loop] [--start S]
-    hand-suite bag info DIR | bag recover DIR [-o OUT]
+    hand-suite bag info DIR | bag check DIR | bag recover DIR [-o OUT]
     hand-suite bench NAME [--quick] | bench --list
     hand-suite capture [-o DIR] [--clip C] [--seconds S] [--fps F] [--shape-seed N]
     hand-suite train touch|tracker [ARGS] fit the touch encodings / the tracker's forest
@@ -109,12 +109,17 @@ def cmd_bag(a: argparse.Namespace) -> int:
 
     if a.action == "recover":
         res = recover_bag(a.bag, a.output)
-        print(f"recovered {res.messages} messages on {len(res.topics)} topics into {res.output}")
+        print(res.describe())
         return 0
-    with BagReader(a.bag) as r:
+    with BagReader(a.bag) as r:  # refuses a bag whose CRCs do not match, naming the part
         counts: dict[str, int] = {}
         for m in r.messages():
             counts[m.topic] = counts.get(m.topic, 0) + 1
+            if a.action == "check":
+                r.check(m)  # every payload decodes
+        if a.action == "check":
+            print(f"{a.bag}: ok ({sum(counts.values())} messages, CRCs and payloads checked)")
+            return 0
         print(f"bag:      {a.bag}\nduration: {r.duration_s:.3f} s\nmessages: {r.message_count}")
         for topic, msgtype in sorted(r.topics.items()):
             print(f"  {topic:40s} {msgtype:36s} {counts.get(topic, 0)}")
@@ -243,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.set_defaults(func=cmd_play)
 
     b = sub.add_parser("bag", help="inspect or recover a bag")
-    b.add_argument("action", choices=["info", "recover"])
+    b.add_argument("action", choices=["info", "check", "recover"])
     b.add_argument("bag")
     b.add_argument("-o", "--output", default=None, help="recover: output bag")
     b.set_defaults(func=cmd_bag)

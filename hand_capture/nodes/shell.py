@@ -3,10 +3,11 @@
 ``run_node(MyNode)`` does what ros2/demos do by hand in each file: ``rclpy.init`` with the
 process arguments, build the node, spin it, and shut down cleanly on Ctrl-C, SIGTERM or an
 external shutdown. A node that raises while starting or spinning has its traceback printed with
-its name and the process exits non-zero, which the graph runner reports. Nodes spin on
-:class:`~hand_capture.nodes.executor.LeanExecutor` (rclpy's single-threaded executor without its
-per-wake-up Python cost) unless ``executor_factory`` names another. Every node gets the
-``realtime_priority`` parameter (:mod:`hand_capture.nodes.realtime`).
+its name and the process exits non-zero, which the graph runner reports; a
+:class:`~hand_capture.errors.HandSuiteError` (e.g. a damaged bag) is printed as one line.
+Nodes spin on :class:`~hand_capture.nodes.executor.LeanExecutor` (rclpy's single-threaded
+executor without its per-wake-up Python cost) unless ``executor_factory`` names another.
+Every node gets the ``realtime_priority`` parameter (:mod:`hand_capture.nodes.realtime`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
 
+from hand_capture.errors import HandSuiteError
 from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.realtime import apply_realtime_priority
 
@@ -68,6 +70,12 @@ def run_node(
             executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except HandSuiteError as e:
+        # the suite's own errors (a damaged bag, a bad parameter, a missing device) already
+        # say what is wrong and where: one line, not a traceback
+        name = node.get_name() if node is not None else getattr(factory, "__name__", "node")
+        sys.stderr.write(f"[{name}] error: {e}\n")
+        code = 1
     except Exception:
         # A signal that lands inside rclpy's C++ (e.g. while a message is taken) surfaces as a
         # RuntimeError from pybind11, not as KeyboardInterrupt: still a requested stop.
