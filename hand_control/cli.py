@@ -35,7 +35,9 @@ def _setup_environment() -> None:
     if not os.environ.get("DISPLAY"):
         os.environ.setdefault("MUJOCO_GL", "osmesa")
         os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    from hand_capture.network import apply_network_defaults
+
+    apply_network_defaults()
 
 
 def _parse_value(text: str) -> Any:

@@ -87,10 +87,13 @@ def test_launch_description_builds_the_same_graph(monkeypatch: pytest.MonkeyPatc
     mods = {
         "launch": {"LaunchDescription": lambda actions: actions},
         "launch.actions": {"DeclareLaunchArgument": type("DeclareLaunchArgument", (Rec,), {}),
-                           "EmitEvent": Rec, "RegisterEventHandler": Rec},
+                           "EmitEvent": Rec, "RegisterEventHandler": Rec,
+                           "SetEnvironmentVariable": type("SetEnvironmentVariable", (Rec,), {})},
         "launch.event_handlers": {"OnProcessExit": Rec},
         "launch.events": {"Shutdown": Rec},
-        "launch.substitutions": {"LaunchConfiguration": lambda name: f"$({name})"},
+        "launch.substitutions": {"LaunchConfiguration": lambda name: f"$({name})",
+                                 "EnvironmentVariable": lambda name, default_value="":
+                                 f"$(env {name} {default_value})"},
         "launch_ros.actions": {"Node": type("Node", (Rec,), {})},
         "launch_ros": {},
     }
@@ -98,7 +101,13 @@ def test_launch_description_builds_the_same_graph(monkeypatch: pytest.MonkeyPatc
         monkeypatch.setitem(sys.modules, name, types.SimpleNamespace(**attrs))
     from hand_control.graph import launch_description
 
-    launch_description("replay")
+    actions = launch_description("replay")
+    # loopback-only discovery unless the environment sets it (issue #20 item 12), before
+    # any node starts
+    env = actions[0]
+    assert type(env).__name__ == "SetEnvironmentVariable"
+    assert env.args == ("ROS_AUTOMATIC_DISCOVERY_RANGE",
+                        "$(env ROS_AUTOMATIC_DISCOVERY_RANGE LOCALHOST)")
     nodes = [c for c in created if c["type"] == "Node"]
     graph = load_graph("replay")
     assert [(n["name"], n["executable"]) for n in nodes] == [

@@ -7,7 +7,8 @@ its name and the process exits non-zero, which the graph runner reports; a
 :class:`~hand_capture.errors.HandSuiteError` (e.g. a damaged bag) is printed as one line.
 Nodes spin on :class:`~hand_capture.nodes.executor.LeanExecutor` (rclpy's single-threaded
 executor without its per-wake-up Python cost) unless ``executor_factory`` names another.
-Every node gets the ``realtime_priority`` parameter (:mod:`hand_capture.nodes.realtime`).
+Every node gets the ``realtime_priority`` parameter (:mod:`hand_capture.nodes.realtime`) and
+loopback-only discovery unless the environment sets it (:mod:`hand_capture.network`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from rclpy.node import Node
 from rclpy.task import Future
 
 from hand_capture.errors import HandSuiteError
+from hand_capture.network import apply_network_defaults
 from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.realtime import apply_realtime_priority
 
@@ -52,6 +54,7 @@ def run_node(
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _signal_to_keyboardinterrupt)
     argv = list(sys.argv if args is None else args)
+    apply_network_defaults()  # loopback-only discovery unless the environment says otherwise
     code = 0
     node: Node | None = None
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
