@@ -258,8 +258,9 @@ def _locate_mcap_damage(fh, data_end: int) -> str:
     return "a record outside the chunks (header, message index or metadata)"
 
 
-def verify_mcap(file: str | Path) -> None:
-    """Check an MCAP file's footer, summary CRC and data-section CRC (the whole file is read).
+def verify_mcap(file: str | Path) -> bool:
+    """Check an MCAP file's footer, summary CRC and data-section CRC (the whole file is read);
+    returns whether a data-section CRC was there to check.
 
     A CRC of 0 means "not computed" (MCAP spec; other writers and bags from before the CRCs
     were written) and is skipped; chunk CRCs are checked when chunks are read.
@@ -280,7 +281,7 @@ def verify_mcap(file: str | Path) -> None:
                 raise BagError(f"corrupt bag file {file}: damaged footer (or truncated file)")
             summary_start, _, summary_crc = struct.unpack_from("<QQI", foot, 9)
             if summary_start == 0:
-                return  # no summary section: nothing indexes the data; the reader scans it
+                return False  # no summary section: the reader scans the data
             if not 8 + 13 <= summary_start <= size - _MCAP_FOOTER:
                 raise BagError(f"corrupt bag file {file}: damaged footer (summary offset "
                                f"{summary_start} outside the file)")
@@ -296,6 +297,7 @@ def verify_mcap(file: str | Path) -> None:
             if data_crc and _crc_range(fh, 0, data_end) != data_crc:
                 where = _locate_mcap_damage(fh, data_end)
                 raise BagError(f"corrupt bag file {file}: data section CRC mismatch: {where}")
+            return bool(data_crc)
     except (OSError, ValueError, struct.error) as e:
         raise BagError(f"corrupt bag file {file}: {e}") from e
 
@@ -606,9 +608,11 @@ class BagReader:
                 f"{self.path} has no metadata.yaml: the recorder did not finish; run "
                 f"'hand-suite bag recover {self.path}' to rebuild it from what was flushed"
             )
-        for file in sorted(self.path.glob("*.mcap")) if self.path.is_dir() else [self.path]:
-            if file.suffix == ".mcap":
-                verify_mcap(file)
+        #: whether every storage file carried a data-section CRC that matched (MCAP)
+        self.crc_verified = False
+        files = sorted(self.path.glob("*.mcap")) if self.path.is_dir() else [self.path]
+        checked = [verify_mcap(f) for f in files if f.suffix == ".mcap"]
+        self.crc_verified = bool(checked) and all(checked)
         try:
             if (self.path.is_file() and self.path.suffix == ".mcap"
                     and not _written_by_rosbags(self.path)):
