@@ -171,6 +171,7 @@ def test_tuio_hostile_datagram_is_counted_and_listener_keeps_working():
             tx.close()
         assert not t.is_alive(), "TUIO listener hung on a malformed datagram"
         assert rx.stats.bad_datagrams == len(_HOSTILE_DATAGRAMS)
+        assert "from ('127.0.0.1'" in rx.stats.last_bad_datagram  # who sent it, and why
         assert len(frames) == 1 and _by_id(frames[0])[5][2]
 
 

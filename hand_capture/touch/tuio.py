@@ -175,6 +175,7 @@ class TuioStats:
     bad_messages: int = 0
     bad_coordinates: int = 0
     bad_datagrams: int = 0
+    last_bad_datagram: str = ""  # sender and defect of the last malformed datagram
     other_profiles: int = 0
     sources: set[str] = field(default_factory=set)
 
@@ -331,13 +332,16 @@ class TuioReceiver:
     def stats(self) -> TuioStats:
         return self.parser.stats
 
-    def decode(self, datagram: bytes) -> list[tuple[str, list[Any]]]:
+    def decode(self, datagram: bytes, sender: object = None) -> list[tuple[str, list[Any]]]:
         """OSC messages of one datagram (a message or nested bundles), in bundle order; a
-        malformed datagram is counted in ``stats.bad_datagrams`` and gives none."""
+        malformed datagram is counted in ``stats.bad_datagrams`` (``stats.last_bad_datagram``
+        names the sender and the defect) and gives none."""
         try:
             return decode_osc(datagram)
-        except OscDecodeError:
+        except OscDecodeError as e:
             self.parser.stats.bad_datagrams += 1
+            self.parser.stats.last_bad_datagram = (
+                f"{len(datagram)} bytes{f' from {sender}' if sender else ''}: {e}")
             return []
 
     def poll(self, timeout: float = 0.0) -> list[TouchFrame]:
@@ -349,12 +353,12 @@ class TuioReceiver:
             select.select([self._sock], [], [], timeout)
         for _ in range(self.MAX_DATAGRAMS_PER_POLL):
             try:
-                data = self._sock.recv(self._max)
+                data, sender = self._sock.recvfrom(self._max)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError as e:
                 raise DeviceError(f"TUIO socket failed: {e}") from e
-            frames.extend(self.parser.feed_many(self.decode(data)))
+            frames.extend(self.parser.feed_many(self.decode(data, sender)))
         return frames
 
     def close(self) -> None:
