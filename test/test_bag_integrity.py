@@ -32,9 +32,10 @@ def _image(k: int, side: int = 24) -> bytes:
     return bytes(store.serialize_cdr(img, "sensor_msgs/msg/Image"))
 
 
-def _image_bag(path: Path, n: int = 12, chunk_every: int = 4) -> dict[int, bytes]:
+def _image_bag(path: Path, n: int = 12, chunk_every: int = 4,
+               compress: bool = False) -> dict[int, bytes]:
     """An MCAP bag of ``n`` images on /img (several chunks); returns stamp -> payload."""
-    w = BagWriter(path, flush_period=3600.0)
+    w = BagWriter(path, flush_period=3600.0, compress=compress)
     w.add_topic("/img", "sensor_msgs/msg/Image")
     sent = {}
     for k in range(n):
@@ -46,18 +47,21 @@ def _image_bag(path: Path, n: int = 12, chunk_every: int = 4) -> dict[int, bytes
     return sent
 
 
-def test_mcap_crcs_are_written_and_accepted_by_independent_readers(tmp_path: Path) -> None:
+@pytest.mark.parametrize("compress", [False, True])
+def test_mcap_crcs_are_written_and_accepted_by_independent_readers(tmp_path: Path,
+                                                                    compress: bool) -> None:
     from mcap.records import Chunk, DataEnd, Footer
     from mcap.stream_reader import StreamReader, breakup_chunk
     from rosbags.rosbag2 import Reader
 
-    sent = _image_bag(tmp_path / "b")
+    sent = _image_bag(tmp_path / "b", compress=compress)
     f = tmp_path / "b" / "b.mcap"
     seen = {"chunks": 0}
     with f.open("rb") as fh:  # the raw records, chunks not broken up
         for rec in StreamReader(fh, validate_crcs=True, emit_chunks=True).records:
             if isinstance(rec, Chunk):
                 assert rec.uncompressed_crc != 0
+                assert rec.compression == ("zstd" if compress else "")
                 breakup_chunk(rec, validate_crc=True)
                 seen["chunks"] += 1
             elif isinstance(rec, DataEnd):
