@@ -118,9 +118,26 @@ def test_mcap_without_qos_metadata_is_played(ros, tmp_path: Path) -> None:
             w.add_message(cid, log_time=(k + 1) * 10_000_000, data=data,
                           publish_time=(k + 1) * 10_000_000)
         w.finish()
-    player, times, _, _ = _play(f)
-    assert player.done.result() == 0
-    assert len(times) == 5
+    got: list[float] = []
+    probe = rclpy.create_node("probe")
+    probe.create_subscription(HandPose, "/hand/pose", lambda m: got.append(m.positions[0]),
+                              QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
+    player = PlayerNode(parameter_overrides=[Parameter("bag", value=str(f)),
+                                             Parameter("wait_for_subscribers", value=True)])
+    ex = SingleThreadedExecutor()
+    for n in (player, probe):
+        ex.add_node(n)
+    try:
+        ex.spin_until_future_complete(player.done, timeout_sec=30)
+        assert player.done.result() == 0
+        deadline = time.monotonic() + 10.0
+        while len(got) < 5 and time.monotonic() < deadline:  # the last ones still queued
+            ex.spin_once(timeout_sec=0.1)
+        assert got == pytest.approx([0.0, 0.1, 0.2, 0.3, 0.4])
+    finally:
+        player.on_shutdown()
+        for n in (player, probe):
+            n.destroy_node()
 
 
 def test_latched_topic_is_replayed_transient_local(ros, tmp_path: Path) -> None:
