@@ -103,14 +103,18 @@ class BridgeConfig:
                                      lo=0.01, hi=60.0, read_only=True)
     timeout_action: str = param("hold", "on command timeout: hold the last goal, or "
                                 "torque_off", choices=("hold", "torque_off"), read_only=True)
-    max_comm_failures: int = param(5, "consecutive failed cycles before the ERROR state "
-                                   "and a torque-off attempt", lo=1, hi=1000, read_only=True)
+    max_comm_failures: int = param(5, "consecutive failed cycles before the ERROR state, "
+                                   "a torque-off attempt and the node going inactive (~/reboot "
+                                   "or activate reopens the port)", lo=1, hi=1000,
+                                   read_only=True)
     packet_timeout_ms: float = param(20.0, "extra wait for a status packet beyond its "
                                      "transmission time [ms] (at least 100 with port: "
                                      "emulator)", lo=0.2, hi=1000.0, read_only=True)
     read_mode: str = param("auto", "state read: sync (Sync Read, any firmware), fast_sync "
                            "(Fast Sync Read: X330 fw >= 46, X430 fw >= 45), or auto (fast_sync "
-                           "when every servo's firmware has it and a trial read works)",
+                           "when every servo's firmware has it and a trial read works); a "
+                           "failed Fast Sync Read is followed by a Sync Read naming the "
+                           "failing servo",
                            choices=("auto", "sync", "fast_sync"), read_only=True)
     hw_status_every: int = param(50, "cycles between polls of Hardware Error Status(70) "
                                  "(the Alert bit is checked every cycle)", lo=1, hi=100000,
