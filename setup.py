@@ -34,6 +34,7 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/graphs", glob("config/graphs/*.yaml")),
         (f"share/{PACKAGE}/config/servo_maps", glob("config/servo_maps/*.yaml")),
+        (f"share/{PACKAGE}/config/rigs", glob("config/rigs/*.yaml")),
         (f"share/{PACKAGE}/config/scenarios", glob("config/scenarios/*.yaml")),
         (f"share/{PACKAGE}/data/touch", glob("data/touch/*.npz")),
         (f"share/{PACKAGE}/data/tracker", glob("data/tracker/*.npz")),
