@@ -1,4 +1,4 @@
-"""Frame synchronisation across cameras with independent clocks, jitter, drops and a dead camera."""
+"""Frame synchronisation across cameras: independent clocks, jitter, drops, a dead camera."""
 
 from __future__ import annotations
 

@@ -33,8 +33,8 @@ from hand_capture.errors import HandSuiteError, InputError
 from hand_capture.multiview.charuco import BoardSpec, Detection, detect_board
 from hand_capture.multiview.rig import Rig, RigCamera
 
-__all__ = ["WORLD_FROM_BOARD", "CalibrationError", "CalibrationResult", "calibrate_from_detections",
-           "calibrate_rig", "compare_rigs"]
+__all__ = ["WORLD_FROM_BOARD", "CalibrationError", "CalibrationResult",
+           "calibrate_from_detections", "calibrate_rig", "compare_rigs"]
 
 #: fewest corners for a usable observation (PnP on a plane needs 4; more for robustness)
 MIN_CORNERS = 6
@@ -230,7 +230,7 @@ def _chain(cams: list[str], dets: Mapping[str, Mapping[int, Detection]],
                 T_wc[c] = T_wb[v] @ np.linalg.inv(T_cb[(c, v)])
                 changed = True
         for c in list(T_wc):
-            for v, d in dets[c].items():
+            for v in dets[c]:
                 if v not in T_wb:
                     T_wb[v] = T_wc[c] @ T_cb[(c, v)]
                     changed = True
@@ -242,19 +242,28 @@ def _chain(cams: list[str], dets: Mapping[str, Mapping[int, Detection]],
     return T_wc, T_wb
 
 
-def _refine(cams, dets, spec, intr, T_wc, T_wb, ref, fixed, _probe=None):  # noqa: ANN001, ANN202
-    """Step 4: joint least squares over all poses and intrinsics, analytic sparse Jacobian.
+def _refine(cams: list[str], dets: Mapping[str, Mapping[int, Detection]], spec: BoardSpec,
+            intr: Mapping[str, Intrinsics], T_wc: Mapping[str, np.ndarray],
+            T_wb: Mapping[int, np.ndarray], ref: int, fixed: Mapping[str, Intrinsics],
+            _probe: dict | None = None
+            ) -> tuple[dict[str, np.ndarray], dict[int, np.ndarray], dict[str, Intrinsics], int]:
+    """Step 4: joint least squares over all poses and intrinsics (Levenberg-Marquardt).
 
-    Unknowns: per camera the world -> camera extrinsic (rotation vector, translation), per
-    board view (but the reference) its world pose, per camera not in ``fixed`` its
-    (fx, fy, cx, cy, k1, k2, p1, p2) (k3 stays 0: a wide lens is not this module's job).
-    Residuals: pixel differences of every detected corner. OpenCV's ``projectPoints`` gives
-    the derivatives with respect to the extrinsic and the intrinsics; the chain through the
-    board pose uses ``d uv / d X_world = (d uv / d t) R_cw`` and Rodrigues' derivative.
+    Unknowns: per camera the world -> camera extrinsic, per board view (but the reference)
+    its world pose, per camera not in ``fixed`` its (fx, fy, cx, cy, k1, k2, p1, p2) (k3 stays
+    0: a wide lens is not this module's job). Residuals: pixel differences of every detected
+    corner. Rotations are updated multiplicatively, R <- R(delta) R, so the rotation vectors
+    stay near zero, away from the singularity of Rodrigues' parameters at pi. OpenCV's
+    ``projectPoints`` gives the derivatives with respect to the extrinsic and the intrinsics;
+    the chain through the board pose uses ``d uv / d X_world = (d uv / d t) R_cw`` and
+    Rodrigues' derivative. The normal equations are sparse (cameras x views blocks).
+
+    Returns:
+        (camera poses T_wc, board poses T_wb, intrinsics, residual evaluations).
     """
     import cv2
-    from scipy.optimize import least_squares
-    from scipy.sparse import csr_matrix
+    from scipy.sparse import csr_matrix, diags
+    from scipy.sparse.linalg import spsolve
 
     views = sorted(v for v in T_wb if v != ref)
     free_k = [c for c in cams if c not in fixed]
@@ -264,44 +273,45 @@ def _refine(cams, dets, spec, intr, T_wc, T_wb, ref, fixed, _probe=None):  # noq
     o_view = 6 * len(cams)
     o_k = o_view + 6 * len(views)
     ki = {c: o_k + nk * i for i, c in enumerate(free_k)}
-
-    def pose_vec(T: np.ndarray) -> np.ndarray:
-        return np.concatenate([matrix_to_rotvec(T[:3, :3]), T[:3, 3]])
-
-    x0 = np.concatenate(
-        [pose_vec(np.linalg.inv(T_wc[c])) for c in cams] + [pose_vec(T_wb[v]) for v in views]
-        + [np.array([intr[c].fx, intr[c].fy, intr[c].cx, intr[c].cy,
-                     *intr[c].distortion[:4]]) for c in free_k])
+    n_x = o_k + nk * len(free_k)
     obs = [(c, v, d) for c in cams for v, d in dets[c].items() if v in T_wb]
     n_res = 2 * sum(len(d) for _, _, d in obs)
 
+    # The state around which the increments x are taken.
+    cam_R = {c: np.linalg.inv(T_wc[c])[:3, :3] for c in cams}  # R_cw
+    cam_t = {c: np.linalg.inv(T_wc[c])[:3, 3] for c in cams}
+    view_R = {v: T_wb[v][:3, :3] for v in views}
+    view_t = {v: T_wb[v][:3, 3] for v in views}
+    k_vec = {c: np.array([intr[c].fx, intr[c].fy, intr[c].cx, intr[c].cy,
+                          *intr[c].distortion[:4]]) for c in free_k}
+
     def camera_model(x: np.ndarray, c: str) -> tuple[np.ndarray, np.ndarray]:
         if c in ki:
-            p = x[ki[c]: ki[c] + nk]
+            p = k_vec[c] + x[ki[c]: ki[c] + nk]
             return np.array([[p[0], 0, p[2]], [0, p[1], p[3]], [0, 0, 1]]), \
                 np.array([*p[4:8], 0.0])
         k = fixed[c]
         return k.K, np.asarray(k.distortion, dtype=float)
 
-    def board_pose(x: np.ndarray, v: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        if v == ref:
-            return WORLD_FROM_BOARD[:3, :3], WORLD_FROM_BOARD[:3, 3], None
-        o = o_view + 6 * vi[v]
-        R, dR = cv2.Rodrigues(x[o: o + 3])
-        return R, x[o + 3: o + 6], dR  # dR: (3, 9) d vec(R) / d rvec
-
-    def evaluate(x: np.ndarray, want_jac: bool):  # noqa: ANN202
+    def evaluate(x: np.ndarray, want_jac: bool) -> np.ndarray | csr_matrix:
+        """Residuals (and the Jacobian) at the state moved by the increments x."""
         res = np.empty(n_res)
         rows, cols, vals = [], [], []
         r0 = 0
         for c, v, d in obs:
             n = len(d)
             X = spec.corners[d.ids]
-            Rb, tb, dRb = board_pose(x, v)
-            Xw = X @ Rb.T + tb
+            if v == ref:
+                Xw, dRb = X @ WORLD_FROM_BOARD[:3, :3].T + WORLD_FROM_BOARD[:3, 3], None
+            else:
+                o = o_view + 6 * vi[v]
+                X = X @ view_R[v].T  # pre-rotated: R_wb = R(delta) R_wb0
+                Rd, dRb = cv2.Rodrigues(x[o: o + 3])  # dRb: (3, 9) d vec(R) / d delta
+                Xw = X @ Rd.T + view_t[v] + x[o + 3: o + 6]
             o = 6 * ci[c]
+            Xc = Xw @ cam_R[c].T  # R_cw = R(delta) R_cw0: pre-rotate the world points
             K, D = camera_model(x, c)
-            uv, J = cv2.projectPoints(Xw, x[o: o + 3], x[o + 3: o + 6], K, D)
+            uv, J = cv2.projectPoints(Xc, x[o: o + 3], cam_t[c] + x[o + 3: o + 6], K, D)
             res[r0: r0 + 2 * n] = (uv.reshape(-1, 2) - d.pixels).ravel()
             if want_jac:
                 rr = np.arange(r0, r0 + 2 * n)
@@ -309,13 +319,12 @@ def _refine(cams, dets, spec, intr, T_wc, T_wb, ref, fixed, _probe=None):  # noq
                 if c in ki:
                     blocks.append((ki[c], J[:, 6:14]))
                 if dRb is not None:
-                    R_cw = cv2.Rodrigues(x[o: o + 3])[0]
-                    dXw = (J[:, 3:6] @ R_cw).reshape(n, 2, 3)  # d uv / d X_world
-                    # d X_world / d rvec_b[k] = dR/drvec_k X
+                    R_full = cv2.Rodrigues(x[o: o + 3])[0] @ cam_R[c]
+                    dXw = (J[:, 3:6] @ R_full).reshape(n, 2, 3)  # d uv / d X_world
                     dXw_dr = np.einsum("kij,nj->nik", dRb.reshape(3, 3, 3), X)  # (n, 3, 3)
                     j_rot = np.einsum("nai,nik->nak", dXw, dXw_dr).reshape(2 * n, 3)
-                    blocks.append((o_view + 6 * vi[v], np.hstack([j_rot,
-                                                                  dXw.reshape(2 * n, 3)])))
+                    blocks.append((o_view + 6 * vi[v],
+                                   np.hstack([j_rot, dXw.reshape(2 * n, 3)])))
                 for col0, blk in blocks:
                     rows.append(np.repeat(rr, blk.shape[1]))
                     cols.append(np.tile(np.arange(col0, col0 + blk.shape[1]), 2 * n))
@@ -324,29 +333,56 @@ def _refine(cams, dets, spec, intr, T_wc, T_wb, ref, fixed, _probe=None):  # noq
         if not want_jac:
             return res
         return csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(n_res, x.size))
+                          shape=(n_res, n_x))
+
+    def fold(x: np.ndarray) -> None:
+        """Move the state by the increments x (rotations multiplicatively)."""
+        for c, i in ci.items():
+            cam_R[c] = cv2.Rodrigues(x[6 * i: 6 * i + 3])[0] @ cam_R[c]
+            cam_t[c] = cam_t[c] + x[6 * i + 3: 6 * i + 6]
+        for v, i in vi.items():
+            o = o_view + 6 * i
+            view_R[v] = cv2.Rodrigues(x[o: o + 3])[0] @ view_R[v]
+            view_t[v] = view_t[v] + x[o + 3: o + 6]
+        for c in free_k:
+            k_vec[c] = k_vec[c] + x[ki[c]: ki[c] + nk]
 
     if _probe is not None:  # tests compare the Jacobian with finite differences
-        _probe.update(x0=x0, evaluate=evaluate)
-    sol = least_squares(lambda x: evaluate(x, False), x0, jac=lambda x: evaluate(x, True),
-                        x_scale="jac", method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-8,
-                        max_nfev=200)
-    x = sol.x
-    cam_T = {}
-    for c, i in ci.items():
-        T_cw = _T(rotvec_to_matrix(x[6 * i: 6 * i + 3]), x[6 * i + 3: 6 * i + 6])
-        cam_T[c] = np.linalg.inv(T_cw)
+        _probe.update(x0=np.zeros(n_x), evaluate=evaluate)
+    zero = np.zeros(n_x)
+    r = evaluate(zero, False)
+    cost = float(r @ r)
+    lam, n_eval = 1e-3, 1
+    for _ in range(100):
+        J = evaluate(zero, True)
+        JtJ = (J.T @ J).tocsc()
+        g = J.T @ r
+        d = JtJ.diagonal()
+        improved = False
+        while lam < 1e10:
+            step = -spsolve(JtJ + diags(lam * np.maximum(d, 1e-12)), g)
+            r_new = evaluate(step, False)
+            n_eval += 1
+            c_new = float(r_new @ r_new)
+            if c_new < cost:
+                fold(step)
+                improved = cost - c_new > 1e-12 * cost and np.abs(step).max() > 1e-12
+                r, cost = r_new, c_new
+                lam = max(lam / 10.0, 1e-9)
+                break
+            lam *= 10.0
+        if not improved:
+            break
+    cam_T = {c: np.linalg.inv(_T(cam_R[c], cam_t[c])) for c in cams}
     view_T = {ref: WORLD_FROM_BOARD.copy()}
-    for v in views:
-        Rb, tb, _ = board_pose(x, v)
-        view_T[v] = _T(Rb, tb)
+    view_T.update({v: _T(view_R[v], view_t[v]) for v in views})
     intr_x = dict(intr)
     for c in free_k:
-        K, D = camera_model(x, c)
+        K, D = camera_model(zero, c)
         k = intr[c]
         intr_x[c] = Intrinsics(k.width, k.height, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
                                "plumb_bob", tuple(float(v) for v in D))
-    return cam_T, view_T, intr_x, int(sol.nfev)
+    return cam_T, view_T, intr_x, n_eval
 
 
 def _rms(cam: str, dets: Mapping[int, Detection], spec: BoardSpec, k: Intrinsics,

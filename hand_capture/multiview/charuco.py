@@ -52,8 +52,8 @@ class BoardSpec:
                               f"square_m ({self.square_m})")
 
     @cached_property
-    def board(self):  # noqa: ANN201 - cv2.aruco.CharucoBoard
-        """The OpenCV board object."""
+    def board(self) -> object:
+        """The OpenCV board object (``cv2.aruco.CharucoBoard``)."""
         import cv2
 
         d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
@@ -200,7 +200,7 @@ def _pixel_rays(k: Intrinsics, s: int) -> np.ndarray:
 def sample_board_poses(spec: BoardSpec, rig: Rig, n: int, *, seed: int = 0,
                        min_cameras: int = 2, max_tilt_deg: float = 40.0,
                        centre: Sequence[float] = (0.0, 0.0, 0.0),
-                       spread_m: float = 0.15) -> list[np.ndarray]:
+                       spread_m: float = 0.3) -> list[np.ndarray]:
     """``n`` board poses (4, 4) in the rig's world, each facing at least ``min_cameras``.
 
     The first lies face up, flat on the table at ``centre`` (the reference view of
@@ -230,7 +230,7 @@ def sample_board_poses(spec: BoardSpec, rig: Rig, n: int, *, seed: int = 0,
             tilt = np.radians(rng.uniform(0.0, max_tilt_deg))
             spin = rotvec_to_matrix(np.array([0.0, 0.0, rng.uniform(-np.pi, np.pi)]))
             R = rotvec_to_matrix(axis * tilt) @ spin @ flip
-            p = c0 + np.array([*rng.uniform(-spread_m, spread_m, 2), rng.uniform(0.0, 0.25)])
+            p = c0 + np.array([*rng.uniform(-spread_m, spread_m, 2), rng.uniform(0.0, 0.3)])
         T = np.eye(4)
         T[:3, :3] = R
         T[:3, 3] = p - R @ np.array([w / 2, h / 2, 0.0])  # centre the board on p
@@ -240,21 +240,22 @@ def sample_board_poses(spec: BoardSpec, rig: Rig, n: int, *, seed: int = 0,
 
 
 def boards_seen_by(spec: BoardSpec, rig: Rig, T_world_board: np.ndarray,
-                   min_cos: float = 0.35) -> list[str]:
-    """Cameras that see the whole printed side of the board, at a usable angle."""
-    w, h = spec.size_m
-    outline = np.array([[0, 0, 0], [w, 0, 0], [w, h, 0], [0, h, 0], [w / 2, h / 2, 0]])
-    pts = (T_world_board[:3, :3] @ outline.T).T + T_world_board[:3, 3]
+                   min_cos: float = 0.5, min_fraction: float = 0.5) -> list[str]:
+    """Cameras that see the printed side at a usable angle (viewing direction within
+    acos(``min_cos``) of the board's normal), with at least ``min_fraction`` of its corners
+    inside the image."""
+    pts = spec.corners @ T_world_board[:3, :3].T + T_world_board[:3, 3]
     n = T_world_board[:3, 2]
     seen = []
     for cam in rig.cameras:
-        view = cam.t_wc - pts[4]
+        view = cam.t_wc - pts.mean(axis=0)
         if -(n @ view) / np.linalg.norm(view) < min_cos:  # printed side faces -z
             continue
         uv, front = cam.project(pts)
         k = cam.intrinsics
-        if front.all() and np.all((uv[:, 0] > 5) & (uv[:, 0] < k.width - 6)
-                                  & (uv[:, 1] > 5) & (uv[:, 1] < k.height - 6)):
+        inside = front & (uv[:, 0] > 5) & (uv[:, 0] < k.width - 6) & (uv[:, 1] > 5) & (
+            uv[:, 1] < k.height - 6)
+        if inside.mean() >= min_fraction:
             seen.append(cam.name)
     return seen
 
