@@ -20,6 +20,7 @@ NODES = {
     "sim": "hand_control.nodes.sim:main",
     "controller": "hand_control.nodes.controller:main",
     "tracker": "hand_capture.nodes.tracker:main",
+    "rig_sync": "hand_capture.nodes.rig_sync:main",
 }
 
 setup(
