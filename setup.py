@@ -20,6 +20,7 @@ NODES = {
     "sim": "hand_control.nodes.sim:main",
     "controller": "hand_control.nodes.controller:main",
     "tracker": "hand_capture.nodes.tracker:main",
+    "rig_sync": "hand_capture.nodes.rig_sync:main",
 }
 
 setup(
@@ -34,6 +35,7 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
         (f"share/{PACKAGE}/config/graphs", glob("config/graphs/*.yaml")),
         (f"share/{PACKAGE}/config/servo_maps", glob("config/servo_maps/*.yaml")),
+        (f"share/{PACKAGE}/config/rigs", glob("config/rigs/*.yaml")),
         (f"share/{PACKAGE}/config/scenarios", glob("config/scenarios/*.yaml")),
         (f"share/{PACKAGE}/data/touch", glob("data/touch/*.npz")),
         (f"share/{PACKAGE}/data/tracker", glob("data/tracker/*.npz")),

@@ -7,6 +7,7 @@
     hand-suite bench NAME [--quick] | bench --list
     hand-suite capture [-o DIR] [--clip C] [--seconds S] [--fps F] [--shape-seed N]
     hand-suite train touch|tracker [ARGS] fit the touch encodings / the tracker's forest
+    hand-suite calibrate rig BAG_OR_DIR -o config/rigs/NAME.yaml [--board 7x5:0.05:0.036]
     hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
     hand-suite demo [--out DIR]          the README's main job
@@ -210,6 +211,28 @@ def cmd_demo(a: argparse.Namespace) -> int:
     return teleop_demo(Path(a.out))
 
 
+def cmd_calibrate(a: argparse.Namespace) -> int:
+    from hand_capture.bench import print_table
+    from hand_capture.multiview.calibrate import calibrate_rig
+    from hand_capture.multiview.charuco import parse_board
+    from hand_capture.multiview.rig import save_rig
+    from hand_capture.multiview.views import load_views
+
+    spec = parse_board(a.board)
+    images = load_views(a.input, a.cameras.split(",") if a.cameras else None)
+    name = a.name or Path(a.output).stem
+    res = calibrate_rig(images, spec, name=name, reference_view=a.reference_view)
+    print_table(f"rig {name}: {len(res.rig)} cameras, {len(res.board_poses)} board views",
+                ["camera", "views", "reprojection RMS [px]", "fx [px]", "fy [px]", "cx", "cy"],
+                [[c.name, res.observations[c.name], res.reproj_px[c.name], c.intrinsics.fx,
+                  c.intrinsics.fy, c.intrinsics.cx, c.intrinsics.cy] for c in res.rig.cameras])
+    out = save_rig(res.rig, a.output, header=[
+        f"written by: hand-suite calibrate rig {a.input} --board {a.board}",
+        f"world frame: the board at view {a.reference_view}, z up when it lies face up"])
+    print(f"\nwrote {out}")
+    return 0
+
+
 def cmd_test(a: argparse.Namespace) -> int:
     root = Path(__file__).resolve().parents[1]
     venv_bin = Path(sys.executable).parent
@@ -278,6 +301,19 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("what")
     tr.add_argument("train_args", nargs=argparse.REMAINDER)
     tr.set_defaults(func=cmd_train)
+
+    ca = sub.add_parser("calibrate", help="calibrate a multi-view camera rig (ChArUco)")
+    ca.add_argument("what", choices=["rig"])
+    ca.add_argument("input", help="bag with <cam>/color/image_raw topics, or a folder of "
+                    "<cam>/<view>.png images")
+    ca.add_argument("-o", "--output", required=True, help="rig file to write")
+    ca.add_argument("--board", default="7x5:0.05:0.036:DICT_4X4_50",
+                    help="ChArUco board: SQUARESxSQUARES:SQUARE_M:MARKER_M[:DICTIONARY]")
+    ca.add_argument("--cameras", default="", help="comma-separated cameras (default: all)")
+    ca.add_argument("--reference-view", type=int, default=0,
+                    help="view whose board (lying face up) defines the world frame")
+    ca.add_argument("--name", default="", help="rig name (default: the output's stem)")
+    ca.set_defaults(func=cmd_calibrate)
 
     mj = sub.add_parser("mjcf", help="write the MuJoCo hand.xml and scenes",
                         add_help=False)
