@@ -8,10 +8,9 @@ Two formulations, chosen by ``ContactQPConfig.method``:
            + a3 sum_k |f_k|^2 + a4 sum_k l_k^2
       s.t. f_k = B_k lambda_k, lambda_k >= 0     (friction pyramid)
 
-  with the dissertation's ``a1..a4 = 1, 1, 0.1, 0.1`` (defaults here: ``1, 1, 1e-3, 1e-3``,
-  see ``ContactQPConfig``). The dissertation (like seed 000, eq. 11) only regularises the
-  torsional torques ``l_k``; ``torsion_bound`` (default on) adds the soft-contact limit
-  ``|l_k| <= torsional_friction * (n_k . f_k)``.
+  with ``a1..a4 = 1, 1, 0.1, 0.1``. The torsional torques ``l_k`` are free: the dissertation
+  (like seed 000, eq. 11) only regularises them. ``torsion_bound`` optionally adds the
+  soft-contact limit ``|l_k| <= torsional_friction * (n_k . f_k)``.
 * ``"seed000"`` -- eq. (10) then eq. (11) of seed 000: scale the simulator's contact forces,
   ``f_aug,i = w_i f_c,i`` with ``w_i >= 0``, then fit the torsional torques to the remaining
   torque, ``lambda1 = lambda2 = 1``.
@@ -79,18 +78,15 @@ class ContactQPConfig:
     alpha1: float = param(1.0, "weight of the net force error, eq. (III.23)", lo=0.0)
     alpha2: float = param(1.0, "weight of the net torque error, eq. (III.23)", lo=0.0)
     alpha3: float = param(
-        1e-3, "weight of sum |f_k|^2, eq. (III.23) [1/N^2 relative to alpha1]; > 0 keeps the "
-        "forces unique. The dissertation's 0.1 leaves a third of a 1 kg load at mu = 0.3 "
-        "unmet in closed loop (README)", lo=1e-9
+        0.1, "weight of sum |f_k|^2, eq. (III.23); > 0 keeps the forces unique", lo=1e-9
     )
     alpha4: float = param(
-        1e-3, "weight of sum l_k^2, eq. (III.23); > 0 keeps the torsions unique (the "
-        "dissertation: 0.1)", lo=1e-9
+        0.1, "weight of sum l_k^2, eq. (III.23); > 0 keeps the torsions unique", lo=1e-9
     )
     lambda1: float = param(1.0, "weight of sum (w_i - 1)^2, seed 000 eq. (10)", lo=1e-9)
     lambda2: float = param(1.0, "weight of sum l_i^2, seed 000 eq. (11)", lo=1e-9)
     torsion_bound: bool = param(
-        True,
+        False,
         "bound |l_k| <= torsional_friction * normal force (method 'dissertation'; the papers "
         "only regularise l_k)",
     )

@@ -12,11 +12,16 @@ node, one key of ``config/controller.yaml``):
 * the contact-force QP: ``method`` (eq. III.23 or seed 000 eq. 10-11), ``alpha1..alpha4``,
   ``lambda1``, ``lambda2``, the friction pyramid and the solver settings. These fields are
   those of :class:`hand_control.contact.qp.ContactQPConfig`, inherited (declared once, in
-  the QP's module): a ``CompositeControlConfig`` is the QP's config too.
+  the QP's module, with their descriptions and ranges): a ``CompositeControlConfig`` is the
+  QP's config too. Three defaults differ from the QP's (which are the dissertation's) for
+  closed-loop control: ``alpha3 = alpha4 = 1e-3`` (the dissertation's 0.1 leaves a third of a
+  1 kg load at mu = 0.3 unmet: the object is never lifted) and ``torsion_bound`` on (the
+  torsional torques within the contacts' torsional friction, which the simulator enforces).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,10 +38,22 @@ _TABLE_KP = tuple(GAIN_TABLE[r][0] for r in GAIN_ROWS)
 _TABLE_KD = tuple(GAIN_TABLE[r][1] for r in GAIN_ROWS)
 
 
+def _closed_loop_default(name: str, value: Any) -> Any:
+    """An inherited ``ContactQPConfig`` field with another default (its description and
+    range stay the QP's: one declaration)."""
+    return dataclasses.field(default=value,
+                             metadata=ContactQPConfig.__dataclass_fields__[name].metadata)
+
+
 @dataclass(frozen=True)
 class CompositeControlConfig(ContactQPConfig):
     """Composite motion control (seed 000 eq. 8-13, dissertation eq. III.19-III.23): gains,
-    object servo and the contact-force QP's settings (inherited from ``ContactQPConfig``)."""
+    object servo and the contact-force QP's settings (inherited from ``ContactQPConfig``;
+    closed-loop defaults for ``alpha3``, ``alpha4``, ``torsion_bound``: module docstring)."""
+
+    alpha3: float = _closed_loop_default("alpha3", 1e-3)
+    alpha4: float = _closed_loop_default("alpha4", 1e-3)
+    torsion_bound: bool = _closed_loop_default("torsion_bound", True)
 
     mode: str = param(
         "composite",
@@ -94,10 +111,8 @@ class CompositeControlConfig(ContactQPConfig):
 
     def qp_config(self) -> ContactQPConfig:
         """The QP's settings alone (the inherited fields)."""
-        from dataclasses import fields
-
         return ContactQPConfig(**{f.name: getattr(self, f.name)
-                                  for f in fields(ContactQPConfig)})
+                                  for f in dataclasses.fields(ContactQPConfig)})
 
 
 def joint_gains(
