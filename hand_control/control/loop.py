@@ -151,6 +151,7 @@ class ControllerCore:
             raise InputError(f"kinematics limits need shapes ({n},) and ({n}, 2), no NaN")
         self._effort_hi = lim
         self._effort_lo = -lim
+        self._effort_min = float(lim.min()) if n else 0.0
         self._pos_lo, self._pos_hi = plim[:, 0].copy(), plim[:, 1].copy()
         self._no_gravity = not self.controller.config.gravity_compensation
         self._composite = self.controller.config.mode == "composite"
@@ -425,12 +426,17 @@ class ControllerCore:
             hold = np.where(np.isfinite(q), q, 0.0) if q.shape == q_target.shape else 0.0
             q_target = np.where(np.isfinite(q_target), q_target, hold)
             pd_only = True
-        lo, hi = self._pos_lo, self._pos_hi
-        clipped = _clip(q_target, lo, hi)
-        # counted beyond round-off (IK grasp poses sit on the joint limits)
-        saturated = bool(np.abs(clipped - q_target).max() > _POS_TOL)
-        q_target = clipped
-        if not pd_only:
+        # q_target is the command's own copy: clipped in place
+        if trusted_target:  # a scenario reference: within the limits up to round-off (not counted)
+            _clip(q_target, self._pos_lo, self._pos_hi, out=q_target)
+            saturated = False
+        else:
+            clipped = _clip(q_target, self._pos_lo, self._pos_hi)
+            # counted beyond round-off (IK grasp poses sit on the joint limits)
+            saturated = bool(np.abs(clipped - q_target).max() > _POS_TOL)
+            q_target = clipped
+        # efforts: two reductions decide the usual case (all within the smallest limit)
+        if not pd_only and max(effort.max(), -effort.min()) > self._effort_min:
             hi = self._effort_hi
             if (np.abs(effort) > hi).any():
                 effort = _clip(effort, self._effort_lo, hi)
@@ -459,8 +465,9 @@ _POS_TOL = 1e-6  # [rad or m] a clipped target further off than this counts as s
 try:  # numpy's clip ufunc (one call); min(max(x, lo), hi) elementwise
     from numpy._core.umath import clip as _clip
 except ImportError:  # pragma: no cover - numpy < 2
-    def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        return np.minimum(np.maximum(x, lo), hi)
+    def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+              out: np.ndarray | None = None) -> np.ndarray:
+        return np.minimum(np.maximum(x, lo), hi, out=out)
 # the empty arrays of a PD-only command (read-only: shared by every such command)
 _EMPTY3 = np.zeros((0, 3))
 _EMPTY = np.zeros(0)
