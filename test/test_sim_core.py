@@ -190,6 +190,9 @@ def test_parameter_files_fill_the_config_dataclasses() -> None:
     assert ctrl.reference == "scripted"
     assert gains.mode == "composite" and gains.alpha3 == 1e-3 and gains.method == "dissertation"
     assert gains == CompositeControlConfig()  # the YAML states the defaults, one source
+    # the sim's servos and the controller get the same PD gains
+    servo = load_node_params(CompositeControlConfig, root / "sim.yaml", "sim")
+    assert (servo.joint_kp, servo.joint_kd) == (gains.joint_kp, gains.joint_kd)
     for name in scenario_names():
         load_scenario(name)
 

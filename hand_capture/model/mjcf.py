@@ -95,7 +95,7 @@ ROOT_ROT_ARMATURE: float = 1e-4
 DEFAULT_ROOT_POS: tuple[float, float, float] = (0.0, 0.0, 0.12)
 #: largest fingertip force of a finger's flexors [N], for the finger torque limits
 #: (:func:`finger_torque_limits`): in a maximal power grip of ~115 N the index and middle
-#: fingers each carry ~32 % = ~37 N (Li 1998 / 2002, "The influence of wrist position on
+#: fingers each carry ~32 % = ~37 N (Z.-M. Li 2002, "The influence of wrist position on
 #: individual finger forces during forceful grip", J Hand Surg Am 27(5): 886-896); the
 #: thumb opposes the fingers and carries about twice that.
 FINGER_TIP_FORCE: float = 40.0
