@@ -151,7 +151,7 @@ class ControllerCore:
             raise InputError(f"kinematics limits need shapes ({n},) and ({n}, 2), no NaN")
         self._effort_hi = lim
         self._effort_lo = -lim
-        self._effort_min = float(lim.min()) if n else 0.0
+        self._ones = np.ones(n)
         self._pos_lo, self._pos_hi = plim[:, 0].copy(), plim[:, 1].copy()
         self._no_gravity = not self.controller.config.gravity_compensation
         self._composite = self.controller.config.mode == "composite"
@@ -255,8 +255,9 @@ class ControllerCore:
                 self.last_output = out
                 if out.fallback:
                     self.counters["qp_fallbacks"] += 1
-                else:  # tau_gravity is zero here (gravity compensated inside MuJoCo)
-                    effort = out.tau_grasp if self._no_gravity else \
+                else:  # tau_gravity is zero here (gravity compensated inside MuJoCo);
+                    # the command's own array (clipped in place by _command)
+                    effort = out.tau_grasp.copy() if self._no_gravity else \
                         out.tau_grasp + out.tau_gravity
                     forces, torsion = out.qp.forces, out.qp.torsion
             except HandSuiteError:
@@ -435,11 +436,12 @@ class ControllerCore:
             # counted beyond round-off (IK grasp poses sit on the joint limits)
             saturated = bool(np.abs(clipped - q_target).max() > _POS_TOL)
             q_target = clipped
-        # efforts: two reductions decide the usual case (all within the smallest limit)
-        if not pd_only and max(effort.max(), -effort.min()) > self._effort_min:
-            hi = self._effort_hi
-            if (np.abs(effort) > hi).any():
-                effort = _clip(effort, self._effort_lo, hi)
+        if not pd_only:  # the efforts (this step's own array) clipped in place; a clipped
+            # entry changes their sum (two BLAS dots: cheaper than a comparison per entry)
+            ones = self._ones
+            before = effort.dot(ones)
+            _clip(effort, self._effort_lo, self._effort_hi, out=effort)
+            if effort.dot(ones) != before:
                 saturated = True
         if saturated:
             self.counters["saturated"] += 1
