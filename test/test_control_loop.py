@@ -197,3 +197,24 @@ def test_every_exported_scene_and_scenario_world_steps_without_warnings(tmp_path
         m, d = world.model, mujoco.MjData(world.model)
         mujoco.mj_resetDataKeyframe(m, d, 0)
         _assert_steps_clean(m, d, 500, name)
+
+
+def test_sim_node_writes_the_servo_gains_of_its_parameters_into_the_model(ros) -> None:
+    """``-p sim.joint_kp:=...`` reaches MuJoCo: the world's position servos carry the gains."""
+    from rclpy.parameter import Parameter
+
+    from hand_capture.model.joints import JOINT_NAMES
+    from hand_control.control import joint_gains
+    from hand_control.nodes.sim import SimNode
+
+    _, add, _ = ros
+    kp = [2.0 * v for v in CompositeControlConfig().joint_kp]
+    sim = add(SimNode(parameter_overrides=[Parameter("scenario", value="lift_box"),
+                                           Parameter("real_time", value=False),
+                                           Parameter("joint_kp", value=kp)]))
+    want, _ = joint_gains(sim.gains, JOINT_NAMES)
+    m = sim.world.model
+    np.testing.assert_allclose(m.actuator_gainprm[:27, 0], want)
+    np.testing.assert_allclose(sim.world.kp, want)
+    i = JOINT_NAMES.index("index_mcp_flex")
+    assert m.actuator_gainprm[i, 0] == 8.0  # Table 1's index1 Kp = 4, doubled
