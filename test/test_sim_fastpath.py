@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from hand_control.contact.qp import ContactForceResult
+from hand_control.control import Command
 from hand_control.errors import InputError
-from hand_control.sim.control_loop import Command
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import ScenarioSpec
 

@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from hand_capture.bench import json_line, print_table
+from hand_control.control import CompositeControlConfig
 from hand_control.errors import HandSuiteError
-from hand_control.sim.control_loop import ControllerNodeConfig
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import ScenarioSpec
 
@@ -85,12 +85,12 @@ def run_grid(quick: bool = False, record: list | None = None) -> dict[str, Any]:
         row = [kind, mass, mu]
         feasible = None
         for mode in ("composite", "pd_only"):
-            # contact-QP weights: ControllerNodeConfig's defaults (alpha3 = alpha4 = 1e-3, see
-            # config/controller.yaml), the same as the controller node
-            cfg = ControllerNodeConfig(scenario=spec.name, mode=mode)
+            # gains and contact-QP weights: CompositeControlConfig's defaults (alpha3 = alpha4
+            # = 1e-3, see config/controller.yaml), the same as the controller node
+            cfg = CompositeControlConfig(mode=mode)
             try:
-                runner = LockstepRunner(spec, controller_config=cfg,
-                                        control_every=control_every, plan=plans.get(kind))
+                runner = LockstepRunner(spec, gains=cfg, control_every=control_every,
+                                        plan=plans.get(kind))
             except HandSuiteError as e:
                 print(f"  {kind}: cannot plan a grasp: {e}", file=sys.stderr)
                 break

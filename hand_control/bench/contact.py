@@ -89,12 +89,10 @@ def _max_diff(fast: list[Any], ref: list[Any]) -> tuple[float, int]:
 
 
 def _grid_qp_config() -> ContactQPConfig:
-    """The contact QP as the grid's controller runs it (ControllerNodeConfig's defaults)."""
-    from hand_control.sim.control_loop import ControllerNodeConfig
+    """The contact QP as the grid's controller runs it (the controller config's defaults)."""
+    from hand_control.control import CompositeControlConfig
 
-    c = ControllerNodeConfig()
-    return ContactQPConfig(alpha3=c.alpha3, alpha4=c.alpha4, torsion_bound=c.torsion_bound,
-                           torsional_friction=c.torsional_friction)
+    return CompositeControlConfig().qp_config()
 
 
 def _timed_sequences(cfg: ContactQPConfig, runs: list[list[Problem]]

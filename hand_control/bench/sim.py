@@ -22,7 +22,7 @@ from typing import Any
 import mujoco
 
 from hand_capture.bench import print_table
-from hand_control.sim.control_loop import ControllerNodeConfig
+from hand_control.control import CompositeControlConfig
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import load_scenario
 
@@ -140,9 +140,8 @@ def run(quick: bool = False) -> dict[str, Any]:
     runner = LockstepRunner(spec)
     baseline = _bare_rtf(runner, 1.0 if quick else 3.0)
     r1 = runner.run()
-    r4 = LockstepRunner(spec, controller_config=ControllerNodeConfig(), control_every=4,
-                        plan=runner.plan).run()
-    pd = LockstepRunner(spec, controller_config=ControllerNodeConfig(mode="pd_only"),
+    r4 = LockstepRunner(spec, control_every=4, plan=runner.plan).run()
+    pd = LockstepRunner(spec, gains=CompositeControlConfig(mode="pd_only"),
                         plan=runner.plan).run()
     topics = _topics(3.0 if quick else 10.0)
     topics.update(_topics_two_processes(3.0 if quick else 10.0))

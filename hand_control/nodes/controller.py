@@ -1,6 +1,11 @@
 """controller: composite motion control of the simulated hand (seed 000 eq. 8-13).
 
-Thin wrapper around :class:`hand_control.sim.control_loop.ControllerCore`.
+Thin wrapper around :class:`hand_control.control.loop.ControllerCore`. Parameters: the node's
+own (:class:`ControllerNodeConfig`) and every gain and QP setting
+(:class:`CompositeControlConfig`: ``joint_kp``/``joint_kd`` per row of Table 1 = Table III.1,
+``object_kp_translate`` ..., ``method``, ``alpha1`` .. ``alpha4``, ...), from
+``config/controller.yaml`` or ``-p name:=value``. The hand's kinematics come from the
+scenario's MJCF (:class:`hand_control.sim.kinematics.MujocoKinematics`).
 
 Topics:
     in   sim/joint_states (sensor_msgs/JointState): each message triggers one control step
@@ -48,10 +53,10 @@ from hand_capture.model.joints import JOINT_NAMES
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import pose_from_msg
+from hand_control.control import CompositeControlConfig, ControllerNodeConfig
 from hand_control.errors import InputError
-from hand_control.nodes.sim import contacts_from_msg
-from hand_control.sim.control_loop import ControllerCore, ControllerNodeConfig
-from hand_control.sim.lockstep import LockstepRunner
+from hand_control.nodes.convert import contacts_from_msg
+from hand_control.sim.lockstep import controller_setup
 from hand_control.sim.scenario import load_scenario
 
 
@@ -74,14 +79,13 @@ class ControllerNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("controller", **kwargs)
         self.cfg: ControllerNodeConfig = declare_config(self, ControllerNodeConfig)
+        self.gains: CompositeControlConfig = declare_config(self, CompositeControlConfig)
         spec = load_scenario(self.cfg.scenario)
-        runner = LockstepRunner(spec, controller_config=self.cfg)  # world, grasp, reference
-        world = runner.world
-        body = world.objects[runner.obj.name]["body"]
-        self.core = ControllerCore(world, runner.reference, spec.object_mass, self.cfg,
-                                   object_inertia=float(world.model.body_inertia[body].min()),
-                                   control_period=self.cfg.control_period)
-        self.object_name = runner.obj.name
+        # the scenario's model (kinematics, grasp plan, reference); nothing is stepped here
+        setup = controller_setup(spec, controller_config=self.cfg, gains=self.gains,
+                                 control_period=self.cfg.control_period)
+        self.core = setup.core
+        self.object_name = setup.obj.name
         self._obj = None
         self._twist = (np.zeros(3), np.zeros(3))
         self._contacts = None

@@ -24,10 +24,9 @@ from __future__ import annotations
 import sys
 import time
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped
-from hand_msgs.msg import Contact, ContactArray, JointCommand
+from hand_msgs.msg import ContactArray, JointCommand
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
@@ -35,20 +34,13 @@ from sensor_msgs.msg import JointState
 
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
+from hand_control.control import CompositeControlConfig
 from hand_control.errors import InputError
+from hand_control.nodes.convert import contact_array, set_time
+from hand_control.nodes.convert import stamp as _stamp
 from hand_control.sim.config import SimConfig, SimNodeConfig
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import load_scenario
-
-
-def set_time(time_msg, t: float) -> None:
-    """Fill a builtin_interfaces/Time from seconds."""
-    ns = int(round(t * 1e9))
-    time_msg.sec, time_msg.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
-
-
-def _stamp(header, t: float) -> None:
-    set_time(header.stamp, t)
 
 
 class SimNode(Node):
@@ -58,9 +50,12 @@ class SimNode(Node):
         super().__init__("sim", **kwargs)
         self.cfg: SimNodeConfig = declare_config(self, SimNodeConfig)
         self.sim_cfg: SimConfig = declare_config(self, SimConfig)
+        # the servos' PD gains (joint_kp, joint_kd: Table 1 = Table III.1 by default) go into
+        # the world's MJCF; the controller node declares the same config
+        self.gains: CompositeControlConfig = declare_config(self, CompositeControlConfig)
         spec = load_scenario(self.cfg.scenario)
         # the scenario's world, with the hand at the start of its reference motion
-        self.runner = LockstepRunner(spec, self.sim_cfg)
+        self.runner = LockstepRunner(spec, self.sim_cfg, gains=self.gains)
         self.world = self.runner.world
         self.world.count_saturation = True
         self.object_name = self.runner.obj.name
@@ -165,40 +160,6 @@ class SimNode(Node):
                                        values=[KeyValue(key=k, value=v)
                                                for k, v in values.items()])]
         self.pub_diag.publish(arr)
-
-
-def contact_array(cf, t: float, frame_id: str) -> ContactArray:
-    """A :class:`~hand_control.sim.contacts.ContactFrame` as ``hand_msgs/ContactArray``."""
-    msg = ContactArray()
-    _stamp(msg.header, t)
-    msg.header.frame_id = frame_id
-    pts, nrm, frc = cf.points.tolist(), cf.normals.tolist(), cf.forces.tolist()
-    out = []
-    for k in range(len(cf)):
-        c = Contact()
-        c.body1, c.body2 = cf.body1[k], cf.body2[k]
-        c.point.x, c.point.y, c.point.z = pts[k]
-        c.normal.x, c.normal.y, c.normal.z = nrm[k]
-        c.penetration = float(cf.penetration[k])
-        c.force.x, c.force.y, c.force.z = frc[k]
-        c.torsional_torque = float(cf.torsional[k])
-        c.friction = float(cf.friction[k])
-        out.append(c)
-    msg.contacts = out
-    return msg
-
-
-def contacts_from_msg(msg: ContactArray) -> tuple[list[str], list[str], np.ndarray, np.ndarray,
-                                                   np.ndarray, np.ndarray]:
-    """``(body1, body2, points, normals, forces, friction)`` arrays of a ContactArray."""
-    cs = msg.contacts
-    b1 = [c.body1 for c in cs]
-    b2 = [c.body2 for c in cs]
-    pts = np.array([(c.point.x, c.point.y, c.point.z) for c in cs]).reshape(-1, 3)
-    nrm = np.array([(c.normal.x, c.normal.y, c.normal.z) for c in cs]).reshape(-1, 3)
-    frc = np.array([(c.force.x, c.force.y, c.force.z) for c in cs]).reshape(-1, 3)
-    mu = np.array([c.friction for c in cs], dtype=float)
-    return b1, b2, pts, nrm, frc, mu
 
 
 def main(args: list[str] | None = None) -> int:
