@@ -1,0 +1,269 @@
+"""Synthetic multi-view studio: the hand and objects on a table, rendered from every rig camera.
+
+Seed 000 films a hand manipulating objects with six synchronised colour cameras (sec. 4.1);
+seed 002 evaluates on synthetic multi-view sequences with ground truth (Table 1). The studio
+gives the suite such data with exact ground truth: a MuJoCo scene (the suite's MJCF hand, free
+objects, a table whose top is z = 0) gets one fixed camera per rig camera, posed and with the
+field of view of the rig file, and every camera renders
+
+* colour and depth from one render pass (``mjr_render`` then ``mjr_readPixels`` of both
+  buffers), with shadows, reflections and skybox off (ENVIRONMENT.md: about ten times faster
+  on OSMesa),
+* a per-pixel label image from a second, segmentation pass: 0 background and table,
+  1 hand, 2... the objects in scene order,
+
+and a colour noise model adds what a real camera does: per-frame exposure (gain) changes, a
+slight optical blur and sensor noise. Frame-time jitter is in the stamps
+(:func:`jittered_stamps`). The ground truth is the scene's state: the hand's 27-DoF pose and
+the objects' poses in the world frame.
+
+MuJoCo cameras have square pixels and a centred principal point; the studio refuses a rig
+camera that is not such an ideal pinhole (calibrated real rigs are not rendered, only used).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from hand_capture.config import param, validate
+from hand_capture.errors import ConfigError, InputError
+from hand_capture.model.joints import N_DOF, matrix_to_quat
+from hand_capture.multiview.rig import Rig, RigCamera
+
+__all__ = ["HAND_LABEL", "Studio", "StudioNoise", "StudioView", "jittered_stamps"]
+
+#: label of the hand in :attr:`StudioView.labels`; objects get 2, 3, ... in scene order
+HAND_LABEL = 1
+
+
+@dataclass(frozen=True)
+class StudioNoise:
+    """Colour camera noise of the studio (0 everywhere = clean images)."""
+
+    sensor_sigma: float = param(2.0, "Gaussian sensor noise [grey levels of 255]", lo=0.0,
+                                hi=50.0)
+    blur_sigma_px: float = param(0.6, "Gaussian optical blur [px]", lo=0.0, hi=5.0)
+    exposure_sigma: float = param(0.05, "relative per-frame gain change (auto exposure)",
+                                  lo=0.0, hi=0.5)
+    seed: int = param(0, "noise seed", lo=0)
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+
+@dataclass(frozen=True)
+class StudioView:
+    """One camera's images of one instant.
+
+    Attributes:
+        rgb: (H, W, 3) uint8 colour, noise applied.
+        depth_m: (H, W) float32 distance along the optical axis [m]; 0 where nothing is hit.
+        labels: (H, W) uint8: 0 background/table, 1 hand, 2... objects.
+    """
+
+    rgb: np.ndarray
+    depth_m: np.ndarray
+    labels: np.ndarray
+
+
+def jittered_stamps(n_frames: int, fps: float, n_cameras: int, *, jitter_s: float = 0.002,
+                    offsets_s: Sequence[float] | None = None, seed: int = 0) -> np.ndarray:
+    """Frame stamps (n_frames, n_cameras) [s] of free-running cameras: a constant clock offset
+    per camera plus uniform jitter, as the synchroniser meets them."""
+    rng = np.random.default_rng(seed)
+    off = np.zeros(n_cameras) if offsets_s is None else np.asarray(offsets_s, dtype=float)
+    if off.shape != (n_cameras,):
+        raise InputError(f"offsets_s needs {n_cameras} values, got {off.shape}")
+    t = np.arange(n_frames)[:, None] / fps + off[None, :]
+    return t + rng.uniform(-jitter_s, jitter_s, (n_frames, n_cameras))
+
+
+def _check_ideal(cam: RigCamera) -> None:
+    k = cam.intrinsics
+    if abs(k.fx - k.fy) > 1e-3 * k.fx or abs(k.cx - (k.width - 1) / 2) > 0.5 or \
+            abs(k.cy - (k.height - 1) / 2) > 0.5 or any(abs(d) > 1e-12 for d in k.distortion):
+        raise ConfigError(f"camera {cam.name!r}: the studio renders ideal pinholes only (square "
+                          f"pixels, centred principal point, no distortion); got fx={k.fx}, "
+                          f"fy={k.fy}, cx={k.cx}, cy={k.cy}, d={k.distortion}")
+
+
+def _camera_xml(cam: RigCamera) -> str:
+    """A fixed MuJoCo camera matching a rig camera (MuJoCo looks along -z with y up)."""
+    R = cam.R_wc @ np.diag([1.0, -1.0, -1.0])
+    x, y, z, w = matrix_to_quat(R)
+    k = cam.intrinsics
+    fovy = math.degrees(2.0 * math.atan(k.height / 2.0 / k.fy))
+    pos = " ".join(f"{v:.9g}" for v in cam.t_wc)
+    return (f'<camera name="{cam.name}" pos="{pos}" quat="{w:.9g} {x:.9g} {y:.9g} {z:.9g}" '
+            f'fovy="{fovy:.9g}"/>')
+
+
+class Studio:
+    """Renders a MuJoCo scene from every camera of a rig; see the module docstring.
+
+    Args:
+        rig: the cameras (ideal pinholes, one resolution for all).
+        scene_xml: an MJCF scene whose first 27 qpos are the hand's (as built by
+            :func:`hand_capture.model.mjcf.build_scene`); the cameras are added to it.
+        noise: colour noise; None = clean images.
+    """
+
+    def __init__(self, rig: Rig, scene_xml: str, noise: StudioNoise | None = None) -> None:
+        import mujoco
+
+        sizes = {(c.intrinsics.width, c.intrinsics.height) for c in rig.cameras}
+        if len(sizes) != 1:
+            raise ConfigError(f"rig {rig.name!r}: the studio renders one resolution, got "
+                              f"{sorted(sizes)}")
+        for cam in rig.cameras:
+            _check_ideal(cam)
+        self.rig = rig
+        self.width, self.height = sizes.pop()
+        cams = "\n    ".join(_camera_xml(c) for c in rig.cameras)
+        if "</worldbody>" not in scene_xml:
+            raise InputError("scene_xml has no <worldbody>")
+        xml = scene_xml.replace("</worldbody>", f"    {cams}\n  </worldbody>", 1)
+        xml = xml.replace('<global offwidth="640" offheight="480"/>',
+                          f'<global offwidth="{self.width}" offheight="{self.height}"/>')
+        self.model = mujoco.MjModel.from_xml_string(xml)
+        if self.model.nq < N_DOF:
+            raise InputError(f"the scene has {self.model.nq} qpos; the hand needs {N_DOF}")
+        self.data = mujoco.MjData(self.model)
+        if self.model.nkey:
+            mujoco.mj_resetDataKeyframe(self.model, self.data, 0)
+        mujoco.mj_forward(self.model, self.data)
+        self._mj = mujoco
+        self._labels_of_geom = self._geom_labels()
+        self._gl = mujoco.GLContext(self.width, self.height)
+        self._gl.make_current()
+        self._con = mujoco.MjrContext(self.model, mujoco.mjtFontScale.mjFONTSCALE_100)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._con)
+        self._scene = mujoco.MjvScene(self.model, maxgeom=2000)
+        self._opt = mujoco.MjvOption()
+        self._cam = mujoco.MjvCamera()
+        self._cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self._viewport = mujoco.MjrRect(0, 0, self.width, self.height)
+        self._rgb = np.empty((self.height, self.width, 3), np.uint8)
+        self._seg = np.empty((self.height, self.width, 3), np.uint8)
+        self._depth = np.empty((self.height, self.width), np.float32)
+        ext = self.model.stat.extent
+        self._near = self.model.vis.map.znear * ext
+        self._far = self.model.vis.map.zfar * ext
+        self.noise = noise
+        self._rng = np.random.default_rng(noise.seed if noise else 0)
+        self._closed = False
+
+    def _geom_labels(self) -> np.ndarray:
+        """Label per geom: the hand's root body -> 1, each object's root body -> 2, 3, ..."""
+        m = self.model
+        roots = sorted({int(r) for r in m.body_rootid if r != 0})
+        hand_root = int(m.body_rootid[m.jnt_bodyid[0]])
+        label = {hand_root: HAND_LABEL}
+        for r in roots:
+            if r != hand_root:
+                label[r] = len(label) + 1
+        return np.array([label.get(int(m.body_rootid[m.geom_bodyid[g]]), 0)
+                         for g in range(m.ngeom)], dtype=np.uint8)
+
+    @property
+    def object_names(self) -> list[str]:
+        """Names of the free objects' bodies, in label order (label 2 first)."""
+        m = self.model
+        hand_root = int(m.body_rootid[m.jnt_bodyid[0]])
+        roots = sorted({int(r) for r in m.body_rootid if r not in (0, hand_root)})
+        return [m.body(r).name for r in roots]
+
+    def set_state(self, hand_pose: np.ndarray, object_qpos: np.ndarray | None = None) -> None:
+        """Pose the scene: the hand's 27-DoF world pose and the objects' free-joint qpos
+        (7 each: position [m], quaternion w x y z), in scene order."""
+        q = np.asarray(hand_pose, dtype=float).reshape(-1)
+        if q.shape != (N_DOF,) or not np.all(np.isfinite(q)):
+            raise InputError(f"hand_pose must be {N_DOF} finite values, got {q.shape}")
+        self.data.qpos[:N_DOF] = q
+        if object_qpos is not None:
+            o = np.asarray(object_qpos, dtype=float).reshape(-1)
+            if o.size != self.model.nq - N_DOF or not np.all(np.isfinite(o)):
+                raise InputError(f"object_qpos must hold {self.model.nq - N_DOF} finite "
+                                 f"values, got {o.size}")
+            self.data.qpos[N_DOF:] = o
+        self._mj.mj_kinematics(self.model, self.data)
+
+    def object_pose(self, name: str) -> np.ndarray:
+        """(4, 4) world pose of an object body (ground truth of ``object/pose_truth``)."""
+        b = self.model.body(name)
+        T = np.eye(4)
+        T[:3, :3] = self.data.xmat[b.id].reshape(3, 3)
+        T[:3, 3] = self.data.xpos[b.id]
+        return T
+
+    def render(self, camera: str | int, *, labels: bool = True) -> StudioView:
+        """Colour (noisy), depth and labels of the current state from one camera."""
+        mj = self._mj
+        if self._closed:
+            raise InputError("the studio is closed")
+        idx = camera if isinstance(camera, int) else self.rig.names.index(
+            self.rig.camera(camera).name)
+        self._gl.make_current()
+        self._cam.fixedcamid = idx
+        mj.mjv_updateScene(self.model, self.data, self._opt, None, self._cam,
+                           mj.mjtCatBit.mjCAT_ALL, self._scene)
+        for f in (mj.mjtRndFlag.mjRND_SHADOW, mj.mjtRndFlag.mjRND_REFLECTION,
+                  mj.mjtRndFlag.mjRND_SKYBOX, mj.mjtRndFlag.mjRND_SEGMENT,
+                  mj.mjtRndFlag.mjRND_IDCOLOR):
+            self._scene.flags[f] = 0
+        mj.mjr_render(self._viewport, self._scene, self._con)
+        mj.mjr_readPixels(self._rgb, self._depth, self._viewport, self._con)
+        rgb = np.flipud(self._rgb)  # OpenGL rows run bottom-up
+        d = np.flipud(self._depth)
+        depth = (self._near / (1.0 - d * (1.0 - self._near / self._far))).astype(np.float32)
+        depth[d >= 1.0] = 0.0
+        lab = np.zeros((self.height, self.width), np.uint8)
+        if labels:
+            self._scene.flags[mj.mjtRndFlag.mjRND_SEGMENT] = 1
+            self._scene.flags[mj.mjtRndFlag.mjRND_IDCOLOR] = 1
+            mj.mjr_render(self._viewport, self._scene, self._con)
+            mj.mjr_readPixels(self._seg, None, self._viewport, self._con)
+            s = np.flipud(self._seg).astype(np.int64)
+            ids = s[..., 0] + 256 * s[..., 1] + 65536 * s[..., 2] - 1  # scene geom index
+            hit = ids >= 0
+            geom_of = np.array([g.objid if g.objtype == mj.mjtObj.mjOBJ_GEOM else -1
+                                for g in self._scene.geoms[: self._scene.ngeom]])
+            gid = np.full(ids.shape, -1)
+            gid[hit] = geom_of[np.clip(ids[hit], 0, len(geom_of) - 1)]
+            ok = gid >= 0
+            lab[ok] = self._labels_of_geom[gid[ok]]
+        return StudioView(self._apply_noise(rgb), depth, lab)
+
+    def render_all(self, *, labels: bool = True) -> dict[str, StudioView]:
+        """Every camera's view of the current state (one synchronised group)."""
+        return {name: self.render(i, labels=labels) for i, name in enumerate(self.rig.names)}
+
+    def _apply_noise(self, rgb: np.ndarray) -> np.ndarray:
+        n = self.noise
+        if n is None:
+            return np.ascontiguousarray(rgb)
+        import cv2
+
+        img = rgb.astype(np.float32) * float(1.0 + self._rng.normal(0.0, n.exposure_sigma))
+        if n.blur_sigma_px > 0:
+            img = cv2.GaussianBlur(img, (0, 0), n.blur_sigma_px)
+        if n.sensor_sigma > 0:
+            img += self._rng.normal(0.0, n.sensor_sigma, img.shape).astype(np.float32)
+        return np.clip(img, 0, 255).round().astype(np.uint8)
+
+    def close(self) -> None:
+        """Free the GL context (call it: leaving it to the interpreter's exit prints errors)."""
+        if not self._closed:
+            self._con.free()
+            self._gl.free()
+            self._closed = True
+
+    def __enter__(self) -> Studio:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

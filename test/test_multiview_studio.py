@@ -1,0 +1,94 @@
+"""Synthetic studio: the ground truth matches what is rendered in every camera."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hand_capture.errors import ConfigError
+from hand_capture.model import HandModel
+from hand_capture.model.mjcf import build_scene, home_pose
+from hand_capture.multiview.rig import Rig, load_rig, ring_rig
+from hand_capture.multiview.studio import HAND_LABEL, Studio, StudioNoise, jittered_stamps
+
+
+@pytest.fixture(scope="module")
+def studio():
+    st = Studio(load_rig("studio6"), build_scene(["box"]), StudioNoise(seed=1))
+    yield st
+    st.close()
+
+
+def test_true_hand_keypoints_land_on_the_hand_in_every_camera(studio):
+    q = home_pose()
+    q[5] += 0.3
+    studio.set_state(q)
+    kp = HandModel().forward(q).joint_positions  # (21, 3) world [m]
+    for i, cam in enumerate(studio.rig.cameras):
+        view = studio.render(i)
+        uv, front = cam.project(kp)
+        z = cam.to_camera(kp)[:, 2]
+        px = np.round(uv).astype(int)
+        inside = front & (px[:, 0] >= 0) & (px[:, 0] < 640) & (px[:, 1] >= 0) & (px[:, 1] < 480)
+        assert inside.all(), cam.name
+        lab = view.labels[px[:, 1], px[:, 0]]
+        depth = view.depth_m[px[:, 1], px[:, 0]]
+        visible = np.abs(depth - z) < 0.02  # the surface within 2 cm of the joint: not occluded
+        assert visible.sum() >= 5, cam.name
+        assert np.all(lab[visible] == HAND_LABEL), cam.name
+        assert np.mean(lab == HAND_LABEL) >= 0.8, cam.name
+
+
+def test_object_ground_truth_projects_onto_its_label(studio):
+    studio.set_state(home_pose())
+    [name] = studio.object_names
+    centre = studio.object_pose(name)[:3, 3]
+    for i, cam in enumerate(studio.rig.cameras):
+        view = studio.render(i)
+        (u, v), = np.round(cam.project(centre[None])[0]).astype(int)
+        window = view.labels[v - 2: v + 3, u - 2: u + 3]
+        # the box centre is inside the box: its pixel shows the box, unless the hand covers it
+        assert np.any(window == 2) or np.any(window == HAND_LABEL), cam.name
+
+
+def test_depth_matches_the_table_plane(studio):
+    studio.set_state(home_pose())
+    cam = studio.rig.cameras[0]
+    view = studio.render(0, labels=True)
+    k = cam.intrinsics
+    v, u = np.nonzero(view.labels == 0)
+    d = view.depth_m[v, u]
+    sel = (d > 0) & (d < 1.2)  # the table top in front of the camera
+    rays = np.stack([(u[sel] - k.cx) / k.fx, (v[sel] - k.cy) / k.fy, np.ones(sel.sum())], 1)
+    pw = (rays * d[sel, None]) @ cam.R_wc.T + cam.t_wc
+    on_top = np.abs(pw[:, 2]) < 0.002
+    assert on_top.mean() > 0.9  # background pixels in front of the camera are the table top
+
+
+def test_noise_changes_images_but_not_ground_truth():
+    rig = ring_rig("two", 2, width=160, height=120)
+    with Studio(rig, build_scene(["ball"]), StudioNoise(seed=3)) as noisy, \
+            Studio(rig, build_scene(["ball"]), None) as clean:
+        for st in (noisy, clean):
+            st.set_state(home_pose())
+        a, b = noisy.render(0), clean.render(0)
+        assert np.array_equal(a.labels, b.labels)
+        assert np.array_equal(a.depth_m, b.depth_m)
+        diff = np.abs(a.rgb.astype(int) - b.rgb.astype(int))
+        assert 0.5 < diff.mean() < 20
+
+
+def test_a_distorted_camera_is_refused():
+    rig = ring_rig("d", 2, distortion=(-0.1, 0, 0, 0, 0))
+    with pytest.raises(ConfigError, match="cam0.*ideal pinholes"):
+        Studio(rig, build_scene())
+    mixed = Rig("m", (ring_rig("a", 1).cameras[0],
+                      ring_rig("b", 2, width=320, height=240).cameras[1]))
+    with pytest.raises(ConfigError, match="one resolution"):
+        Studio(mixed, build_scene())
+
+
+def test_jittered_stamps_have_offsets_and_bounded_jitter():
+    s = jittered_stamps(100, 20.0, 3, jitter_s=0.002, offsets_s=[0.0, 0.01, -0.01])
+    d = s - (np.arange(100) / 20.0)[:, None]
+    assert np.all(np.abs(d - np.array([0.0, 0.01, -0.01])) <= 0.002)
