@@ -105,3 +105,26 @@ def test_transformed_moves_every_camera_rigidly():
     p_moved = p @ T[:3, :3].T + T[:3, 3]
     for a, b in zip(rig.cameras, moved.cameras, strict=True):
         np.testing.assert_allclose(a.project(p)[0], b.project(p_moved)[0], atol=1e-9)
+
+
+def test_realsense_hardware_sync_mode_is_set_or_refused_by_name():
+    from types import SimpleNamespace
+
+    from hand_capture.cameras.realsense import RealSenseConfig, apply_sync_mode
+    from hand_capture.errors import DeviceError
+
+    calls = []
+    rs = SimpleNamespace(option=SimpleNamespace(inter_cam_sync_mode="sync"))
+
+    def device(supported: bool):
+        sensor = SimpleNamespace(supports=lambda opt: supported and opt == "sync",
+                                 set_option=lambda opt, v: calls.append((opt, v)))
+        return SimpleNamespace(first_depth_sensor=lambda: sensor)
+
+    apply_sync_mode(rs, device(True), 2, "123")
+    assert calls == [("sync", 2.0)]
+    apply_sync_mode(rs, device(False), 0, "123")  # free-running: the device is left alone
+    with pytest.raises(DeviceError, match="123 does not support inter_cam_sync_mode"):
+        apply_sync_mode(rs, device(False), 1, "123")
+    with pytest.raises(ConfigError, match="inter_cam_sync_mode"):
+        RealSenseConfig(inter_cam_sync_mode=3)
