@@ -48,20 +48,18 @@ def grid_spec(kind: str, mass: float, mu: float, quick: bool) -> ScenarioSpec:
 
 
 def _record_qp(qp: Any, seq: list) -> None:
-    """Make ``qp.solve`` append a copy of every problem ``(contacts, com, force_target,
-    torque_target)`` to ``seq`` (the contacts without their Jacobians: the QP needs none)."""
+    """Make ``qp`` append a copy of every problem ``(contacts, com, force_target,
+    torque_target)`` it solves to ``seq``, whichever entry point the control loop calls (the
+    solver's ``recorder`` hook; the contacts without their Jacobians: the QP needs none)."""
     from hand_control.contact import ContactSet
 
-    solve = qp.solve
-
-    def recording(contacts, com, force_target, torque_target, check=True):
+    def recording(contacts: Any, com: Any, force_target: Any, torque_target: Any) -> None:
         seq.append((ContactSet.trusted(contacts.points.copy(), contacts.normals.copy(),
                                        np.array(contacts.mu, dtype=np.float64)),
                     np.array(com, dtype=np.float64), np.array(force_target, dtype=np.float64),
                     np.array(torque_target, dtype=np.float64)))
-        return solve(contacts, com, force_target, torque_target, check)
 
-    qp.solve = recording
+    qp.recorder = recording
 
 
 def run_grid(quick: bool = False, record: list | None = None) -> dict[str, Any]:
