@@ -40,7 +40,7 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
     "sim": (("baseline_rtf", "lockstep_rtf", "lockstep_vs_baseline", "lockstep_success",
              "topics_rtf", "topics2_rtf"), ()),
     "touch": (("quadratic_wrist_cm", "quadratic_angle_deg", "pcaik_wrist_cm", "label_acc_5",
-               "eval_us", "eval_speedup_vs_pcaik"), ()),
+               "eval_us", "eval_speedup_vs_pcaik"), (pytest.mark.slow,)),  # new data sets
     "tracking": (("fps", "mean_joint_err_mm", "success_20mm", "icp_only_mean_joint_err_mm",
                   "fps_ratio_vs_icp_only"), ()),
 }
