@@ -7,11 +7,16 @@ object 10 cm and carry it 10 cm sideways, hold. Once with the composite controll
 once with PD-only trajectory tracking (the dissertation's baseline, sec. III.8.2: the same
 servo targets, no grasp torques). A run succeeds when the object ends within 3 cm of its target
 and at least half-way up. Success rates are counted over the cells where the dynamic
-feasibility LP (III.10-III.16) says the planned contacts can hold the object; the object
-tracking error (mm, deg) is averaged over lifting, carrying and holding.
+feasibility LP (III.10-III.16, with the hand's joint torque limits through the contact
+Jacobians) says the planned contacts can hold the object; the object tracking error (mm, deg)
+is averaged over lifting, carrying and holding.
+
+Validation and test split: the QP's regularisation weights (alpha3 = alpha4 of eq. III.23)
+are chosen on the box's cells (composite success, then tracking error) and the figures are
+reported on the ball's and the cylinder's cells, which the choice never saw.
 
 This module is the grid section of ``hand-suite bench contact``; it can run alone:
-``python -m hand_control.bench._grasp_grid [--quick]``.
+``python -m hand_control.bench._grasp_grid [--quick | --smoke]``.
 """
 
 from __future__ import annotations
