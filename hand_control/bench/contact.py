@@ -322,6 +322,15 @@ def qp_section(size: str, grid_runs: list[tuple[ContactQPConfig, list[Problem]]]
         t_ref = _timed(ref.solve, [seq[i] for i in pick], 1)
         diff, misses = _max_diff([fast_res[i] for i in pick], [ref.solve(*seq[i]) for i in pick])
         base_rows["cvxpy"] = (np.percentile(t_ref, 50), np.percentile(t_ref, 99), diff, misses)
+        # the accuracy check without a tolerance of its own: scipy's compiled Lawson-Hanson
+        # from scratch (a fresh solver's cold path) on the same sample, KKT-checked
+        t_cold = _timed(lambda *p: ContactForceQP(cfg).solve(*p, check=False),
+                        [seq[i] for i in pick], 1)
+        cold_diff, cold_miss = _max_diff(
+            [fast_res[i] for i in pick],
+            [ContactForceQP(cfg).solve(*seq[i], check=False) for i in pick])
+        base_rows["scipy NNLS, cold"] = (np.percentile(t_cold, 50), np.percentile(t_cold, 99),
+                                         cold_diff, cold_miss)
         for name, (b50, b99, d, m) in base_rows.items():
             rows.append(["dissertation", "grid", "all", p50, p99, name, b50, b99, b50 / p50, d,
                          m])
@@ -363,6 +372,7 @@ def qp_section(size: str, grid_runs: list[tuple[ContactQPConfig, list[Problem]]]
             "speedup_vs_cvxpy": r50 / p50,
             "max_abs_diff_vs_cvxpy": max(diff, random_diff),
             "max_abs_diff_vs_cvxpy_grid": diff,
+            "max_abs_diff_vs_nnls_cold_grid": cold_diff,
             "qp_not_found": misses,
         })
     else:  # no grid run: the random problems stand in
