@@ -454,3 +454,30 @@ def test_a_mostly_unreachable_target_is_flagged_by_the_configured_ratio():
     lenient = ContactForceQP(ContactQPConfig(unreachable_residual=1.0)).solve(
         contacts, com, tf, tt)
     assert lenient.found and lenient.status == "optimal"
+
+
+@pytest.mark.parametrize("name", ["dissertation", "seed000"])
+def test_recorder_sees_every_solve_through_either_entry_point(name):
+    """The benchmark records the control loop's problems through ``recorder``: both entry
+    points (``solve`` and the loop's ``solve_arrays``) report each problem once, before
+    solving, and recording changes no result."""
+    cfg = CONFIGS[name]
+    seen = []
+    qp, plain = ContactForceQP(cfg), ContactForceQP(cfg)
+    qp.recorder = lambda c, com, tf, tt: seen.append((c.points.copy(), tf.copy(), tt.copy()))
+    problems = random_problems(seed=12, n=6)
+    for contacts, com, tf, tt in problems:
+        a = qp.solve(contacts, com, tf, tt)
+        if name == "dissertation":  # solve_arrays takes no simulator forces
+            b = qp.solve_arrays(contacts.points, contacts.normals, contacts.mu, com,
+                                tf.tolist() + tt.tolist())
+            np.testing.assert_allclose(a.forces, b.forces, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.forces, plain.solve(contacts, com, tf, tt).forces,
+                                   rtol=0, atol=1e-12)
+    per = 2 if name == "dissertation" else 1
+    assert len(seen) == per * len(problems)
+    for i, (contacts, _, tf, tt) in enumerate(problems):
+        pts, f, t = seen[per * i]
+        np.testing.assert_array_equal(pts, contacts.points)
+        np.testing.assert_array_equal(f, tf)
+        np.testing.assert_array_equal(t, tt)
