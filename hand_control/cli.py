@@ -4,7 +4,7 @@
     hand-suite record -o DIR [--storage mcap|sqlite3] [--all] TOPIC ...
     hand-suite play DIR [--rate R] [--loop] [--start S]
     hand-suite bag info DIR | bag check DIR | bag recover DIR [-o OUT]
-    hand-suite bench NAME [--quick] | bench --list
+    hand-suite bench NAME [--quick | --smoke] | bench --list
     hand-suite capture [-o DIR] [--clip C] [--seconds S] [--fps F] [--shape-seed N]
     hand-suite train touch|tracker [ARGS] fit the touch encodings / the tracker's forest
     hand-suite calibrate rig BAG_OR_DIR -o config/rigs/NAME.yaml [--board 7x5:0.05:0.036]
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import inspect
 import os
 import pkgutil
 import shutil
@@ -151,8 +152,12 @@ def cmd_bench(a: argparse.Namespace) -> int:
     if a.name not in benches:
         raise HandSuiteError(f"unknown benchmark {a.name!r}; available: {sorted(benches)}")
     module = importlib.import_module(benches[a.name])
-    figures = module.run(quick=a.quick)
-    print(json_line({"bench": a.name, "quick": bool(a.quick), **figures}))
+    kwargs: dict[str, bool] = {"quick": bool(a.quick or a.smoke)}
+    if a.smoke and "smoke" in inspect.signature(module.run).parameters:
+        kwargs["smoke"] = True  # else its --quick run is its smallest
+    figures = module.run(**kwargs)
+    smoke = {"smoke": True} if a.smoke else {}
+    print(json_line({"bench": a.name, "quick": kwargs["quick"], **smoke, **figures}))
     return 0
 
 
@@ -282,6 +287,9 @@ def build_parser() -> argparse.ArgumentParser:
     be = sub.add_parser("bench", help="run a benchmark")
     be.add_argument("name", nargs="?")
     be.add_argument("--quick", action="store_true")
+    be.add_argument("--smoke", action="store_true",
+                    help="the smallest run through the same code (the test suite's check); "
+                         "--quick for a bench without a smaller mode")
     be.add_argument("--list", action="store_true")
     be.set_defaults(func=cmd_bench)
 
