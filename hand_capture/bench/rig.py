@@ -46,7 +46,7 @@ def _hand_motion(n: int) -> np.ndarray:
     return np.clip(out, JOINT_LIMITS[:, 0], JOINT_LIMITS[:, 1])
 
 
-def _studio(quick: bool) -> dict[str, float]:
+def _studio(quick: bool, smoke: bool = False) -> dict[str, float]:
     import mujoco
 
     from hand_capture.model.mjcf import build_scene
@@ -54,7 +54,7 @@ def _studio(quick: bool) -> dict[str, float]:
     from hand_capture.multiview.studio import Studio, StudioNoise
 
     rig = load_rig(RIG)
-    poses = _hand_motion(4 if quick else 20)
+    poses = _hand_motion(1 if smoke else 4 if quick else 20)
     with Studio(rig, build_scene(["box"]), StudioNoise()) as st:
         st.set_state(poses[0])
         st.render_all()  # warm-up (context, textures)
@@ -66,7 +66,7 @@ def _studio(quick: bool) -> dict[str, float]:
         model, data = st.model, st.data
         n_views = len(poses) * len(rig)
         # Baseline: one camera at a time, a fresh renderer per view, default rendering.
-        n_base = 3 if quick else 12
+        n_base = 1 if smoke else 3 if quick else 12
         t0 = time.perf_counter()
         for i in range(n_base):
             r = mujoco.Renderer(model, height=st.height, width=st.width)
@@ -94,11 +94,11 @@ def _studio(quick: bool) -> dict[str, float]:
             "baseline_views_per_s": base, "speedup": views / base}
 
 
-def _sync(quick: bool) -> dict[str, float]:
+def _sync(quick: bool, smoke: bool = False) -> dict[str, float]:
     from hand_capture.multiview.studio import jittered_stamps
     from hand_capture.multiview.sync import FrameSynchronizer, SyncConfig
 
-    n_cam, n = 6, (600 if quick else 6000)
+    n_cam, n = 6, (100 if smoke else 600 if quick else 6000)
     stamps = jittered_stamps(n, 20.0, n_cam, jitter_s=0.002,
                              offsets_s=[0.0, 0.003, -0.002, 0.001, -0.003, 0.002], seed=1)
     rng = np.random.default_rng(2)
@@ -120,7 +120,7 @@ def _sync(quick: bool) -> dict[str, float]:
             "sync_groups": st.groups, "sync_dropped": st.dropped}
 
 
-def _calibration(quick: bool) -> dict[str, float]:
+def _calibration(quick: bool, smoke: bool = False) -> dict[str, float]:
     from hand_capture.multiview.calibrate import WORLD_FROM_BOARD, calibrate_rig, compare_rigs
     from hand_capture.multiview.charuco import BoardSpec, render_board_view, sample_board_poses
     from hand_capture.multiview.rig import Rig, load_rig
@@ -130,7 +130,7 @@ def _calibration(quick: bool) -> dict[str, float]:
     truth = Rig(base.name, tuple(replace(c, intrinsics=replace(c.intrinsics, distortion=dist))
                                  for c in base.cameras))
     spec = BoardSpec()
-    n_views = 16 if quick else 50
+    n_views = 14 if smoke else 16 if quick else 50
     poses = sample_board_poses(spec, truth, n_views, seed=7)
     rng = np.random.default_rng(0)
     images: dict[str, list[np.ndarray]] = {c.name: [] for c in truth.cameras}
@@ -150,6 +150,6 @@ def _calibration(quick: bool) -> dict[str, float]:
             "calib_extrinsic_deg": max(e[1] for e in err.values()), "calib_views": n_views}
 
 
-def run(quick: bool = False) -> dict[str, Any]:
-    """Run the three parts; see the module docstring."""
-    return {**_studio(quick), **_sync(quick), **_calibration(quick)}
+def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
+    """Run the three parts; see the module docstring (``smoke``: the smallest sizes)."""
+    return {**_studio(quick, smoke), **_sync(quick, smoke), **_calibration(quick, smoke)}
