@@ -41,6 +41,7 @@ setup(
         (f"share/{PACKAGE}/data/tracker", glob("data/tracker/*.npz")),
         (f"share/{PACKAGE}/data/teleop", glob("data/teleop/*.npz")),
         (f"share/{PACKAGE}/data/sample_capture", glob("data/sample_capture/*")),
+        (f"share/{PACKAGE}/data/sample_rig_capture", glob("data/sample_rig_capture/*")),
     ],
     install_requires=["setuptools"],
     extras_require={"realsense": ["pyrealsense2"]},

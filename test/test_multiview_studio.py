@@ -92,3 +92,31 @@ def test_jittered_stamps_have_offsets_and_bounded_jitter():
     s = jittered_stamps(100, 20.0, 3, jitter_s=0.002, offsets_s=[0.0, 0.01, -0.01])
     d = s - (np.arange(100) / 20.0)[:, None]
     assert np.all(np.abs(d - np.array([0.0, 0.01, -0.01])) <= 0.002)
+
+
+def test_rig_capture_writes_every_camera_and_the_ground_truth(tmp_path):
+    from hand_capture.bag import BagReader
+    from hand_capture.errors import InputError
+    from hand_capture.multiview.rig import save_rig
+    from hand_capture.nodes.rig_capture import write_rig_capture
+
+    rig = save_rig(ring_rig("small", 2, width=160, height=120), tmp_path / "small.yaml")
+    res = write_rig_capture(tmp_path / "bag", str(rig), seconds=0.3, fps=10,
+                            objects=("box", "ball"))
+    assert (res.frames, res.cameras) == (3, 2)
+    with BagReader(res.path) as bag:
+        assert {"/cam0/color/image_raw", "/cam1/labels/image_raw", "/hand/pose_truth",
+                "/object/box/pose_truth", "/object/ball/pose_truth"} <= set(bag.topics)
+        stamps: dict[str, list[float]] = {}
+        for m in bag.messages():
+            msg = bag.check(m)
+            t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            stamps.setdefault(m.topic, []).append(t)
+            if m.topic == "/cam1/labels/image_raw":
+                assert np.any(np.asarray(msg.data) == HAND_LABEL)
+    truth = np.array(stamps["/hand/pose_truth"])
+    for cam in ("cam0", "cam1"):  # own clocks: offset + jitter within 5 ms of the instant
+        d = np.array(stamps[f"/{cam}/color/image_raw"]) - truth
+        assert np.all(np.abs(d) <= 0.005) and np.any(d != 0)
+    with pytest.raises(InputError, match="exists"):
+        write_rig_capture(tmp_path / "bag", str(rig), seconds=0.1)

@@ -30,31 +30,15 @@ from hand_capture.bench import print_table
 RIG = "studio6"
 
 
-def _hand_motion(n: int) -> np.ndarray:
-    """(n, 27) hand poses: the studio's home pose with the fingers closing and the wrist
-    turning (ground truth; not the tracker's training motions)."""
-    from hand_capture.model.joints import JOINT_LIMITS, JOINT_NAMES
-    from hand_capture.model.mjcf import home_pose
-
-    q0 = home_pose()
-    out = np.repeat(q0[None], n, axis=0)
-    s = 0.5 - 0.5 * np.cos(np.linspace(0, 2 * np.pi, n))
-    for j, name in enumerate(JOINT_NAMES):
-        if name.endswith(("_mcp_flex", "_pip_flex", "_dip_flex", "_ip_flex")):
-            out[:, j] = q0[j] + s * 0.8 * (JOINT_LIMITS[j, 1] - q0[j])
-    out[:, 5] += 0.6 * (s - 0.5)  # wrist turn
-    return np.clip(out, JOINT_LIMITS[:, 0], JOINT_LIMITS[:, 1])
-
-
 def _studio(quick: bool, smoke: bool = False) -> dict[str, float]:
     import mujoco
 
     from hand_capture.model.mjcf import build_scene
     from hand_capture.multiview.rig import load_rig
-    from hand_capture.multiview.studio import Studio, StudioNoise
+    from hand_capture.multiview.studio import Studio, StudioNoise, studio_motion
 
     rig = load_rig(RIG)
-    poses = _hand_motion(1 if smoke else 4 if quick else 20)
+    poses = studio_motion(1 if smoke else 4 if quick else 20)
     with Studio(rig, build_scene(["box"]), StudioNoise()) as st:
         st.set_state(poses[0])
         st.render_all()  # warm-up (context, textures)

@@ -34,7 +34,8 @@ from hand_capture.errors import ConfigError, InputError
 from hand_capture.model.joints import N_DOF, matrix_to_quat
 from hand_capture.multiview.rig import Rig, RigCamera
 
-__all__ = ["HAND_LABEL", "Studio", "StudioNoise", "StudioView", "jittered_stamps"]
+__all__ = ["HAND_LABEL", "Studio", "StudioNoise", "StudioView", "jittered_stamps",
+           "studio_motion"]
 
 #: label of the hand in :attr:`StudioView.labels`; objects get 2, 3, ... in scene order
 HAND_LABEL = 1
@@ -80,6 +81,23 @@ def jittered_stamps(n_frames: int, fps: float, n_cameras: int, *, jitter_s: floa
         raise InputError(f"offsets_s needs {n_cameras} values, got {off.shape}")
     t = np.arange(n_frames)[:, None] / fps + off[None, :]
     return t + rng.uniform(-jitter_s, jitter_s, (n_frames, n_cameras))
+
+
+def studio_motion(n: int) -> np.ndarray:
+    """(n, 27) world poses of the studio's default performance: the MJCF scene's home pose
+    (hand above the table) closing every finger towards its flexion limit and back while the
+    wrist turns by +-0.3 rad (a motion not taken from the tracker's training clips)."""
+    from hand_capture.model.joints import JOINT_LIMITS, JOINT_NAMES
+    from hand_capture.model.mjcf import home_pose
+
+    q0 = home_pose()
+    out = np.repeat(q0[None], n, axis=0)
+    s = 0.5 - 0.5 * np.cos(np.linspace(0.0, 2.0 * np.pi, n))
+    for j, name in enumerate(JOINT_NAMES):
+        if name.endswith(("_mcp_flex", "_pip_flex", "_dip_flex", "_ip_flex")):
+            out[:, j] = q0[j] + s * 0.8 * (JOINT_LIMITS[j, 1] - q0[j])
+    out[:, 5] += 0.6 * (s - 0.5)
+    return np.clip(out, JOINT_LIMITS[:, 0], JOINT_LIMITS[:, 1])
 
 
 def _check_ideal(cam: RigCamera) -> None:
