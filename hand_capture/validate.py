@@ -100,6 +100,9 @@ class InputLimits:
     touch_margin: float = param(
         0.1, "touch positions may lie this fraction of the surface size outside it "
         "(unitless; the TUIO source keeps 0.05)", lo=0.0, hi=1.0)
+    max_touch_span: float = param(
+        0.3, "largest distance between two touches in contact [m]: one hand spans about "
+        "0.25 m from thumb to little finger", lo=0.01, hi=100.0)
     max_touches: int = param(64, "most touch points in one frame", lo=1, hi=10000)
     max_array_length: int = param(512, "most entries in a name / value array", lo=1,
                                   hi=1_000_000)
@@ -410,8 +413,10 @@ def validate_twist(linear: Sequence[float], angular: Sequence[float],
 
 
 def validate_contacts(points: np.ndarray, normals: np.ndarray, forces: np.ndarray,
-                      friction: np.ndarray, limits: InputLimits = DEFAULT_LIMITS) -> None:
-    """A hand_msgs/ContactArray's (K, 3) points [m], normals, forces [N] and (K,) friction.
+                      friction: np.ndarray, limits: InputLimits = DEFAULT_LIMITS
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A hand_msgs/ContactArray's (K, 3) points [m], normals, forces [N] and (K,) friction;
+    returns them as float64 arrays.
 
     Raises:
         RejectedInputError: shapes, NaN/Inf, points beyond ``max_position`` [m], normals not of
@@ -426,10 +431,12 @@ def validate_contacts(points: np.ndarray, normals: np.ndarray, forces: np.ndarra
         if np.shape(a) != (k, 3):
             raise _reject(f"contact {what} have shape {np.shape(a)}, expected ({k}, 3)")
         _finite(np.asarray(a, dtype=np.float64).reshape(-1), f"contact {what}")
+    points, normals, forces = (np.asarray(a, dtype=np.float64).reshape(k, 3)
+                               for a in (points, normals, forces))
     mu = np.asarray(friction, dtype=np.float64)
     _finite(mu, "contact friction")
     if k == 0:
-        return
+        return points, normals, forces, mu
     _in_bounds(np.abs(points).max(axis=1), 0.0, limits.max_position, "contact point", "m")
     n = np.linalg.norm(normals, axis=1)
     bad = (np.abs(n - 1.0) > limits.quat_tolerance) & (n > 0.0)
@@ -439,6 +446,7 @@ def validate_contacts(points: np.ndarray, normals: np.ndarray, forces: np.ndarra
     _in_bounds(np.linalg.norm(forces, axis=1), 0.0, limits.max_contact_force,
                "contact force", "N")
     _in_bounds(mu, 0.0, limits.max_friction, "contact friction", "(unitless)")
+    return points, normals, forces, mu
 
 
 def validate_grasp_phase(phase: int) -> int:
@@ -461,7 +469,8 @@ def validate_touch_frame(session_ids: Sequence[int], positions: np.ndarray,
     Raises:
         RejectedInputError: a surface size that is not finite in (0, ``max_surface_size``] [m],
             more than ``max_touches`` points, lengths, duplicate session ids, NaN/Inf, a touch
-            more than ``touch_margin`` of the surface size outside the surface [m].
+            more than ``touch_margin`` of the surface size outside the surface [m], two touches
+            in contact farther apart than ``max_touch_span`` [m].
     """
     w, h = float(width), float(height)
     for name, v in (("width", w), ("height", h)):
@@ -482,4 +491,10 @@ def validate_touch_frame(session_ids: Sequence[int], positions: np.ndarray,
         m = limits.touch_margin
         _in_bounds(pos[:, 0], -m * w, (1 + m) * w, "touch x", "m")
         _in_bounds(pos[:, 1], -m * h, (1 + m) * h, "touch y", "m")
+        down = pos[np.asarray(in_contact, dtype=bool)]
+        if len(down) > 1:
+            span = float(np.sqrt(((down[:, None, :] - down[None, :, :]) ** 2).sum(-1)).max())
+            if span > limits.max_touch_span:
+                raise _reject(f"touches {span:.3g} m apart: more than one hand spans "
+                              f"({limits.max_touch_span} m)")
     return pos

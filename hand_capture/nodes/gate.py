@@ -63,7 +63,8 @@ class InputGate:
 
     def check(self, topic: str, fn: Callable[..., T], *args: object,
               **kwargs: object) -> T | None:
-        """``fn(*args, **kwargs)``, or None (counted, logged) when it raises InputError."""
+        """``fn(*args, **kwargs)``, or None (counted, logged) when it raises InputError
+        (``fn`` must return a value other than None when it accepts)."""
         try:
             return fn(*args, **kwargs)
         except InputError as e:
