@@ -187,11 +187,20 @@ def joint_bounds(names: tuple[str, ...], limits: InputLimits = DEFAULT_LIMITS
     return lo, hi
 
 
+def _joint_unit(name: str) -> str:
+    """The unit of a joint's position: m for the root translation and for names outside the
+    vocabulary (bounded by ``max_position``), rad for the others."""
+    return "rad" if name in JOINT_INDEX and name not in _ROOT_POS else "m"
+
+
 def _in_bounds(a: np.ndarray, lo: np.ndarray | float, hi: np.ndarray | float, what: str,
-               unit: str, names: Sequence[str] | None = None) -> None:
+               unit: str | None, names: Sequence[str] | None = None) -> None:
+    """Refuse the first value outside [lo, hi]; ``unit`` None: the joint's own unit."""
     bad = (a < lo) | (a > hi)
     if bad.any():
         k = int(np.flatnonzero(bad)[0])
+        if unit is None:
+            unit = _joint_unit(names[k]) if names is not None else ""
         lo_k = float(lo[k]) if isinstance(lo, np.ndarray) else float(lo)
         hi_k = float(hi[k]) if isinstance(hi, np.ndarray) else float(hi)
         who = f" of {names[k]!r}" if names is not None else f"[{k}]"
@@ -212,7 +221,7 @@ def validate_joint_values(names: Sequence[str], values: Sequence[float],
     _same_length(names, a, what)
     _finite(a, what, names)
     lo, hi = joint_bounds(tuple(names), limits)
-    _in_bounds(a, lo, hi, what, "rad (m for positions)", names)
+    _in_bounds(a, lo, hi, what, None, names)
     return a
 
 
@@ -365,7 +374,8 @@ def _unit_quat(o: np.ndarray, what: str, limits: InputLimits) -> np.ndarray:
     if o.shape != (4,):
         raise _reject(f"{what} needs 4 quaternion components, got {o.shape[0]}")
     _finite(o, what)
-    n = float(np.sqrt(o @ o))
+    with np.errstate(over="ignore"):  # 1e308 components: an infinite norm, refused below
+        n = float(np.sqrt(o @ o))
     if abs(n - 1.0) > limits.quat_tolerance:
         raise _reject(f"{what} quaternion has norm {n:.6g}; it must be 1 within "
                       f"{limits.quat_tolerance}")
@@ -438,13 +448,14 @@ def validate_contacts(points: np.ndarray, normals: np.ndarray, forces: np.ndarra
     if k == 0:
         return points, normals, forces, mu
     _in_bounds(np.abs(points).max(axis=1), 0.0, limits.max_position, "contact point", "m")
-    n = np.linalg.norm(normals, axis=1)
+    with np.errstate(over="ignore"):  # huge components: infinite norms, refused below
+        n = np.linalg.norm(normals, axis=1)
+        f = np.linalg.norm(forces, axis=1)
     bad = (np.abs(n - 1.0) > limits.quat_tolerance) & (n > 0.0)
     if bad.any():
         raise _reject(f"contact normal {int(np.flatnonzero(bad)[0])} has length "
                       f"{float(n[bad][0]):.4g}, not 1")
-    _in_bounds(np.linalg.norm(forces, axis=1), 0.0, limits.max_contact_force,
-               "contact force", "N")
+    _in_bounds(f, 0.0, limits.max_contact_force, "contact force", "N")
     _in_bounds(mu, 0.0, limits.max_friction, "contact friction", "(unitless)")
     return points, normals, forces, mu
 
