@@ -188,18 +188,32 @@ def runner():
     return LockstepRunner(load_scenario("lift_box"))
 
 
+@st.composite
+def _commands(draw):
+    names = draw(st.lists(st.sampled_from(JOINT_NAMES), min_size=1, max_size=6, unique=True))
+    n = len(names)
+    pos = draw(st.one_of(st.just([]), st.lists(hostile, min_size=n, max_size=n),
+                         st.lists(hostile, max_size=7)))
+    eff = draw(st.one_of(st.lists(hostile, min_size=n, max_size=n),
+                         st.lists(st.floats(-1e3, 1e3), min_size=n, max_size=n),
+                         st.lists(hostile, max_size=7)))
+    return names, pos, eff
+
+
 @FUZZ
-@given(st.lists(st.sampled_from(JOINT_NAMES), min_size=1, max_size=6, unique=True),
-       st.lists(hostile, max_size=6), st.lists(hostile, max_size=6))
-@example(["root_tz"], [], [1e6])  # item 2: one 1e6 effort
-@example(["index_pip_flex"], [1e6], [])
-def test_world_command_path_refuses_out_of_limit_efforts(runner, names, pos, eff) -> None:
-    """The sim node's command path (node validation, then the world): either refused, or
-    applied with every effort within its actuator's limits; the world keeps stepping."""
+@given(_commands(), st.booleans())
+@example((["root_tz"], [], [1e6]), False)  # item 2: one 1e6 effort
+@example((["index_pip_flex"], [], [3.0]), False)  # finite, beyond the 2.4 N m actuator
+@example((["index_pip_flex"], [1e6], []), True)
+def test_world_command_path_refuses_out_of_limit_efforts(runner, cmd, node) -> None:
+    """The simulated world's command path, straight (``node`` False) or behind the sim node's
+    validation: either refused, or applied with every effort within its actuator's limits."""
     w = runner.world
+    names, pos, eff = cmd
     try:
-        t, p, e = validate_joint_command(names, pos, (), eff)
-        w.command_by_name(t, p, e)
+        if node:
+            names, pos, eff = validate_joint_command(names, pos, (), eff)
+        w.command_by_name(names, pos, eff)
     except InputError:
         pass
     assert np.isfinite(w.effort).all() and np.isfinite(w.target).all()
