@@ -459,3 +459,55 @@ def test_servo_bridge_node_survives_hostile_poses(ros) -> None:
 
     assert spin_until(follows, 20.0)
     assert b.state.value == "active" and b.skipped_writes == 0
+
+
+def test_grasp_phase_node_rejects_hostile_poses_and_future_stamps(ros) -> None:
+    import time as _time
+
+    from geometry_msgs.msg import PoseStamped
+    from hand_msgs.msg import HandPose
+    from rclpy.parameter import Parameter
+
+    from hand_capture.posemsg import fill_pose_msg
+    from hand_control.nodes.grasp_phase import GraspPhaseNode
+
+    peer, add, spin_until = ros
+    node = add(GraspPhaseNode(parameter_overrides=[Parameter("scenario", value="lift_box")]))
+    hands: list = []
+    peer.create_subscription(HandPose, "control/hand_target", hands.append, 50)
+    pub_hand = peer.create_publisher(HandPose, "hand/pose", 50)
+    pub_obj = peer.create_publisher(PoseStamped, "sim/object_pose", 10)
+    obj = PoseStamped()
+    obj.pose.position.z, obj.pose.orientation.w = 0.05, 1.0
+
+    def hand(**kw) -> HandPose:
+        q = np.zeros(27)
+        q[2] = 0.3
+        msg = fill_pose_msg(HandPose(), q, status="tracking")
+        msg.header.frame_id = "world"
+        msg.header.stamp.sec = int(_time.time()) - 1
+        for k, v in kw.items():
+            setattr(msg, k, v)
+        return msg
+
+    bad_angle = hand()
+    bad_angle.positions = [1e6] + list(bad_angle.positions[1:])  # item 4
+    future = hand()
+    future.header.stamp.sec = int(_time.time()) + 10**6  # item 5: a future stamp
+    hostile = [bad_angle, future, hand(status=255), hand(joint_names=[], positions=[])]
+    assert spin_until(lambda: pub_hand.get_subscription_count() > 0, 10.0)
+    for m in hostile:
+        pub_obj.publish(obj)
+        pub_hand.publish(m)
+        spin_until(lambda: False, 0.05)
+    assert spin_until(lambda: node.gate.rejected["hand/pose"] >= 4, 10.0), node.gate.values()
+    assert not hands  # nothing of it reached the controller's target
+
+    def follows() -> bool:
+        pub_obj.publish(obj)
+        pub_hand.publish(hand())
+        return bool(hands)
+
+    assert spin_until(follows, 10.0)
+    assert all(np.isfinite(h.positions).all() and max(abs(v) for v in h.positions) < 3.0
+               for h in hands)

@@ -123,11 +123,10 @@ class GraspPhaseNode(Node):
         return self.gate.total
 
     def _on_hand(self, msg: HandPose) -> None:
-        if self._object_pose() is None:
-            return
         q = self.gate.check("hand/pose", validate_hand_pose_msg, msg)
         if q is None or msg.status not in _STATUS or \
-                not self.gate.stamp_ok("hand/pose", msg.header.stamp):
+                not self.gate.stamp_ok("hand/pose", msg.header.stamp) or \
+                self._object_pose() is None:
             return
         try:
             if msg.header.frame_id != self.cfg.world_frame:
