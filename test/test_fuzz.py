@@ -136,10 +136,10 @@ def bridge():
     b.close()
 
 
-def _cycle(b, names, values, n: int = 2) -> bool:
+def _cycle(b, names, values, n: int = 2, dt: float = 0.005) -> bool:
     ok = b.handle_pose(names, values, now=b.fake_clock[0])
     for _ in range(n):
-        b.fake_clock[0] += 0.005
+        b.fake_clock[0] += dt
         b.step()
     return ok
 
@@ -166,11 +166,12 @@ def test_bridge_write_path_never_commands_garbage(bridge, values, shuffle) -> No
     assert np.isfinite(last).all() and ((last >= b.limiter.lo) & (last <= b.limiter.hi)).all()
     emu_goals = np.array([b.emulator.value(i, "goal_position") for i in b.ids])
     assert ((emu_goals >= b.limiter.lo) & (emu_goals <= b.limiter.hi)).all()
-    # still alive: a valid pose moves the goals to it (rate-limited: give it time)
+    # still alive: a valid pose moves the goals to it (rate-limited: 50 ms cycles, at most
+    # 0.2 rad each at 4 rad/s)
     target = [0.0] * 21
     target[NAMES.index("index_pip_flex")] = 0.9
-    for _ in range(150):
-        _cycle(b, NAMES, target, 1)
+    for _ in range(25):
+        _cycle(b, NAMES, target, 1, dt=0.05)
     theta = b.retarget.from_named(NAMES, target)
     want = np.clip(np.rint(theta * ct.TICKS_PER_RAD + ct.POSITION_CENTER), b.limiter.lo,
                    b.limiter.hi)
