@@ -48,8 +48,9 @@ hostile = st.one_of(
 names_any = st.lists(st.sampled_from([*JOINT_NAMES, "bogus", ""]), max_size=30)
 
 
-def _pose_values(draw_values: list[float]) -> list[float]:
-    return (draw_values + [0.0] * len(NAMES))[:len(NAMES)]
+def _with(**angles: float) -> list[float]:
+    """21 articulated joint values, zero but for ``angles``."""
+    return [float(angles.get(n, 0.0)) for n in NAMES]
 
 
 # -------------------------------------------------------------------- the validation layer
@@ -146,9 +147,9 @@ def _cycle(b, names, values, n: int = 2, dt: float = 0.005) -> bool:
 
 @FUZZ
 @given(st.lists(hostile, min_size=21, max_size=21), st.booleans())
-@example([0.0] * 11 + [NAN] + [0.0] * 9, False)  # item 1: NaN in index_mcp_abd (unmapped)
-@example([0.0] * 12 + [1e6] + [0.0] * 8, False)  # item 4: 1e6 in index_mcp_flex (mapped)
-@example([0.0] * 12 + [1e308] + [0.0] * 8, False)
+@example(_with(index_mcp_abd=NAN), False)  # item 1: NaN in a joint the map does not use
+@example(_with(index_mcp_flex=1e6), False)  # item 4: 1e6 in a joint the map uses
+@example(_with(index_mcp_flex=1e308), False)
 def test_bridge_write_path_never_commands_garbage(bridge, values, shuffle) -> None:
     """Straight into the core (no node validation): whatever comes, the goals stay finite and
     within the servo limits, an accepted pose has every used joint within its range, and the
@@ -433,8 +434,8 @@ def test_servo_bridge_node_survives_hostile_poses(ros) -> None:
         return HandPose(joint_names=list(names), positions=[float(v) for v in values],
                         status=status, handedness=HandPose.HAND_RIGHT)
 
-    hostile_msgs = [pose_msg([0.0] * 11 + [NAN] + [0.0] * 9),  # item 1
-                    pose_msg([0.0] * 12 + [1e6] + [0.0] * 8),  # item 4
+    hostile_msgs = [pose_msg(_with(index_mcp_abd=NAN)),  # item 1
+                    pose_msg(_with(index_mcp_flex=1e6)),  # item 4
                     pose_msg([], names=[]),  # empty
                     pose_msg([0.0] * 21, status=255),
                     pose_msg([0.0] * 21, names=NAMES[:-1] + NAMES[:1])]
