@@ -158,6 +158,14 @@ def _names(names: Sequence[str], what: str, limits: InputLimits,
     return t
 
 
+def _bounded(a: np.ndarray, bound: float, what: str, unit: str,
+             names: Sequence[str] | None = None) -> None:
+    """Refuse NaN/Inf and values beyond +-``bound`` (one comparison when all is well)."""
+    if not (np.abs(a) <= bound).all():  # False for NaN too
+        _finite(a, what, names)
+        _in_bounds(a, -bound, bound, what, unit, names)
+
+
 def _same_length(names: Sequence[str], values: np.ndarray, what: str,
                  optional: bool = False) -> None:
     if optional and values.shape[0] == 0:
@@ -219,9 +227,10 @@ def validate_joint_values(names: Sequence[str], values: Sequence[float],
     """
     a = _array(values, what, limits)
     _same_length(names, a, what)
-    _finite(a, what, names)
     lo, hi = joint_bounds(tuple(names), limits)
-    _in_bounds(a, lo, hi, what, None, names)
+    if not ((a >= lo) & (a <= hi)).all():  # False for NaN too: say which it was
+        _finite(a, what, names)
+        _in_bounds(a, lo, hi, what, None, names)
     return a
 
 
@@ -273,13 +282,11 @@ def validate_joint_state(names: Sequence[str], position: Sequence[float],
     vel = _array(velocity, "velocity", limits)
     _same_length(t, vel, "velocities", optional=True)
     if vel.shape[0]:
-        _finite(vel, "velocity", t)
-        _in_bounds(vel, -limits.max_velocity, limits.max_velocity, "velocity", "rad/s", t)
+        _bounded(vel, limits.max_velocity, "velocity", "rad/s", t)
     eff = _array(effort, "effort", limits)
     _same_length(t, eff, "efforts", optional=True)
     if eff.shape[0]:
-        _finite(eff, "effort", t)
-        _in_bounds(eff, -limits.max_effort, limits.max_effort, "effort", "N m", t)
+        _bounded(eff, limits.max_effort, "effort", "N m", t)
     return t, pos, (vel if vel.shape[0] else None)
 
 
@@ -311,8 +318,7 @@ def validate_joint_command(names: Sequence[str], positions: Sequence[float] = ()
     vel = _array(velocities, "velocities", limits)
     _same_length(t, vel, "velocities", optional=True)
     if vel.shape[0]:
-        _finite(vel, "velocity", t)
-        _in_bounds(vel, -limits.max_velocity, limits.max_velocity, "velocity", "rad/s", t)
+        _bounded(vel, limits.max_velocity, "velocity", "rad/s", t)
     eff = _array(efforts, "efforts", limits)
     _same_length(t, eff, "efforts", optional=True)
     if eff.shape[0]:
