@@ -4,6 +4,7 @@ was filed against."""
 
 from __future__ import annotations
 
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -316,3 +317,27 @@ def test_contacts_are_checked() -> None:
         validate_contacts(p * np.nan, n, f, np.array([0.8]))
     with pytest.raises(RejectedInputError, match="friction"):
         validate_contacts(p, n, f, np.array([-1.0]))
+
+
+def test_input_gate_counts_logs_and_takes_the_limits_from_node_parameters(ros) -> None:
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from hand_capture.nodes.gate import InputGate
+
+    node = Node("gate_test", parameter_overrides=[Parameter("input.max_effort", value=10.0)])
+    try:
+        gate = InputGate(node)
+        assert gate.limits.max_effort == 10.0
+        assert gate.check("cmd", validate_joint_command, ["root_tz"], [], [], [20.0]) is None
+        assert gate.check("cmd", validate_joint_command, ["root_tz"], [], [], [5.0]) is not None
+        assert gate.check("pose", validate_pose, [0, 0, 1e6], [0, 0, 0, 1]) is None
+        assert gate.check("pose", validate_pose, [0, 0, 1e6], [0, 0, 0, 1]) is None
+        v = gate.values()
+        assert v["rejected_total"] == "3" and v["rejected/cmd"] == "1"
+        assert v["rejected/pose"] == "2" and "1e+06" in v["last_rejection/pose"]
+        stamp = SimpleNamespace(sec=int(time.time()) + 3600, nanosec=0)
+        assert not gate.stamp_ok("hand/pose", stamp)
+        assert gate.rejected["hand/pose"] == 1
+    finally:
+        node.destroy_node()

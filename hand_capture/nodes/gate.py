@@ -4,13 +4,16 @@ Every subscription callback passes what it extracted from a message through
 :meth:`InputGate.check` (or reports its own rejection with :meth:`InputGate.reject`): a
 :class:`~hand_capture.errors.InputError` is caught, counted per topic and logged at most once a
 second per topic (with the count so far), and the callback gets ``None`` back and drops the
-message. :meth:`InputGate.values` gives the counts for the node's ``diagnostics``
+message. The physical ranges are the node's ``input.*`` ROS parameters
+(:class:`~hand_capture.validate.InputLimits`, e.g. ``input.future_stamp_tolerance``).
+:meth:`InputGate.values` gives the counts for the node's ``diagnostics``
 (``rejected/<topic>`` and ``rejected_total``), so the rule "bad input gets a counted, logged
 rejection" holds in one place.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 from collections import Counter
@@ -18,9 +21,11 @@ from collections.abc import Callable
 from typing import TypeVar
 
 from hand_capture.errors import InputError
-from hand_capture.validate import DEFAULT_LIMITS, InputLimits, check_stamp
+from hand_capture.nodes.params import declare_config
+from hand_capture.validate import InputLimits, check_stamp
 
 T = TypeVar("T")
+_TAKES_LIMITS: dict[Callable, bool] = {}  # whether a check function has a limits parameter
 
 
 class InputGate:
@@ -28,17 +33,19 @@ class InputGate:
 
     Args:
         node: the rclpy node (its logger and clock are used).
-        limits: the physical ranges of the node's inputs.
+        limits: the physical ranges of the node's inputs; default: declared as the node's
+            ``input.*`` parameters (YAML-settable, validated).
         throttle_s: at most one log line per topic this often [s].
         on_reject: called with the topic of every rejection (e.g. a core's own counter).
     """
 
-    def __init__(self, node: object, limits: InputLimits = DEFAULT_LIMITS,
+    def __init__(self, node: object, limits: InputLimits | None = None,
                  throttle_s: float = 1.0,
                  on_reject: Callable[[str], None] | None = None) -> None:
         self.node = node
         self.on_reject = on_reject
-        self.limits = limits
+        self.limits = limits if limits is not None else declare_config(
+            node, InputLimits, prefix="input.")
         self.throttle_s = float(throttle_s)
         self.rejected: Counter[str] = Counter()
         self.last_reason: dict[str, str] = {}
@@ -64,7 +71,13 @@ class InputGate:
     def check(self, topic: str, fn: Callable[..., T], *args: object,
               **kwargs: object) -> T | None:
         """``fn(*args, **kwargs)``, or None (counted, logged) when it raises InputError
-        (``fn`` must return a value other than None when it accepts)."""
+        (``fn`` must return a value other than None when it accepts). A ``fn`` with a
+        ``limits`` parameter (the :mod:`hand_capture.validate` functions) gets the node's."""
+        takes = _TAKES_LIMITS.get(fn)
+        if takes is None:
+            takes = _TAKES_LIMITS[fn] = "limits" in inspect.signature(fn).parameters
+        if takes and "limits" not in kwargs:
+            kwargs["limits"] = self.limits
         try:
             return fn(*args, **kwargs)
         except InputError as e:

@@ -32,15 +32,16 @@ from hand_capture.touch.encoder import (
     surface_pose,
 )
 from hand_capture.touch.frame import TouchFrame
-from hand_capture.validate import validate_touch_frame
+from hand_capture.validate import DEFAULT_LIMITS, InputLimits, validate_touch_frame
 
 
-def frame_from_msg(msg: TouchFrameMsg) -> TouchFrame:
+def frame_from_msg(msg: TouchFrameMsg, limits: InputLimits = DEFAULT_LIMITS) -> TouchFrame:
     """A hand_msgs/TouchFrame as a core TouchFrame, after the validation layer's checks
     (:func:`~hand_capture.validate.validate_touch_frame`; InputError when malformed)."""
     pts = msg.points
     ids, flags = [p.session_id for p in pts], [p.in_contact for p in pts]
-    pos = validate_touch_frame(ids, [(p.x, p.y) for p in pts], flags, msg.width, msg.height)
+    pos = validate_touch_frame(ids, [(p.x, p.y) for p in pts], flags, msg.width, msg.height,
+                               limits)
     return TouchFrame(ids, pos, flags, msg.width, msg.height,
                       msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
                       msg.header.frame_id)
@@ -79,7 +80,7 @@ class TouchEncoderNode(Node):
 
     def _on_frame(self, msg: TouchFrameMsg) -> None:
         try:
-            res = self.core.process(frame_from_msg(msg))
+            res = self.core.process(frame_from_msg(msg, self.gate.limits))
         except InputError as e:
             self.gate.reject("touch/frame", e)
             return
