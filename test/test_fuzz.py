@@ -35,7 +35,7 @@ from hand_control.dynamixel import control_table as ct
 
 NAMES = list(ARTICULATED_JOINTS)
 NAN, INF = float("nan"), float("inf")
-FUZZ = settings(max_examples=60, deadline=None, derandomize=True,
+FUZZ = settings(max_examples=60, deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow,
                                        HealthCheck.function_scoped_fixture])
 
