@@ -808,8 +808,9 @@ class ServoBridge:
                 level = max(level, WARN)
                 msg += f", {len(self.faults.faults)} servo(s) with hardware errors"
             if self.state is BridgeState.ACTIVE and self._skipped_last:
-                level = max(level, ERROR)
-                msg += f", {self._skipped_last} servo(s) not written (no finite goal)"
+                level = max(level, ERROR)  # torque on, yet not commanding: never "active"
+                msg = msg.replace("active", f"torque on, {self._skipped_last} servo(s) not "
+                                  "written (no finite goal)", 1)
             if self.latency_warning:
                 level = max(level, WARN)
             age = self.watchdog.age(now)
