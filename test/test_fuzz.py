@@ -370,7 +370,9 @@ def test_sim_and_controller_graph_survives_hostile_messages(ros) -> None:
     # the seeds first, then generated ones
     seeds = [JointCommand(joint_names=["root_tz"], efforts=[1e6]),
              JointState(name=list(JOINT_NAMES), position=[1e6] + [0.0] * 26,
-                        velocity=[0.0] * 27)]
+                        velocity=[0.0] * 27),
+             JointState(name=list(JOINT_NAMES[:-1]) + [JOINT_NAMES[0]],  # duplicated name
+                        position=[0.0] * 27, velocity=[0.0] * 27)]
     for k in range(60):
         kind = k % 5
         if k < len(seeds):
@@ -409,7 +411,8 @@ def test_sim_and_controller_graph_survives_hostile_messages(ros) -> None:
         assert np.isfinite(e).all() and np.isfinite(q).all()
         assert ((e >= w.effort_lo) & (e <= w.effort_hi)).all()
         assert (np.abs(e) < 1e3).all()
-    assert sim.rejected > 0 and ctrl.gate.total > 0
+    assert sim.rejected > 0 and ctrl.gate.rejected["sim/joint_states"] >= 2
+    assert ctrl.gate.rejected["sim/object_pose"] > 0
     assert math.isfinite(w.time) and np.isfinite(w.hand_state()[0]).all()
 
 
