@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from hand_capture.model.joints import ARTICULATED_JOINTS
+from hand_capture.model.joints import ARTICULATED_JOINTS, joint_limits_dict
 from hand_control.dynamixel import control_table as ct
 from hand_control.dynamixel import protocol as p2
 from hand_control.dynamixel.bridge import BridgeConfig, BridgeState, ServoBridge
@@ -119,7 +119,8 @@ def test_goal_current_goes_out_by_sync_write_when_it_changes(leap, clock) -> Non
 
 def test_hand_pose_becomes_the_mapped_goals_of_16_servos(leap, clock) -> None:
     rng = np.random.default_rng(0)
-    q = pose(**{n: float(rng.uniform(-0.3, 1.2)) for n in NAMES})
+    lim = joint_limits_dict()  # angles within the hand model's joint limits
+    q = pose(**{n: float(rng.uniform(*lim[n])) for n in NAMES})
     run(leap, clock, q, 300)  # 1.5 s of control time: filter and rate limit settle
     assert goals(leap) == expected_ticks(leap, q)
     assert all(leap.emulator.value(i, "torque_enable") == 1 for i in leap.ids)
@@ -191,7 +192,8 @@ def _failed_read_cycle(gen: ServoBridge, clock: FakeClock, mode: str) -> None:
 
 
 def test_goals_are_clamped_to_the_position_limits(gen, clock) -> None:
-    q = pose(index_mcp_flex=3.0, index_pip_flex=3.0, index_dip_flex=3.0)  # far past the limit
+    # valid angles (within the model's limits + the validation margin) past the servo's limit
+    q = pose(index_mcp_flex=1.85, index_pip_flex=2.2, index_dip_flex=1.85)
     run(gen, clock, q, 300)
     assert goals(gen)[1] == gen.map.by_id(2).min_position  # direction -1: closes downwards
     assert all(gen.map.by_id(2).min_position <= p2.from_le(d) for _, _, d in

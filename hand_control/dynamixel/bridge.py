@@ -240,6 +240,9 @@ class ServoBridge:
         self._cycle_t: deque[float] = deque(maxlen=500)
         self._cycle_dur: deque[float] = deque(maxlen=500)
         self._rejects: dict[str, float] = {}
+        self.rejected: dict[str, int] = {}  # rejected inputs per kind (diagnostics)
+        self.skipped_writes = 0  # servos due a goal that had none finite (logged, counted)
+        self._skipped_last = 0  # ... in the last cycle
         self._atexit_registered = False
         self._cur_unit = np.array([s.model.current_unit_ma for s in self.map.servos]) / 1000.0
 
@@ -552,6 +555,7 @@ class ServoBridge:
         return True
 
     def _reject(self, key: str, msg: str) -> None:
+        self.rejected[key] = self.rejected.get(key, 0) + 1
         now = time.monotonic()
         if now - self._rejects.get(key, -math.inf) > 1.0:  # at most once a second per kind
             self._rejects[key] = now
@@ -711,6 +715,11 @@ class ServoBridge:
         writable = fresh & self._torque
         goal = self.limiter(angles_to_ticks(theta), dt, writable)
         idx = np.flatnonzero(writable & np.isfinite(goal))
+        self._skipped_last = int(np.count_nonzero(writable)) - idx.size
+        if self._skipped_last:  # never silent: a servo due a goal got none
+            self.skipped_writes += self._skipped_last
+            self._reject("skip", f"{self._skipped_last} servo(s) not written: no finite goal "
+                         f"({self.skipped_writes} skipped writes so far)")
         values = dict(zip(self._ids_arr[idx].tolist(), np.rint(goal[idx]).astype(int).tolist(),
                           strict=True))
         if self._current_mode:  # Goal Current, only when it changed
@@ -866,6 +875,10 @@ class ServoBridge:
             if self.faults:
                 level = max(level, WARN)
                 msg += f", {len(self.faults.faults)} servo(s) with hardware errors"
+            if self.state is BridgeState.ACTIVE and self._skipped_last:
+                level = max(level, ERROR)  # torque on, yet not commanding: never "active"
+                msg = msg.replace("active", f"torque on, {self._skipped_last} servo(s) not "
+                                  "written (no finite goal)", 1)
             if self.latency_warning:
                 level = max(level, WARN)
             age = self.watchdog.age(now)
@@ -885,6 +898,9 @@ class ServoBridge:
                     "total_comm_failures": str(self.failures.total),
                     "input_age_s": "never" if math.isinf(age) else f"{age:.3f}",
                     "latency_timer": self.latency_warning or "ok",
+                    "skipped_writes": str(self.skipped_writes),
+                    "rejected_inputs": str(sum(v for k, v in self.rejected.items()
+                                               if k != "skip")),
                 })]
             for k, s in enumerate(self.map.servos):
                 fault = self.faults.faults.get(s.id)

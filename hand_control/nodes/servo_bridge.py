@@ -49,8 +49,14 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
+from hand_capture.validate import (
+    validate_hand_pose_msg,
+    validate_joint_command,
+    validate_joint_state,
+)
 from hand_control.dynamixel.bridge import BridgeConfig, BridgeState, ServoBridge
 from hand_control.errors import HandSuiteError
 
@@ -66,6 +72,7 @@ class ServoBridgeNode(LifecycleNode):
         self.config: BridgeConfig = declare_config(self, BridgeConfig)
         self.core: ServoBridge | None = None
         self._last_error = ""
+        self.gate = InputGate(self)  # rejected inputs, counted per topic (diagnostics)
         self._state_pub = None
         self._goal_pub = None
         self._input_stamp = None  # header stamp of the last accepted input
@@ -189,7 +196,8 @@ class ServoBridgeNode(LifecycleNode):
         return SetParametersResult(successful=True)
 
     def _on_pose(self, msg: HandPose) -> None:
-        if self.core is None:
+        if self.core is None or self.gate.check("hand/pose", validate_hand_pose_msg,
+                                                msg) is None:
             return
         valid = msg.status not in (HandPose.STATUS_UNKNOWN, HandPose.STATUS_LOST)
         hand = "left" if msg.handedness == HandPose.HAND_LEFT else "right"
@@ -198,12 +206,21 @@ class ServoBridgeNode(LifecycleNode):
             self._accepted(msg.header.stamp)
 
     def _on_joint_state(self, msg: JointState) -> None:
-        if self.core is not None and self.core.handle_joint_state(msg.name, msg.position):
+        if self.core is None or self.gate.check(
+                "sim/joint_states", validate_joint_state, msg.name, msg.position,
+                msg.velocity, msg.effort) is None:
+            return
+        if self.core.handle_joint_state(msg.name, msg.position):
             self._accepted(msg.header.stamp)
 
     def _on_command(self, msg: JointCommand) -> None:
-        if self.core is not None and self.core.handle_joint_state(msg.joint_names,
-                                                                  msg.positions):
+        if self.core is None or self.gate.check(
+                "control/joint_command", validate_joint_command, msg.joint_names,
+                msg.positions, msg.velocities, msg.efforts) is None:
+            return
+        if not len(msg.positions):  # efforts only: no position targets for the servos
+            return
+        if self.core.handle_joint_state(msg.joint_names, msg.positions):
             self._accepted(msg.header.stamp)
 
     def _accepted(self, stamp) -> None:
@@ -325,11 +342,12 @@ class ServoBridgeNode(LifecycleNode):
                 message=f"not configured{': ' + self._last_error if self._last_error else ''}",
                 hardware_id=self.config.port)]
         else:
-            for r in self.core.diagnostics():
+            for i, r in enumerate(self.core.diagnostics()):
+                values = {**r.values, **self.gate.values()} if i == 0 else r.values
                 arr.status.append(DiagnosticStatus(
                     level=bytes((r.level,)), name=r.name, message=r.message,
                     hardware_id=r.hardware_id,
-                    values=[KeyValue(key=k, value=v) for k, v in r.values.items()]))
+                    values=[KeyValue(key=k, value=v) for k, v in values.items()]))
         self._diag_pub.publish(arr)
 
 

@@ -12,9 +12,10 @@ Topics:
     out  /clock (rosgraph_msgs/Clock) with the simulation time when ``publish_clock``
     out  diagnostics (diagnostic_msgs/DiagnosticArray, 1 Hz: counters)
     in   control/joint_command (hand_msgs/JointCommand: position targets of the servos and
-         feed-forward efforts, by joint name; unknown names, length mismatches and NaN are
-         rejected and counted). Without a command for ``command_timeout`` the servos hold the
-         last targets.
+         feed-forward efforts, by joint name; unknown or duplicate names, length mismatches,
+         NaN/Inf, positions outside the joint ranges and efforts outside the actuators' force
+         limits are rejected, logged and counted, :mod:`hand_capture.validate`). Without a
+         command for ``command_timeout`` the servos hold the last targets.
 Stamps are simulation time. A divergence of the simulation is logged with its DoF and, by
 ``on_instability``, stops the node (raise) or resets the episode.
 """
@@ -32,8 +33,10 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
+from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
+from hand_capture.validate import validate_joint_command
 from hand_control.control import CompositeControlConfig
 from hand_control.errors import InputError
 from hand_control.nodes.convert import contact_array, set_time
@@ -59,10 +62,10 @@ class SimNode(Node):
         self.world = self.runner.world
         self.world.count_saturation = True
         self.object_name = self.runner.obj.name
-        self.rejected = 0
+        self.gate = InputGate(self)
+        self._index = {n: i for i, n in enumerate(self.world.joint_names)}
         self.accepted = 0
         self.ticks = 0
-        self._warned = 0.0
         self.pub_js = self.create_publisher(JointState, "sim/joint_states",
                                             qos_profile_sensor_data)
         self.pub_pose = self.create_publisher(PoseStamped, "sim/object_pose",
@@ -89,16 +92,25 @@ class SimNode(Node):
             f"{'real time' if self.sim_cfg.real_time else 'as fast as possible'}")
 
     # ----------------------------------------------------------------------------- inputs
+    @property
+    def rejected(self) -> int:
+        """Joint commands rejected so far."""
+        return self.gate.total
+
     def _on_command(self, msg: JointCommand) -> None:
-        try:
-            self.world.command_by_name(msg.joint_names, msg.positions, msg.efforts)
-            self.accepted += 1
+        topic = "control/joint_command"
+        w = self.world
+        ok = self.gate.check(topic, validate_joint_command, msg.joint_names, msg.positions,
+                             msg.velocities, msg.efforts, known=self._index)
+        if ok is None:
+            return
+        names, pos, eff = ok
+        try:  # the world refuses efforts outside its actuators' force limits
+            w.command_by_name(names, pos, eff)
         except InputError as e:
-            self.rejected += 1
-            now = time.monotonic()
-            if now - self._warned > 1.0:
-                self._warned = now
-                self.get_logger().warning(f"joint command rejected ({self.rejected} so far): {e}")
+            self.gate.reject(topic, e)
+            return
+        self.accepted += 1
 
     # ------------------------------------------------------------------------------- tick
     def _tick(self) -> None:
@@ -150,6 +162,7 @@ class SimNode(Node):
         rtf = (w.time - self._sim0) / max(wall, 1e-9)
         values = {"sim_time": f"{w.time:.3f}", "real_time_factor": f"{rtf:.3f}",
                   "commands_accepted": str(self.accepted), "commands_rejected": str(self.rejected),
+                  **self.gate.values(),
                   "command_timed_out": str(w.timed_out), "resets": str(w.resets),
                   "servo_saturated_steps": str(w.saturated_steps)}
         values.update({f"warning_{k}": str(v) for k, v in w.soft_warnings.items()})

@@ -216,6 +216,12 @@ class SimWorld:
                                   m.actuator_forcerange[self._servo_a, 0], -np.inf)
         self._force_hi = np.where(m.actuator_forcelimited[self._servo_a].astype(bool),
                                   m.actuator_forcerange[self._servo_a, 1], np.inf)
+        # (n_hand,) feed-forward effort limits of each DoF's actuator [N m or N] (+-inf for
+        # a DoF without a force-limited actuator): set_command refuses efforts outside them
+        self.effort_lo = np.full(self.n_hand, -np.inf)
+        self.effort_hi = np.full(self.n_hand, np.inf)
+        self.effort_lo[self._servo_k] = self._force_lo
+        self.effort_hi[self._servo_k] = self._force_hi
         # _write_command's terms, once: set point = target + effort / kp_fold with
         # kp_fold = inf where the effort goes to qfrc_applied (effort / inf = 0 exactly)
         kp_servo = self.kp[self._servo_k]
@@ -365,7 +371,8 @@ class SimWorld:
         vouches for (n_hand,) finite float64 arrays, which the world then owns (not copied).
 
         Raises:
-            InputError: wrong length or a NaN/Inf entry (nothing is applied then).
+            InputError: wrong length, a NaN/Inf entry, or an effort outside its actuator's
+                force limits (:attr:`effort_lo`, :attr:`effort_hi`); nothing is applied then.
         """
         if not check:
             if target is not None:
@@ -384,6 +391,13 @@ class SimWorld:
             e = np.asarray(effort, dtype=np.float64)
             if e.shape != (self.n_hand,) or not np.isfinite(e).all():
                 raise InputError(f"effort must be {self.n_hand} finite values, got {e.shape}")
+            out = (e < self.effort_lo) | (e > self.effort_hi)
+            if out.any():
+                k = int(np.flatnonzero(out)[0])
+                raise InputError(
+                    f"effort of {self.joint_names[k]!r} = {e[k]:.6g} N m is outside its "
+                    f"actuator's limits [{self.effort_lo[k]:.4g}, {self.effort_hi[k]:.4g}] N m"
+                    f" ({int(out.sum())} efforts out of range); command refused")
         if target is not None:
             self.target = t.copy()
         if effort is not None:
