@@ -30,6 +30,7 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                  "max_abs_diff_vs_cvxpy", "qp_grid_unreachable", "seed000_qp_p50_us",
                  "feasibility_lp_p50_us", "control_step_p50_us"), ()),
     "executor": (("lean_vs_rclpy_0_subs", "lean_vs_rclpy_25_subs"), ()),
+    "fuzz": (("cases", "failures", "msgs_per_s"), ()),
     "model": (("fk_lbs_ms", "baseline_fk_lbs_ms", "fk_lbs_speedup", "fk_lbs_batch_speedup",
                "fk_lbs_speedup_vs_naive", "vectorised_max_diff_m", "jacobian_speedup",
                "render_fps", "raycast_fps", "render_speedup_vs_raycast"), ()),

@@ -472,8 +472,10 @@ def fuzz_touch(n: int, seed: int) -> tuple[int, int]:
 
 
 # --------------------------------------------------------------------------------- run
-def run(quick: bool = False, scale: float = 1.0) -> dict[str, Any]:
-    """The bench (module docstring); ``scale`` shrinks every count (the smoke test)."""
+def run(quick: bool = False, scale: float = 1.0, smoke: bool = False) -> dict[str, Any]:
+    """The bench (module docstring); ``scale`` shrinks every count (``smoke``: 0.05)."""
+    if smoke:
+        scale = min(scale, 0.05)
     n = max(int((2000 if quick else 20000) * scale), 10)
     rows, figures = [], {}
     total_cases = total_fail = 0
