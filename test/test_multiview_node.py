@@ -8,8 +8,10 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from rclpy.qos import qos_profile_sensor_data as SENSOR
 from sensor_msgs.msg import CameraInfo, Image
+from visualization_msgs.msg import Marker, MarkerArray
 
 from hand_capture.multiview.rig import ring_rig, save_rig
 from hand_capture.nodes.rig_sync import RigSyncNode
@@ -67,6 +69,12 @@ def test_groups_by_stamp_and_names_a_stopped_camera(ros, tmp_path) -> None:
     for members in by_stamp.values():
         assert len(set(members.values())) == 1  # one instant per group
         assert {"cam0", "cam1"} <= set(members)  # cam0 and cam1 never dropped
+    markers: list[MarkerArray] = []
+    peer.create_subscription(MarkerArray, "rig/markers", markers.append, QoSProfile(
+        depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))  # joins late: latched
+    assert spin_until(lambda: bool(markers), 10.0)
+    frusta = [m for m in markers[-1].markers if m.type == Marker.LINE_LIST]
+    assert len(frusta) == 3 and all(len(m.points) == 16 for m in frusta)
     assert infos and infos[-1].header.frame_id == "cam1_color_optical_frame"
     assert infos[-1].k[0] > 0
     warn = [s for s in diags if s.level == DiagnosticStatus.WARN][-1]

@@ -128,3 +128,15 @@ def test_realsense_hardware_sync_mode_is_set_or_refused_by_name():
         apply_sync_mode(rs, device(False), 1, "123")
     with pytest.raises(ConfigError, match="inter_cam_sync_mode"):
         RealSenseConfig(inter_cam_sync_mode=3)
+
+
+def test_frustum_reaches_the_image_corners_at_its_depth():
+    cam = ring_rig("r", 1).cameras[0]
+    seg = cam.frustum_segments(0.2)
+    assert seg.shape == (8, 2, 3)
+    np.testing.assert_allclose(seg[:4, 0], np.repeat(cam.t_wc[None], 4, 0))
+    z = cam.to_camera(seg[:4, 1])[:, 2]
+    np.testing.assert_allclose(z, 0.2)
+    uv, _ = cam.project(seg[:4, 1])
+    np.testing.assert_allclose(uv, [[-0.5, -0.5], [639.5, -0.5], [639.5, 479.5], [-0.5, 479.5]],
+                               atol=1e-9)

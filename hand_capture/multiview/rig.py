@@ -119,6 +119,19 @@ class RigCamera:
         k = self.intrinsics
         return np.stack([k.fx * xd + k.cx, k.fy * yd + k.cy], axis=1), in_front
 
+    def frustum_segments(self, depth_m: float = 0.15) -> np.ndarray:
+        """(8, 2, 3) line segments [m, world] drawing the camera's viewing pyramid out to
+        ``depth_m``: four edges from the optical centre and the image rectangle."""
+        k = self.intrinsics
+        corners_px = np.array([[0, 0], [k.width, 0], [k.width, k.height], [0, k.height]],
+                              dtype=float) - 0.5
+        rays = np.column_stack([(corners_px[:, 0] - k.cx) / k.fx,
+                                (corners_px[:, 1] - k.cy) / k.fy, np.ones(4)])
+        far = (rays * depth_m) @ self.R_wc.T + self.t_wc
+        edges = [(self.t_wc, far[i]) for i in range(4)]
+        edges += [(far[i], far[(i + 1) % 4]) for i in range(4)]
+        return np.array(edges)
+
     def camera_info(self) -> dict[str, Any]:
         """The fields of ``sensor_msgs/CameraInfo`` (row-major k, r, p; d as a list)."""
         k = self.intrinsics

@@ -8,6 +8,8 @@ Topics (``CAM`` = each camera name of the rig, ``STREAM`` = the ``stream`` param
     out  sync/CAM/STREAM/image_raw: every member of a group, all with the group's common stamp
     out  sync/CAM/STREAM/camera_info (sensor_msgs/CameraInfo): the rig file's calibration, with
          the same stamp
+    out  rig/markers (visualization_msgs/MarkerArray, latched): each camera's viewing pyramid
+         and name in the rig's world frame, so RViz shows the rig
     out  diagnostics (1 Hz): groups, incomplete groups, dropped, late and overflowing frames,
          worst skew; WARN naming the missing cameras while the rig runs degraded, ERROR when
          fewer than ``min_cameras`` are alive
@@ -19,11 +21,14 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.time import Time
 from sensor_msgs.msg import CameraInfo, Image
+from visualization_msgs.msg import Marker, MarkerArray
 
 from hand_capture.config import param, validate
 from hand_capture.errors import HandSuiteError
@@ -74,6 +79,10 @@ class RigSyncNode(Node):
                                      qos_profile_sensor_data)
         self._infos = {c.name: self._info_msg(c) for c in self.rig.cameras}
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", 10)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_markers = self.create_publisher(MarkerArray, "rig/markers", latched)
+        self.pub_markers.publish(self._rig_markers())
         self.create_timer(self.cfg.poll_period_s, self._poll)
         self.create_timer(1.0, self._diagnostics)
         self.get_logger().info(f"synchronising {len(self.rig)} cameras of rig "
@@ -88,6 +97,28 @@ class RigSyncNode(Node):
                          p=f["p"])
         msg.header.frame_id = f["frame_id"]
         return msg
+
+    def _rig_markers(self) -> MarkerArray:
+        """Each camera's viewing pyramid (LINE_LIST) and name (TEXT) in the world frame."""
+        out = MarkerArray()
+        for i, cam in enumerate(self.rig.cameras):
+            lines = Marker(ns="rig_frusta", id=i, type=Marker.LINE_LIST, action=Marker.ADD)
+            lines.header.frame_id = self.rig.world_frame
+            lines.pose.orientation.w = 1.0
+            lines.scale.x = 0.003
+            lines.color.r, lines.color.g, lines.color.b, lines.color.a = 0.2, 0.8, 1.0, 1.0
+            lines.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+                            for seg in cam.frustum_segments() for p in seg]
+            text = Marker(ns="rig_names", id=i, type=Marker.TEXT_VIEW_FACING,
+                          action=Marker.ADD, text=cam.name)
+            text.header.frame_id = self.rig.world_frame
+            text.pose.position.x, text.pose.position.y, text.pose.position.z = (
+                float(v) for v in cam.t_wc + np.array([0.0, 0.0, 0.03]))
+            text.pose.orientation.w = 1.0
+            text.scale.z = 0.03
+            text.color.r = text.color.g = text.color.b = text.color.a = 1.0
+            out.markers += [lines, text]
+        return out
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
