@@ -193,7 +193,8 @@ def _capture_rig(a: argparse.Namespace) -> int:
     res = write_rig_capture(out, a.rig, seconds=a.seconds, fps=a.fps,
                             objects=[o for o in a.objects.split(",") if o],
                             noise=StudioNoise(sensor_sigma=a.sensor_noise, seed=a.noise_seed),
-                            noise_seed=a.noise_seed, overwrite=a.output is None or a.overwrite)
+                            noise_seed=a.noise_seed, two_hands=a.two_hands,
+                            overwrite=a.output is None or a.overwrite)
     print(f"wrote {res.frames} groups of {res.cameras} cameras ({res.messages} messages, "
           f"{res.size_bytes / 1e6:.2f} MB) to {res.path}")
     return 0
@@ -327,6 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--sensor-noise", type=float, default=2.0,
                     help="--rig: colour sensor noise [grey levels]; 0 compresses far better")
     cp.add_argument("--overwrite", action="store_true", help="--rig: replace -o if it exists")
+    cp.add_argument("--two-hands", action="store_true", help="--rig: a left hand too")
     cp.set_defaults(func=cmd_capture)
 
     tr = sub.add_parser("train", help="train a learned component (touch, tracker)")

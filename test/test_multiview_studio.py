@@ -102,7 +102,7 @@ def test_rig_capture_writes_every_camera_and_the_ground_truth(tmp_path):
 
     rig = save_rig(ring_rig("small", 2, width=160, height=120), tmp_path / "small.yaml")
     res = write_rig_capture(tmp_path / "bag", str(rig), seconds=0.3, fps=10,
-                            objects=("box", "ball"))
+                            objects=("box", "ball"), two_hands=True)
     assert (res.frames, res.cameras) == (3, 2)
     with BagReader(res.path) as bag:
         assert {"/cam0/color/image_raw", "/cam1/labels/image_raw", "/hand/pose_truth",
@@ -114,9 +114,35 @@ def test_rig_capture_writes_every_camera_and_the_ground_truth(tmp_path):
             stamps.setdefault(m.topic, []).append(t)
             if m.topic == "/cam1/labels/image_raw":
                 assert np.any(np.asarray(msg.data) == HAND_LABEL)
-    truth = np.array(stamps["/hand/pose_truth"])
+            if m.topic == "/hand/pose_truth":
+                hands = stamps.setdefault("handedness", [])
+                hands.append(msg.handedness)
+    assert sorted(set(stamps["handedness"])) == [0, 1]  # both hands' truth
+    truth = np.array(stamps["/hand/pose_truth"][::2])
     for cam in ("cam0", "cam1"):  # own clocks: offset + jitter within 5 ms of the instant
         d = np.array(stamps[f"/{cam}/color/image_raw"]) - truth
         assert np.all(np.abs(d) <= 0.005) and np.any(d != 0)
     with pytest.raises(InputError, match="exists"):
         write_rig_capture(tmp_path / "bag", str(rig), seconds=0.1)
+
+
+def test_two_hands_and_objects_get_their_own_labels():
+    from hand_capture.multiview.studio import studio_scene
+
+    with Studio(load_rig("studio6"), studio_scene(["box", "ball"], two_hands=True)) as st:
+        assert st.two_hands
+        assert st.label_names == ["background", "hand", "left_hand", "box", "ball"]
+        assert st.object_names == ["box", "ball"]
+        right, left = home_pose(), home_pose((0.0, 0.3, 0.12))
+        st.set_state(right, left_pose=left)
+        kp_l = HandModel(side="left").forward(left).joint_positions
+        kp_r = HandModel().forward(right).joint_positions
+        seen = {1: 0, 2: 0}
+        for i, cam in enumerate(st.rig.cameras):
+            view = st.render(i)
+            for kp, lab in ((kp_r, 1), (kp_l, 2)):
+                (u, v) = np.round(cam.project(kp[[0]])[0][0]).astype(int)
+                seen[lab] += int(view.labels[v, u] == lab)
+        assert seen[1] >= 4 and seen[2] >= 4  # each wrist on its own hand in most cameras
+        with pytest.raises(Exception, match="finite"):
+            st.set_state(right, left_pose=np.full(27, np.nan))

@@ -34,11 +34,14 @@ from hand_capture.errors import ConfigError, InputError
 from hand_capture.model.joints import N_DOF, matrix_to_quat
 from hand_capture.multiview.rig import Rig, RigCamera
 
-__all__ = ["HAND_LABEL", "Studio", "StudioNoise", "StudioView", "jittered_stamps",
-           "studio_motion"]
+__all__ = ["HAND_LABEL", "LEFT_PREFIX", "Studio", "StudioNoise", "StudioView",
+           "jittered_stamps", "studio_motion", "studio_scene"]
 
-#: label of the hand in :attr:`StudioView.labels`; objects get 2, 3, ... in scene order
+#: label of the (right) hand in :attr:`StudioView.labels`; a left hand and the objects get the
+#: next labels (see :attr:`Studio.label_names`)
 HAND_LABEL = 1
+#: name prefix of the left hand's bodies and joints in a two-hand studio scene
+LEFT_PREFIX = "left_"
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,13 @@ def jittered_stamps(n_frames: int, fps: float, n_cameras: int, *, jitter_s: floa
     return t + rng.uniform(-jitter_s, jitter_s, (n_frames, n_cameras))
 
 
+def _pose(q: np.ndarray, name: str) -> np.ndarray:
+    a = np.asarray(q, dtype=float).reshape(-1)
+    if a.shape != (N_DOF,) or not np.all(np.isfinite(a)):
+        raise InputError(f"{name} must be {N_DOF} finite values, got {a.shape}")
+    return a
+
+
 def studio_motion(n: int) -> np.ndarray:
     """(n, 27) world poses of the studio's default performance: the MJCF scene's home pose
     (hand above the table) closing every finger towards its flexion limit and back while the
@@ -109,15 +119,31 @@ def _check_ideal(cam: RigCamera) -> None:
                           f"fy={k.fy}, cx={k.cx}, cy={k.cy}, d={k.distortion}")
 
 
-def _camera_xml(cam: RigCamera) -> str:
+def _add_camera(spec: object, cam: RigCamera) -> None:
     """A fixed MuJoCo camera matching a rig camera (MuJoCo looks along -z with y up)."""
     R = cam.R_wc @ np.diag([1.0, -1.0, -1.0])
     x, y, z, w = matrix_to_quat(R)
     k = cam.intrinsics
-    fovy = math.degrees(2.0 * math.atan(k.height / 2.0 / k.fy))
-    pos = " ".join(f"{v:.9g}" for v in cam.t_wc)
-    return (f'<camera name="{cam.name}" pos="{pos}" quat="{w:.9g} {x:.9g} {y:.9g} {z:.9g}" '
-            f'fovy="{fovy:.9g}"/>')
+    spec.worldbody.add_camera(name=cam.name, pos=cam.t_wc.tolist(), quat=[w, x, y, z],
+                              fovy=math.degrees(2.0 * math.atan(k.height / 2.0 / k.fy)))
+
+
+def studio_scene(objects: Sequence[str] = ("box",), *, two_hands: bool = False,
+                 left_root: Sequence[float] = (0.0, 0.3, 0.12)) -> object:
+    """The studio's scene as a ``mujoco.MjSpec``: table, objects and the right hand of
+    :func:`hand_capture.model.mjcf.build_scene`; with ``two_hands`` also a left hand (its
+    bodies and joints prefixed ``left_``), rooted at ``left_root`` [m]."""
+    import mujoco
+
+    from hand_capture.model.mjcf import build_hand, build_scene
+
+    spec = mujoco.MjSpec.from_string(build_scene(list(objects)))
+    if two_hands:
+        left = mujoco.MjSpec.from_string(build_hand(hand="left", root_pos=tuple(left_root)))
+        spec.worldbody.add_frame().attach_body(left.body("palm"), LEFT_PREFIX, "")
+    for key in list(spec.keys):  # the keyframes hold the one-hand layout
+        spec.delete(key)
+    return spec
 
 
 class Studio:
@@ -125,12 +151,13 @@ class Studio:
 
     Args:
         rig: the cameras (ideal pinholes, one resolution for all).
-        scene_xml: an MJCF scene whose first 27 qpos are the hand's (as built by
-            :func:`hand_capture.model.mjcf.build_scene`); the cameras are added to it.
+        scene: an MJCF scene (text, or a ``mujoco.MjSpec`` from :func:`studio_scene`) whose
+            first 27 qpos are the (right) hand's, as :func:`hand_capture.model.mjcf.
+            build_scene` builds it; the cameras are added to it.
         noise: colour noise; None = clean images.
     """
 
-    def __init__(self, rig: Rig, scene_xml: str, noise: StudioNoise | None = None) -> None:
+    def __init__(self, rig: Rig, scene: object, noise: StudioNoise | None = None) -> None:
         import mujoco
 
         sizes = {(c.intrinsics.width, c.intrinsics.height) for c in rig.cameras}
@@ -141,13 +168,12 @@ class Studio:
             _check_ideal(cam)
         self.rig = rig
         self.width, self.height = sizes.pop()
-        cams = "\n    ".join(_camera_xml(c) for c in rig.cameras)
-        if "</worldbody>" not in scene_xml:
-            raise InputError("scene_xml has no <worldbody>")
-        xml = scene_xml.replace("</worldbody>", f"    {cams}\n  </worldbody>", 1)
-        xml = xml.replace('<global offwidth="640" offheight="480"/>',
-                          f'<global offwidth="{self.width}" offheight="{self.height}"/>')
-        self.model = mujoco.MjModel.from_xml_string(xml)
+        spec = mujoco.MjSpec.from_string(scene) if isinstance(scene, str) else scene
+        for cam in rig.cameras:
+            _add_camera(spec, cam)
+        spec.visual.global_.offwidth = self.width
+        spec.visual.global_.offheight = self.height
+        self.model = spec.compile()
         if self.model.nq < N_DOF:
             raise InputError(f"the scene has {self.model.nq} qpos; the hand needs {N_DOF}")
         self.data = mujoco.MjData(self.model)
@@ -176,38 +202,51 @@ class Studio:
         self._closed = False
 
     def _geom_labels(self) -> np.ndarray:
-        """Label per geom: the hand's root body -> 1, each object's root body -> 2, 3, ..."""
+        """Label per geom: 1 the (right) hand, then the left hand if any, then each object, in
+        :attr:`label_names` order (root bodies in model order)."""
         m = self.model
         roots = sorted({int(r) for r in m.body_rootid if r != 0})
         hand_root = int(m.body_rootid[m.jnt_bodyid[0]])
-        label = {hand_root: HAND_LABEL}
-        for r in roots:
-            if r != hand_root:
-                label[r] = len(label) + 1
+        left = [r for r in roots if m.body(r).name.startswith(LEFT_PREFIX)]
+        order = [hand_root, *left, *(r for r in roots if r != hand_root and r not in left)]
+        label = {r: i + 1 for i, r in enumerate(order)}
+        self.label_names = ["background", "hand", *(["left_hand"] if left else []),
+                            *(m.body(r).name for r in order[1 + len(left):])]
+        self._left_qpos = None
+        if left:
+            jnts = [j for j in range(m.njnt) if m.joint(j).name.startswith(LEFT_PREFIX)]
+            self._left_qpos = np.array([m.jnt_qposadr[j] for j in jnts])
         return np.array([label.get(int(m.body_rootid[m.geom_bodyid[g]]), 0)
                          for g in range(m.ngeom)], dtype=np.uint8)
 
     @property
     def object_names(self) -> list[str]:
-        """Names of the free objects' bodies, in label order (label 2 first)."""
-        m = self.model
-        hand_root = int(m.body_rootid[m.jnt_bodyid[0]])
-        roots = sorted({int(r) for r in m.body_rootid if r not in (0, hand_root)})
-        return [m.body(r).name for r in roots]
+        """Names of the free objects' bodies, in label order."""
+        n_hands = 2 if self._left_qpos is not None else 1
+        return self.label_names[1 + n_hands:]
 
-    def set_state(self, hand_pose: np.ndarray, object_qpos: np.ndarray | None = None) -> None:
-        """Pose the scene: the hand's 27-DoF world pose and the objects' free-joint qpos
-        (7 each: position [m], quaternion w x y z), in scene order."""
-        q = np.asarray(hand_pose, dtype=float).reshape(-1)
-        if q.shape != (N_DOF,) or not np.all(np.isfinite(q)):
-            raise InputError(f"hand_pose must be {N_DOF} finite values, got {q.shape}")
+    @property
+    def two_hands(self) -> bool:
+        """Whether the scene holds a left hand besides the right one."""
+        return self._left_qpos is not None
+
+    def set_state(self, hand_pose: np.ndarray, object_qpos: np.ndarray | None = None,
+                  left_pose: np.ndarray | None = None) -> None:
+        """Pose the scene: the (right) hand's 27-DoF world pose, the objects' free-joint qpos
+        (7 each: position [m], quaternion w x y z, in scene order) and, in a two-hand scene,
+        the left hand's 27-DoF world pose."""
+        q = _pose(hand_pose, "hand_pose")
         self.data.qpos[:N_DOF] = q
+        if left_pose is not None:
+            if self._left_qpos is None:
+                raise InputError("left_pose given, but the scene has one hand")
+            self.data.qpos[self._left_qpos] = _pose(left_pose, "left_pose")
         if object_qpos is not None:
             o = np.asarray(object_qpos, dtype=float).reshape(-1)
-            if o.size != self.model.nq - N_DOF or not np.all(np.isfinite(o)):
-                raise InputError(f"object_qpos must hold {self.model.nq - N_DOF} finite "
-                                 f"values, got {o.size}")
-            self.data.qpos[N_DOF:] = o
+            n_obj = self.model.nq - N_DOF * (2 if self._left_qpos is not None else 1)
+            if o.size != n_obj or not np.all(np.isfinite(o)):
+                raise InputError(f"object_qpos must hold {n_obj} finite values, got {o.size}")
+            self.data.qpos[N_DOF: N_DOF + n_obj] = o
         self._mj.mj_kinematics(self.model, self.data)
 
     def object_pose(self, name: str) -> np.ndarray:

@@ -63,7 +63,7 @@ def _stamp(t_ns: int) -> Time:
 def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float = 1.0,
                       fps: float = 10.0, objects: Sequence[str] = ("box",),
                       poses: np.ndarray | None = None, noise_seed: int = 0,
-                      noise: StudioNoise | None = None,
+                      noise: StudioNoise | None = None, two_hands: bool = False,
                       jitter_s: float = 0.002, t0_ns: int = 1_700_000_000_000_000_000,
                       overwrite: bool = False) -> RigCaptureSummary:
     """Render ``seconds`` of a performance from every camera of ``rig`` into an MCAP bag.
@@ -75,13 +75,15 @@ def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float 
         objects: object kinds on the table (``box``, ``ball``, ``stick``, ``cup``).
         poses: (n, 27) world hand poses, one per frame; default
             :func:`~hand_capture.multiview.studio.studio_motion`.
+        two_hands: add a left hand 0.3 m to the left, performing the same motion half a
+            cycle later; both hands' truth goes to /hand/pose_truth (``handedness`` tells).
         noise_seed: seed of the colour noise and of the stamps' jitter.
         noise: colour noise model (default :class:`StudioNoise` with ``noise_seed``);
             ``StudioNoise(sensor_sigma=0, ...)`` gives images that compress several times
             better.
         jitter_s: uniform stamp jitter per camera [s] (offsets up to 3 ms on top).
     """
-    from hand_capture.model.mjcf import build_scene
+    from hand_capture.multiview.studio import studio_scene
 
     out = Path(path)
     if out.exists():
@@ -108,14 +110,18 @@ def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float 
     writer.add_topic("/hand/pose_truth", "hand_msgs/msg/HandPose")
     try:
         noise = noise or StudioNoise(seed=noise_seed)
-        with Studio(r, build_scene(list(objects)), noise) as st:
+        left = None
+        if two_hands:
+            left = np.roll(studio_motion(n) if poses is None else q, n // 2, axis=0)
+            left[:, 1] += 0.3
+        with Studio(r, studio_scene(list(objects), two_hands=two_hands), noise) as st:
             names = st.object_names
             obj_topics = {o: "/object/pose_truth" if len(names) == 1
                           else f"/object/{o}/pose_truth" for o in names}
             for topic in obj_topics.values():
                 writer.add_topic(topic, "geometry_msgs/msg/PoseStamped")
             for k in range(n):
-                st.set_state(q[k])
+                st.set_state(q[k], left_pose=None if left is None else left[k])
                 t_ns = t0_ns + int(round(k * 1e9 / fps))
                 for i, cam in enumerate(r.names):
                     view = st.render(i)
@@ -134,9 +140,12 @@ def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float 
                     }
                     for topic, msg in msgs.items():
                         writer.write(topic, max(c_ns, t_ns), serialize_message(msg))
-                truth = fill_pose_msg(HandPose(), q[k], status="ground_truth", source="studio")
-                truth.header.stamp, truth.header.frame_id = _stamp(t_ns), r.world_frame
-                writer.write("/hand/pose_truth", t_ns, serialize_message(truth))
+                hands = [("right", q[k])] + ([] if left is None else [("left", left[k])])
+                for side, pose in hands:
+                    truth = fill_pose_msg(HandPose(), pose, side=side, status="ground_truth",
+                                          source="studio")
+                    truth.header.stamp, truth.header.frame_id = _stamp(t_ns), r.world_frame
+                    writer.write("/hand/pose_truth", t_ns, serialize_message(truth))
                 for o, topic in obj_topics.items():
                     T = st.object_pose(o)
                     msg = PoseStamped()
