@@ -190,8 +190,15 @@ def _capture_rig(a: argparse.Namespace) -> int:
     from hand_capture.nodes.rig_capture import SAMPLE_RIG_CAPTURE, write_rig_capture
 
     out = Path(a.output) if a.output else SAMPLE_RIG_CAPTURE
-    res = write_rig_capture(out, a.rig, seconds=a.seconds, fps=a.fps,
-                            objects=[o for o in a.objects.split(",") if o],
+    objects: list[object] = [o for o in a.objects.split(",") if o]
+    qpos = None
+    if a.scenario:  # physically consistent motion: the scenario simulated, then rendered
+        from hand_control.sim.lockstep import record_motion
+        from hand_control.sim.scenario import load_scenario
+
+        objects, qpos = record_motion(load_scenario(a.scenario), a.fps, a.seconds)
+    res = write_rig_capture(out, a.rig, seconds=a.seconds, fps=a.fps, objects=objects,
+                            qpos=qpos,
                             noise=StudioNoise(sensor_sigma=a.sensor_noise, seed=a.noise_seed),
                             noise_seed=a.noise_seed, two_hands=a.two_hands,
                             overwrite=a.output is None or a.overwrite)
@@ -329,6 +336,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="--rig: colour sensor noise [grey levels]; 0 compresses far better")
     cp.add_argument("--overwrite", action="store_true", help="--rig: replace -o if it exists")
     cp.add_argument("--two-hands", action="store_true", help="--rig: a left hand too")
+    cp.add_argument("--scenario", default="", help="--rig: motion of a simulated scenario "
+                    "(config/scenarios/NAME.yaml) instead of the studio's performance")
     cp.set_defaults(func=cmd_capture)
 
     tr = sub.add_parser("train", help="train a learned component (touch, tracker)")

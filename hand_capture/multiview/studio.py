@@ -128,10 +128,11 @@ def _add_camera(spec: object, cam: RigCamera) -> None:
                               fovy=math.degrees(2.0 * math.atan(k.height / 2.0 / k.fy)))
 
 
-def studio_scene(objects: Sequence[str] = ("box",), *, two_hands: bool = False,
+def studio_scene(objects: Sequence[object] = ("box",), *, two_hands: bool = False,
                  left_root: Sequence[float] = (0.0, 0.3, 0.12)) -> object:
     """The studio's scene as a ``mujoco.MjSpec``: table, objects and the right hand of
-    :func:`hand_capture.model.mjcf.build_scene`; with ``two_hands`` also a left hand (its
+    :func:`hand_capture.model.mjcf.build_scene` (object kinds or ``ObjectSpec``); with
+    ``two_hands`` also a left hand (its
     bodies and joints prefixed ``left_``), rooted at ``left_root`` [m]."""
     import mujoco
 
@@ -247,6 +248,15 @@ class Studio:
             if o.size != n_obj or not np.all(np.isfinite(o)):
                 raise InputError(f"object_qpos must hold {n_obj} finite values, got {o.size}")
             self.data.qpos[N_DOF: N_DOF + n_obj] = o
+        self._mj.mj_kinematics(self.model, self.data)
+
+    def set_qpos(self, qpos: np.ndarray) -> None:
+        """Pose the whole scene from a full ``qpos`` (e.g. a simulation's state of the same
+        scene: hand first, then the objects' free joints)."""
+        q = np.asarray(qpos, dtype=float).reshape(-1)
+        if q.size != self.model.nq or not np.all(np.isfinite(q)):
+            raise InputError(f"qpos must hold {self.model.nq} finite values, got {q.size}")
+        self.data.qpos[:] = q
         self._mj.mj_kinematics(self.model, self.data)
 
     def object_pose(self, name: str) -> np.ndarray:

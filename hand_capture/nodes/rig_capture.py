@@ -61,8 +61,9 @@ def _stamp(t_ns: int) -> Time:
 
 
 def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float = 1.0,
-                      fps: float = 10.0, objects: Sequence[str] = ("box",),
-                      poses: np.ndarray | None = None, noise_seed: int = 0,
+                      fps: float = 10.0, objects: Sequence[object] = ("box",),
+                      poses: np.ndarray | None = None, qpos: np.ndarray | None = None,
+                      noise_seed: int = 0,
                       noise: StudioNoise | None = None, two_hands: bool = False,
                       jitter_s: float = 0.002, t0_ns: int = 1_700_000_000_000_000_000,
                       overwrite: bool = False) -> RigCaptureSummary:
@@ -72,9 +73,12 @@ def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float 
         path: bag directory to create (refused if it exists, unless ``overwrite``).
         rig: rig name or file.
         seconds, fps: length [s] and rate [Hz] of the capture.
-        objects: object kinds on the table (``box``, ``ball``, ``stick``, ``cup``).
+        objects: object kinds on the table (``box``, ``ball``, ``stick``, ``cup``) or
+            ``ObjectSpec``.
         poses: (n, 27) world hand poses, one per frame; default
             :func:`~hand_capture.multiview.studio.studio_motion`.
+        qpos: (n, nq) full scene states instead of ``poses`` (e.g. a simulated scenario of
+            the same objects: physically consistent hand and object motion).
         two_hands: add a left hand 0.3 m to the left, performing the same motion half a
             cycle later; both hands' truth goes to /hand/pose_truth (``handedness`` tells).
         noise_seed: seed of the colour noise and of the stamps' jitter.
@@ -94,7 +98,17 @@ def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float 
     n = int(round(seconds * fps))
     if n < 1:
         raise InputError(f"seconds * fps must give at least one frame, got {seconds} * {fps}")
-    q = studio_motion(n) if poses is None else np.asarray(poses, dtype=float)
+    if qpos is not None:
+        if poses is not None or two_hands:
+            raise InputError("qpos holds the whole scene: give no poses and no second hand")
+        full = np.asarray(qpos, dtype=float)
+        if full.ndim != 2 or full.shape[0] != n:
+            raise InputError(f"qpos must have {n} rows ({seconds} s at {fps} Hz), got "
+                             f"{full.shape}")
+        q = full[:, :27]
+    else:
+        full = None
+        q = studio_motion(n) if poses is None else np.asarray(poses, dtype=float)
     if q.shape != (n, 27):
         raise InputError(f"poses must have shape ({n}, 27), got {q.shape}")
     offsets = np.linspace(-0.003, 0.003, len(r))
@@ -121,7 +135,10 @@ def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float 
             for topic in obj_topics.values():
                 writer.add_topic(topic, "geometry_msgs/msg/PoseStamped")
             for k in range(n):
-                st.set_state(q[k], left_pose=None if left is None else left[k])
+                if full is not None:
+                    st.set_qpos(full[k])
+                else:
+                    st.set_state(q[k], left_pose=None if left is None else left[k])
                 t_ns = t0_ns + int(round(k * 1e9 / fps))
                 for i, cam in enumerate(r.names):
                     view = st.render(i)

@@ -68,11 +68,9 @@ def object_spec(spec: ScenarioSpec) -> tuple[ObjectSpec, tuple[float, ...]]:
     return o, size
 
 
-def build_world(spec: ScenarioSpec, config: SimConfig | None = None,
-                gains: CompositeControlConfig | None = None
-                ) -> tuple[SimWorld, ObjectSpec, tuple[float, ...]]:
-    """The MuJoCo world of a scenario (hand, table, object, optional falling ball); its
-    servos get the PD gains of ``gains`` (default: Table 1 = Table III.1) in the MJCF."""
+def scene_objects(spec: ScenarioSpec) -> tuple[list[ObjectSpec], tuple[float, ...]]:
+    """The scenario's free objects in scene order (its object, then the optional falling
+    ball) and the object's size."""
     obj, size = object_spec(spec)
     objects = [obj]
     if spec.perturb_mass > 0:
@@ -80,6 +78,16 @@ def build_world(spec: ScenarioSpec, config: SimConfig | None = None,
         objects.append(ObjectSpec("ball", name=IMPACT_BALL, size=(r,), mass=spec.perturb_mass,
                                   friction=0.5, pos=(0.45, 0.30, r + 1e-4),
                                   rgba=(0.8, 0.2, 0.2, 1.0)))
+    return objects, size
+
+
+def build_world(spec: ScenarioSpec, config: SimConfig | None = None,
+                gains: CompositeControlConfig | None = None
+                ) -> tuple[SimWorld, ObjectSpec, tuple[float, ...]]:
+    """The MuJoCo world of a scenario (hand, table, object, optional falling ball); its
+    servos get the PD gains of ``gains`` (default: Table 1 = Table III.1) in the MJCF."""
+    objects, size = scene_objects(spec)
+    obj = objects[0]
     config = config or SimConfig()
     kp, kd = joint_gains(gains or CompositeControlConfig(), JOINT_NAMES)
     xml = build_scene(objects, hand_gravcomp=config.hand_gravcomp, servo_kp=kp, servo_kd=kd)
@@ -283,7 +291,7 @@ class LockstepRunner:
         schedule = sorted(zip(fs[0::2], fs[1::2], strict=True))
         dropped = [spec.perturb_mass <= 0]
         p_init = w.object_pose(self.obj.name).position.copy()
-        tr = {"t": [], "pos": [], "target": [], "phase": []}
+        tr = {"t": [], "pos": [], "target": [], "phase": [], "qpos": []}
         t_ctrl = 0.0
         control_steps = 0
         t_lift0 = self.reference.t_lift0
@@ -316,6 +324,7 @@ class LockstepRunner:
                 tr["pos"].append(op.position)
                 tr["target"].append(ref.object_position)
                 tr["phase"].append(ref.phase)
+                tr["qpos"].append(d.qpos.copy())
         wall = time.perf_counter() - t0
         op = w.object_pose(self.obj.name)
         target, _ = self.reference.object_target(w.time)
@@ -333,6 +342,24 @@ class LockstepRunner:
             divergences=len(w.divergences), wall_s=wall, sim_s=n * w.model.opt.timestep,
             control_s=t_ctrl, grasp_residual_mm=float(self.plan.residual.max() * 1e3),
             trace={k: np.asarray(v) for k, v in tr.items()} if trace else {})
+
+
+def record_motion(spec: ScenarioSpec, fps: float, seconds: float | None = None
+                  ) -> tuple[list[ObjectSpec], np.ndarray]:
+    """The scenario's episode under the composite controller, sampled at ``fps``: the scene's
+    objects (the order of their free joints) and the full ``qpos`` (n, nq) of every frame, so
+    that a renderer of the same scene shows physically consistent hand and object motion
+    (seed 000's capture data are such motions).
+
+    Raises:
+        SimulationError: the simulation diverged.
+    """
+    runner = LockstepRunner(spec)
+    duration = runner.reference.t_end if seconds is None else float(seconds)
+    tr = runner.run(duration=duration, trace=True).trace
+    n = max(1, int(duration * fps))
+    idx = np.searchsorted(tr["t"], np.arange(n) / fps).clip(0, len(tr["t"]) - 1)
+    return scene_objects(spec)[0], tr["qpos"][idx]
 
 
 def run_episode(spec: ScenarioSpec, mode: str = "composite", control_every: int = 1,
