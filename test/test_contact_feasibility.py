@@ -153,7 +153,7 @@ def test_torque_limits_need_jacobians():
 
 def test_grid_cell_beyond_the_hand_is_infeasible():
     """The lift-and-carry grid's planned grasp of the box, with the simulated hand's actuator
-    limits: 0.2 kg at mu 0.5 is feasible; 5 kg at mu 0.3 (the grid's heavy cell) is not, the
+    limits: 0.2 kg at mu 0.5 is feasible; 8 kg at mu 0.3 (the grid's heavy cell) is not, the
     fingers cannot press hard enough; without the limits the LP said yes to both."""
     from hand_control.bench._grasp_grid import HEAVY_MASS, grasp_feasibility, grid_spec
     from hand_control.sim.lockstep import LockstepRunner
