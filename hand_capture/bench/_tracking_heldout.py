@@ -263,7 +263,7 @@ def resolution_section(reg, config, quick: bool) -> dict:
 
 def transport_section(quick: bool) -> dict:
     """640x480 frames at 30 Hz to the tracker's QoS: graphs' profile vs Fast DDS defaults."""
-    from hand_capture.bench.delivery import measure_delivery
+    from hand_capture.bench._delivery import measure_delivery
 
     n = 30 if quick else 150
     rows, out = [], {}
