@@ -204,6 +204,7 @@ def _capture_rig(a: argparse.Namespace) -> int:
                             qpos=qpos,
                             noise=StudioNoise(sensor_sigma=a.sensor_noise, seed=a.noise_seed),
                             noise_seed=a.noise_seed, two_hands=a.two_hands,
+                            surface_seed=None if a.heldout_surface < 0 else a.heldout_surface,
                             overwrite=a.output is None or a.overwrite)
     print(f"wrote {res.frames} groups of {res.cameras} cameras ({res.messages} messages, "
           f"{res.size_bytes / 1e6:.2f} MB) to {res.path}")
@@ -339,6 +340,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="--rig: colour sensor noise [grey levels]; 0 compresses far better")
     cp.add_argument("--overwrite", action="store_true", help="--rig: replace -o if it exists")
     cp.add_argument("--two-hands", action="store_true", help="--rig: a left hand too")
+    cp.add_argument("--heldout-surface", type=int, default=-1, metavar="SEED",
+                    help="--rig: the right hand as a held-out-family subject (other shapes, "
+                    "forearm, sleeve) drawn from SEED; -1 = the MJCF hand")
     cp.add_argument("--scenario", default="", help="--rig: motion of a simulated scenario "
                     "(config/scenarios/NAME.yaml) instead of the studio's performance")
     cp.set_defaults(func=cmd_capture)

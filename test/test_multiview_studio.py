@@ -102,10 +102,11 @@ def test_rig_capture_writes_every_camera_and_the_ground_truth(tmp_path):
 
     rig = save_rig(ring_rig("small", 2, width=160, height=120), tmp_path / "small.yaml")
     res = write_rig_capture(tmp_path / "bag", str(rig), seconds=0.3, fps=10,
-                            objects=("box", "ball"), two_hands=True)
+                            objects=("box", "ball"), two_hands=True, surface_seed=4)
     assert (res.frames, res.cameras) == (3, 2)
     with BagReader(res.path) as bag:
         assert {"/cam0/color/image_raw", "/cam1/labels/image_raw", "/hand/pose_truth",
+                "/hand/shape_truth",
                 "/object/box/pose_truth", "/object/ball/pose_truth"} <= set(bag.topics)
         stamps: dict[str, list[float]] = {}
         for m in bag.messages():
@@ -167,3 +168,31 @@ def test_a_simulated_scenario_is_rendered_with_its_own_object_motion(tmp_path):
                  if m.topic == "/hand/pose_truth"]
     np.testing.assert_allclose(z, qpos[:, 29], atol=1e-9)  # box z: the simulated one
     assert len(hands) == 4
+
+
+def test_a_heldout_surface_subject_stands_in_for_the_mjcf_hand():
+    from hand_capture.evaldata.scene import sample_subject
+    from hand_capture.evaldata.surface import sample_surface
+
+    rng = np.random.default_rng(5)
+    subject, surface = sample_subject(rng), sample_surface(rng, forearm=True, sleeve=False)
+    with Studio(load_rig("studio6"), build_scene(["box"])) as st:
+        q = home_pose()
+        st.set_state(q)
+        mjcf_view = st.render(0)
+        st.set_surface(subject, surface)
+        assert st.label_names == ["background", "hand", "box", "arm"]
+        kp = subject.forward(q).joint_positions  # the subject's skeleton: the truth
+        on_hand = 0
+        for i, cam in enumerate(st.rig.cameras):
+            view = st.render(i)
+            assert np.any(view.labels == 3)  # the forearm is in view
+            px = np.round(cam.project(kp)[0]).astype(int)
+            on_hand += int(np.sum(view.labels[px[:, 1], px[:, 0]] == HAND_LABEL))
+        assert on_hand >= 0.7 * 6 * len(kp)
+        # another surface than the MJCF capsules
+        assert not np.array_equal(st.render(0).labels == HAND_LABEL,
+                                  mjcf_view.labels == HAND_LABEL)
+        st.set_surface(None)
+        assert st.label_names == ["background", "hand", "box"]
+        np.testing.assert_array_equal(st.render(0).labels, mjcf_view.labels)

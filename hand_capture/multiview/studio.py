@@ -42,6 +42,10 @@ __all__ = ["HAND_LABEL", "LEFT_PREFIX", "Studio", "StudioNoise", "StudioView",
 HAND_LABEL = 1
 #: name prefix of the left hand's bodies and joints in a two-hand studio scene
 LEFT_PREFIX = "left_"
+#: geom group the MJCF hand moves to while a held-out surface stands in for it (not drawn)
+_HIDDEN_GROUP = 5
+_SKIN = np.array([0.87, 0.68, 0.58, 1.0], dtype=np.float32)
+_SLEEVE = np.array([0.25, 0.3, 0.45, 1.0], dtype=np.float32)
 
 
 @dataclass(frozen=True)
@@ -183,6 +187,10 @@ class Studio:
         mujoco.mj_forward(self.model, self.data)
         self._mj = mujoco
         self._labels_of_geom = self._geom_labels()
+        self._hand_groups = self.model.geom_group.copy()[
+            self.model.body_rootid[self.model.geom_bodyid] ==
+            self.model.body_rootid[self.model.jnt_bodyid[0]]]
+        self._surface: tuple[object, object] | None = None
         self._gl = mujoco.GLContext(self.width, self.height)
         self._gl.make_current()
         self._con = mujoco.MjrContext(self.model, mujoco.mjtFontScale.mjFONTSCALE_100)
@@ -278,6 +286,8 @@ class Studio:
         self._cam.fixedcamid = idx
         mj.mjv_updateScene(self.model, self.data, self._opt, None, self._cam,
                            mj.mjtCatBit.mjCAT_ALL, self._scene)
+        n_model = self._scene.ngeom
+        extra = self._add_surface_geoms()  # labels of the geoms added after the model's
         for f in (mj.mjtRndFlag.mjRND_SHADOW, mj.mjtRndFlag.mjRND_REFLECTION,
                   mj.mjtRndFlag.mjRND_SKYBOX, mj.mjtRndFlag.mjRND_SEGMENT,
                   mj.mjtRndFlag.mjRND_IDCOLOR):
@@ -296,14 +306,65 @@ class Studio:
             mj.mjr_readPixels(self._seg, None, self._viewport, self._con)
             s = np.flipud(self._seg).astype(np.int64)
             ids = s[..., 0] + 256 * s[..., 1] + 65536 * s[..., 2] - 1  # scene geom index
-            hit = ids >= 0
-            geom_of = np.array([g.objid if g.objtype == mj.mjtObj.mjOBJ_GEOM else -1
-                                for g in self._scene.geoms[: self._scene.ngeom]])
-            gid = np.full(ids.shape, -1)
-            gid[hit] = geom_of[np.clip(ids[hit], 0, len(geom_of) - 1)]
-            ok = gid >= 0
-            lab[ok] = self._labels_of_geom[gid[ok]]
+            lab_of = np.array([self._labels_of_geom[g.objid]
+                               if g.objtype == mj.mjtObj.mjOBJ_GEOM and g.objid >= 0 else 0
+                               for g in self._scene.geoms[: n_model]] + extra, dtype=np.uint8)
+            hit = (ids >= 0) & (ids < len(lab_of))
+            lab[hit] = lab_of[ids[hit]]
         return StudioView(self._apply_noise(rgb), depth, lab)
+
+    def set_surface(self, hand: object | None, params: object | None = None) -> None:
+        """Show the (right) hand as a surface of the held-out family instead of the MJCF
+        capsules: ``hand`` a :class:`~hand_capture.model.HandModel` (the subject's skeleton),
+        ``params`` a :class:`~hand_capture.evaldata.surface.SurfaceParams` (finger and palm
+        shapes, nails, forearm, sleeve). ``None`` restores the MJCF hand. The forearm and
+        sleeve get the label ``arm``; the ground truth is the pose on ``hand``'s skeleton.
+        """
+        m = self.model
+        hand_root = int(m.body_rootid[m.jnt_bodyid[0]])
+        mine = np.array([int(m.body_rootid[m.geom_bodyid[g]]) == hand_root
+                         for g in range(m.ngeom)])
+        if hand is None:
+            m.geom_group[mine] = self._hand_groups
+            self._surface = None
+            if self.label_names[-1] == "arm":
+                self.label_names.pop()
+            return
+        if params is None:
+            raise InputError("set_surface: give the surface parameters with the hand model")
+        m.geom_group[mine] = _HIDDEN_GROUP
+        self._surface = (hand, params)
+        if self.label_names[-1] != "arm":
+            self.label_names.append("arm")
+
+    def _add_surface_geoms(self) -> list[int]:
+        """Draw the held-out surface's primitives into the scene; their labels."""
+        if self._surface is None:
+            return []
+        from hand_capture.evaldata.surface import HAND, SLEEVE, hand_primitives
+
+        mj = self._mj
+        hand, params = self._surface
+        arm = len(self.label_names) - 1
+        labels = []
+        for p in hand_primitives(hand, self.data.qpos[:N_DOF], params):
+            if self._scene.ngeom >= self._scene.maxgeom:
+                break
+            g = self._scene.geoms[self._scene.ngeom]
+            rgba = _SLEEVE if p.label == SLEEVE else _SKIN
+            if hasattr(p, "radius"):  # capsule between a and b
+                mj.mjv_initGeom(g, mj.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3),
+                                np.eye(3).ravel(), rgba)
+                mj.mjv_connector(g, mj.mjtGeom.mjGEOM_CAPSULE, p.radius,
+                                 np.asarray(p.a, float), np.asarray(p.b, float))
+            else:
+                mj.mjv_initGeom(g, mj.mjtGeom.mjGEOM_ELLIPSOID, np.asarray(p.radii, float),
+                                np.asarray(p.centre, float),
+                                np.asarray(p.axes, float).ravel(), rgba)
+            g.segid = self._scene.ngeom
+            self._scene.ngeom += 1
+            labels.append(HAND_LABEL if p.label == HAND else arm)
+        return labels
 
     def render_all(self, *, labels: bool = True) -> dict[str, StudioView]:
         """Every camera's view of the current state (one synchronised group)."""

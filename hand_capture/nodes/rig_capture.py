@@ -10,7 +10,8 @@ Topics (``N`` = each camera of the rig):
     /camN/color/image_raw (rgb8), /camN/color/camera_info,
     /camN/depth/image_raw (16UC1, mm), /camN/depth/camera_info,
     /camN/labels/image_raw (mono8: 0 background, 1 hand, 2... objects),
-    /hand/pose_truth (hand_msgs/HandPose, world), /object/pose_truth (PoseStamped, world;
+    /hand/pose_truth (hand_msgs/HandPose, world), /hand/shape_truth (HandShape, with a held-out
+    surface), /object/pose_truth (PoseStamped, world;
     one object) or /object/NAME/pose_truth (several)
 
     hand-suite capture --rig studio6 -o DIR [--seconds 1] [--fps 10] [--objects box]
@@ -27,6 +28,7 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseStamped
 from hand_msgs.msg import HandPose
+from hand_msgs.msg import HandShape as HandShapeMsg
 from rclpy.serialization import serialize_message
 
 from hand_capture.bag import BagWriter
@@ -60,11 +62,23 @@ def _stamp(t_ns: int) -> Time:
     return Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9)
 
 
+def _heldout_subject(studio: Studio, seed: int) -> object:
+    """Put a held-out subject (skeleton + surface) in the studio; its HandShape."""
+    from hand_capture.evaldata.scene import sample_subject
+    from hand_capture.evaldata.surface import sample_surface
+
+    rng = np.random.default_rng(seed)
+    subject = sample_subject(rng)
+    studio.set_surface(subject, sample_surface(rng, forearm=True))
+    return subject.shape
+
+
 def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float = 1.0,
                       fps: float = 10.0, objects: Sequence[object] = ("box",),
                       poses: np.ndarray | None = None, qpos: np.ndarray | None = None,
                       noise_seed: int = 0,
                       noise: StudioNoise | None = None, two_hands: bool = False,
+                      surface_seed: int | None = None,
                       jitter_s: float = 0.002, t0_ns: int = 1_700_000_000_000_000_000,
                       overwrite: bool = False) -> RigCaptureSummary:
     """Render ``seconds`` of a performance from every camera of ``rig`` into an MCAP bag.
@@ -79,6 +93,10 @@ def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float 
             :func:`~hand_capture.multiview.studio.studio_motion`.
         qpos: (n, nq) full scene states instead of ``poses`` (e.g. a simulated scenario of
             the same objects: physically consistent hand and object motion).
+        surface_seed: show the right hand as a subject of the held-out surface family
+            (:mod:`hand_capture.evaldata`: other finger and palm shapes, nails, a forearm, a
+            sleeve half the time) drawn from this seed; its skeleton goes to
+            /hand/shape_truth (HandShape), the pose truth is on that skeleton.
         two_hands: add a left hand 0.3 m to the left, performing the same motion half a
             cycle later; both hands' truth goes to /hand/pose_truth (``handedness`` tells).
         noise_seed: seed of the colour noise and of the stamps' jitter.
@@ -129,6 +147,13 @@ def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float 
             left = np.roll(studio_motion(n) if poses is None else q, n // 2, axis=0)
             left[:, 1] += 0.3
         with Studio(r, studio_scene(list(objects), two_hands=two_hands), noise) as st:
+            if surface_seed is not None:
+                shape = _heldout_subject(st, surface_seed)
+                writer.add_topic("/hand/shape_truth", "hand_msgs/msg/HandShape")
+                msg = HandShapeMsg(subject_id=shape.subject_id, global_scale=shape.global_scale,
+                                   alpha=list(shape.alpha), beta=list(shape.beta))
+                msg.header.stamp = _stamp(t0_ns)
+                writer.write("/hand/shape_truth", t0_ns, serialize_message(msg))
             names = st.object_names
             obj_topics = {o: "/object/pose_truth" if len(names) == 1
                           else f"/object/{o}/pose_truth" for o in names}
