@@ -219,8 +219,9 @@ class Studio:
         left = [r for r in roots if m.body(r).name.startswith(LEFT_PREFIX)]
         order = [hand_root, *left, *(r for r in roots if r != hand_root and r not in left)]
         label = {r: i + 1 for i, r in enumerate(order)}
+        self._object_names = [m.body(r).name for r in order[1 + len(left):]]
         self.label_names = ["background", "hand", *(["left_hand"] if left else []),
-                            *(m.body(r).name for r in order[1 + len(left):])]
+                            *self._object_names]
         self._left_qpos = None
         if left:
             jnts = [j for j in range(m.njnt) if m.joint(j).name.startswith(LEFT_PREFIX)]
@@ -231,8 +232,7 @@ class Studio:
     @property
     def object_names(self) -> list[str]:
         """Names of the free objects' bodies, in label order."""
-        n_hands = 2 if self._left_qpos is not None else 1
-        return self.label_names[1 + n_hands:]
+        return list(self._object_names)
 
     @property
     def two_hands(self) -> bool:
