@@ -86,12 +86,12 @@ def test_forearm_cut_removes_the_forearm_and_keeps_the_hand(fingers):
     obs = segment_hand(_render(fa, q), intr, cfg)
     arm = fa.arm(q)
     assert _beyond(obs.points, arm, 0.06) > 500        # the forearm is in the segment
-    n_hand = obs.n_points - _beyond(obs.points, arm, 0.01)   # up to 1 cm past the wrist
+    n_hand = obs.n_points - _beyond(obs.points, arm, 0.0)   # the hand side of the wrist
     for prior in (None, arm):  # from the cloud alone, and from a tracked wrist
         cut, did = cut_forearm(obs, cfg, 1.0, prior)
         assert did
         assert _beyond(cut.points, arm, 0.06) < 0.05 * _beyond(obs.points, arm, 0.06)
-        assert cut.n_points - _beyond(cut.points, arm, 0.01) > 0.97 * n_hand
+        assert cut.n_points - _beyond(cut.points, arm, 0.0) > 0.97 * n_hand
         # the observation stays consistent: mask, depth and points agree
         assert cut.mask.sum() == cut.n_points == np.count_nonzero(cut.depth_m)
 
@@ -200,3 +200,18 @@ def test_calibration_with_a_forearm_does_not_inflate_the_hand():
 def test_forearm_config_is_validated():
     with pytest.raises(Exception, match="forearm_margin_m"):
         dataclasses.replace(TrackerConfig(), forearm_margin_m=-1.0)
+
+
+def test_training_samples_with_forearms_are_cut_like_live_frames():
+    from hand_capture.tracking.train import render_samples
+
+    rng = np.random.default_rng(3)
+    m = HandModel()
+    samples = render_samples(6, rng, [m], default_intrinsics(), forearm_prob=1.0,
+                             surface_mm=(-1.0, 2.5))
+    assert len(samples) == 6
+    for s in samples:
+        kp = m.joint_positions(s.pose)
+        d = (kp[0] - kp[9]) / np.linalg.norm(kp[0] - kp[9])
+        # the forearm (up to 0.5 m long) is cut near the wrist in every training crop
+        assert np.percentile((s.points - kp[0]) @ d, 99) < 0.12

@@ -12,8 +12,9 @@ is wherever the hand is). Eq. II.11 is solved by alternation, as in the disserta
 
 Departures, for hands whose surface is not the model's and that come with a forearm: the
 forearm is cut off every frame first (``preprocess.cut_forearm``), the residuals are
-Huber-weighted as in the tracker (``robust_mm``), the cut is redone at the fitted wrists
-(after the start and half-way through the rounds), and a fit that cannot be trusted (few
+Huber-weighted as in the tracker (``robust_mm``), the global scale starts from the best of
+a grid (0.9, 1.0, 1.1; each tried with its own cut at its fitted wrists), the cut is
+redone half-way through the rounds, and a fit that cannot be trusted (few
 hand points, a high residual, much of the model off the observed hand) is refused: ``ok``
 False, a ``status`` naming why, and the starting shape returned unchanged.
 
@@ -89,7 +90,7 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
               finger_poses: Sequence[np.ndarray] | None = None,
               model: HandModel | None = None, config: TrackerConfig | None = None, *,
               rounds: int = 10, pose_iterations: int = 3, prior_weight: float = 300.0,
-              scale_grid: Sequence[float] = (1.0,),
+              scale_grid: Sequence[float] = (0.9, 1.0, 1.1),
               subject_id: str = "", min_points: int = 400,
               max_residual_mm: float = 6.0, max_off_share: float = 0.2
               ) -> CalibrationResult:
@@ -150,14 +151,17 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
         gs = float(np.clip(sg * model.shape.global_scale, 0.6, 1.6))
         shape_try = model.shape.with_params(global_scale=gs)
         tracker = ModelTracker(model.with_shape(shape_try), cfg)
-        poses_try, score = _fit_poses(tracker, obs_list, finger_poses, pose_iterations)
+        obs_try = list(obs_list)
+        poses_try, score = _fit_poses(tracker, obs_try, finger_poses, pose_iterations)
+        if cfg.forearm_cut:
+            # cut again at the fitted wrists (the cloud-only cut may leave some forearm,
+            # and where the wrist ends depends on the scale tried), refit and score
+            _recut(tracker, whole, obs_try, poses_try, cfg)
+            poses_try, score = _fit_poses(tracker, obs_try, finger_poses, pose_iterations,
+                                          poses_try)
         if best is None or score < best[0]:
-            best = (score, shape_try, tracker, poses_try)
-    _, shape, tracker, poses = best
-    # cut again at the fitted wrists (the cloud-only cut may leave some forearm), refit
-    _recut(tracker, whole, obs_list, poses, cfg)
-    poses = [tracker.refine(q, obs, pose_iterations, q_ref=q)
-             for q, obs in zip(poses, obs_list, strict=True)]
+            best = (score, shape_try, tracker, poses_try, obs_try)
+    _, shape, tracker, poses, obs_list = best
     p0 = HandShape().params
     sd = np.r_[GLOBAL_SCALE_SD, np.ones(N_ALPHA), np.full(N_BETA, BETA_SD)]
     lo = np.r_[0.6, np.full(N_ALPHA, -3.0), np.full(N_BETA, -0.004)]
@@ -188,8 +192,10 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
             r = np.r_[corr.residual_mm.reshape(-1), rev.residual_mm.reshape(-1)]
             wr = np.r_[np.ones(3 * len(corr.vertex)),
                        np.full(3 * len(rev.vertex), max(cfg.reverse_weight, 0.5))]
-            if cfg.robust_mm > 0:  # Huber IRLS, as the tracker's data term (icp.py)
-                wr = wr * huber_sqrt_weights(r, cfg.robust_mm) ** 2
+            if cfg.robust_mm > 0:  # Huber IRLS, as the tracker's data term (icp.py), on
+                # the data-to-model pairs only: the model-to-data pairs carry the size
+                nd = 3 * len(corr.vertex)
+                wr[:nd] *= huber_sqrt_weights(r[:nd], cfg.robust_mm) ** 2
             J = J * np.sqrt(wr)[:, None]
             r = r * np.sqrt(wr)
             H = J.T @ J
@@ -272,14 +278,19 @@ def _off_share(tracker: ModelTracker, q: np.ndarray, obs: object) -> float:
 
 
 def _fit_poses(tracker: ModelTracker, obs_list: list, finger_poses: Sequence[np.ndarray],
-               iterations: int) -> tuple[list[np.ndarray], float]:
+               iterations: int, start: list[np.ndarray] | None = None
+               ) -> tuple[list[np.ndarray], float]:
     """Poses of the calibration frames for the tracker's shape, and the symmetric mean
-    distance [mm] between model and points (data-to-model and model-to-data pairs)."""
+    distance [mm] between model and points (data-to-model and model-to-data pairs).
+    ``start``: poses to refine (default: PCA palm, predefined fingers, palm-only ICP)."""
     poses, dists = [], []
-    for obs, qd in zip(obs_list, finger_poses, strict=True):
-        q = palm_init_pca(obs.points, ModelFrames(tracker.model))
-        q[6:] = np.asarray(qd, float)[6:]
-        q = tracker.refine(q, obs, 6, palm_only=True)
+    for t, (obs, qd) in enumerate(zip(obs_list, finger_poses, strict=True)):
+        if start is None:
+            q = palm_init_pca(obs.points, ModelFrames(tracker.model))
+            q[6:] = np.asarray(qd, float)[6:]
+            q = tracker.refine(q, obs, 6, palm_only=True)
+        else:
+            q = start[t]
         q = tracker.refine(q, obs, iterations, q_ref=q)
         pts, pix = obs.subsample(tracker.cfg.max_points)
         V, facing = tracker.posed(q)

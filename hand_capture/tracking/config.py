@@ -39,7 +39,7 @@ class TrackerConfig:
     forearm_border_m: float = param(0.2, "a cloud longer than this whose one end runs out "
                                     "of the image holds a forearm there [m, at template "
                                     "size]", lo=0.05, hi=0.6)
-    forearm_wrist_m: float = param(0.075, "palm centre to the cut along the arm axis when "
+    forearm_wrist_m: float = param(0.05, "palm centre to the cut along the arm axis when "
                                    "cutting from the cloud's shape (the mesh's wrist end) "
                                    "[m, at template size]", lo=0.02, hi=0.2)
     max_points: int = param(160, "observed points used per ICP iteration (subsampled)",

@@ -163,7 +163,12 @@ class HybridTracker:
         wrist), while the previous frame tracked (eq. II.19); else None."""
         if not (self.delta and self.prev is not None):
             return None
-        kp = self.model.joint_positions(self.prev)
+        return self._wrist_of(self.prev)
+
+    def _wrist_of(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Pose ``q``'s wrist keypoint [m] and forearm direction (unit, middle MCP to
+        wrist); None for a degenerate pose."""
+        kp = self.model.joint_positions(q)
         d = kp[0] - kp[9]
         n = float(np.linalg.norm(d))
         return None if n < 1e-6 else (kp[0], d / n)
@@ -195,9 +200,12 @@ class HybridTracker:
         t0 = time.perf_counter()
         obs = segment_hand(depth, intr, cfg)
         cut = False
+        whole = None   # the uncut segment, when the cut had no tracked wrist to go by
         if cfg.forearm_cut and obs.found:
-            obs, cut = cut_forearm(obs, cfg, self.model.shape.global_scale,
-                                   self._wrist_plane())
+            plane = self._wrist_plane()
+            if plane is None:
+                whole = obs
+            obs, cut = cut_forearm(obs, cfg, self.model.shape.global_scale, plane)
         timing["preprocess"] = time.perf_counter() - t0
         self.frame_count += 1
         if not obs.found:
@@ -278,6 +286,23 @@ class HybridTracker:
         best = int(np.argmin([c[0] for c in costs]))
         q = pool[best][0]
         e_d = costs[best][1]
+        if whole is not None and refine:
+            # the cut came from the cloud's shape alone: cut again at the selected pose's
+            # wrist and refine it on those points (the regressor's and the fit's wrist
+            # estimate; an addition to step 4)
+            t = time.perf_counter()
+            obs2, cut2 = cut_forearm(whole, cfg, self.model.shape.global_scale,
+                                     self._wrist_of(q))
+            if cut2 and obs2.n_points != obs.n_points:
+                obs, cut = obs2, True
+                pts = obs.subsample(cfg.max_points)
+                obs_ds = obs.depth_m[::ds, ::ds]
+                q = self.icp.refine_batch([q], obs, cfg.icp_iterations,
+                                          q_refs=[pool[best][1]], points=pts)[0]
+                c2 = self._costs([q], obs, obs_ds)[0]
+                costs[best] = c2
+                e_d = c2[1]
+            timing["icp"] += time.perf_counter() - t
         success = e_d < self.tau_mm   # eq. (II.19), tau following the calibration
         if success:
             status = "tracking" if self.delta else "recovering"
