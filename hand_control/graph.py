@@ -17,11 +17,13 @@ builds the same graph for ``ros2 launch`` (launch files call it), so the two can
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from hand_capture.config import load_yaml
+from hand_capture.dds import PROFILE_VARS, dds_environment
 from hand_capture.errors import GraphError
 from hand_capture.paths import config_dir
 
@@ -147,6 +149,8 @@ def launch_description(name: str) -> Any:
     from launch import LaunchDescription
 
     graph = load_graph(name)
+    # the Fast DDS profile for large images (a profile the user set wins)
+    dds_env = {k: v for k, v in dds_environment(os.environ).items() if k in PROFILE_VARS}
     actions: list[Any] = []
     base: list[Any] = [str(f) for f in graph.params_files]
     if graph.params_files:
@@ -162,7 +166,7 @@ def launch_description(name: str) -> Any:
             params.append(dict(nd.parameters))
         action = Node(package="hand_suite", executable=nd.executable, name=nd.name,
                       parameters=params, remappings=list(nd.remappings.items()),
-                      output="screen", emulate_tty=True)
+                      additional_env=dds_env, output="screen", emulate_tty=True)
         actions.append(action)
         if nd.required:
             actions.append(RegisterEventHandler(OnProcessExit(

@@ -27,6 +27,7 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, TextIO
 
+from hand_capture.dds import dds_environment
 from hand_capture.errors import GraphError
 from hand_control.graph import GraphSpec, NodeSpec, ros_args
 
@@ -89,6 +90,12 @@ def _pump(name: str, stream: TextIO, out: TextIO, lock: threading.Lock) -> None:
             out.flush()
 
 
+def node_environment() -> dict[str, str]:
+    """The environment of every node process: this one's, unbuffered output, and the
+    shipped Fast DDS profile for large images (:func:`hand_capture.dds.dds_environment`)."""
+    return dds_environment({**os.environ, "PYTHONUNBUFFERED": "1"})
+
+
 def run_graph(
     graph: GraphSpec,
     extra_params: list[Path] | None = None,
@@ -128,7 +135,7 @@ def run_graph(
         for sig in (signal.SIGINT, signal.SIGTERM):
             previous[sig] = signal.signal(sig, lambda *_: stop.set())
     lock = threading.Lock()
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env = node_environment()
     children: list[_Child] = []
     result = GraphRun(code=0)
     try:

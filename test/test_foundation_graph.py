@@ -15,6 +15,7 @@ from ros_helpers import ROOT, hand_suite, wait_for
 
 from hand_capture.bag.compare import compare_bags
 from hand_capture.bag.sample import write_sample_bag
+from hand_capture.dds import PROFILE_VARS, profile_file
 from hand_capture.errors import GraphError
 from hand_control.cli import parse_overrides
 from hand_control.graph import available_graphs, format_value, load_graph, ros_args
@@ -96,6 +97,8 @@ def test_launch_description_builds_the_same_graph(monkeypatch: pytest.MonkeyPatc
     }
     for name, attrs in mods.items():
         monkeypatch.setitem(sys.modules, name, types.SimpleNamespace(**attrs))
+    for var in PROFILE_VARS:
+        monkeypatch.delenv(var, raising=False)
     from hand_control.graph import launch_description
 
     launch_description("replay")
@@ -105,6 +108,8 @@ def test_launch_description_builds_the_same_graph(monkeypatch: pytest.MonkeyPatc
         (n.name, n.executable) for n in graph.nodes]
     assert all(n["parameters"][: len(graph.params_files)] == [str(f) for f in graph.params_files]
                for n in nodes)
+    # every node gets the Fast DDS profile for large images (hand_capture/dds.py)
+    assert all(set(n["additional_env"].values()) == {str(profile_file())} for n in nodes)
 
 
 def test_unknown_graph_lists_the_valid_ones() -> None:

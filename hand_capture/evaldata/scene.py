@@ -4,8 +4,9 @@
 true keypoints of the skeleton); :func:`calibration_frames` renders a held-out subject
 holding given calibration poses. Cameras (:data:`CAMERAS`): D435-like at 640x480 and
 848x480 and a D405-like at 640x480 (short baseline, close range), with principal points off
-the image centre. Clutter: a table under the hand, an object on it beside the hand (never
-nearer to the camera than the hand) and the body behind.
+the image centre; ``d435_424`` (424x240) for resolution comparisons. Clutter: a table under
+the hand, an object on it beside the hand (never nearer to the camera than the hand) and the
+body behind.
 """
 
 from __future__ import annotations
@@ -48,6 +49,9 @@ CAMERAS: dict[str, HeldoutCamera] = {
     "d435_848": HeldoutCamera(
         "d435_848", Intrinsics(width=848, height=480, fx=425.9, fy=425.9, cx=421.7, cy=236.2),
         StereoNoiseConfig(baseline_m=0.050, min_z_m=0.19), (0.36, 0.60)),
+    "d435_424": HeldoutCamera(
+        "d435_424", Intrinsics(width=424, height=240, fx=213.4, fy=213.4, cx=210.9, cy=121.6),
+        StereoNoiseConfig(baseline_m=0.050, min_z_m=0.11), (0.34, 0.58)),
     "d405_640": HeldoutCamera(
         "d405_640", Intrinsics(width=640, height=480, fx=433.5, fy=433.1, cx=322.6, cy=238.0),
         StereoNoiseConfig(baseline_m=0.018, disparity_sd_px=0.06, min_z_m=0.07,

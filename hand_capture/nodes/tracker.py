@@ -77,6 +77,17 @@ _BONES = [(0, 1), (0, 5), (0, 9), (0, 13), (0, 17), (5, 9), (9, 13), (13, 17)] +
     (b + k, b + k + 1) for b in (1, 5, 9, 13, 17) for k in range(3)]
 
 
+def depth_image_qos() -> QoSProfile:
+    """QoS of the tracker's depth-image subscription.
+
+    Depth 1, keep-last: the executor takes one queued message per subscription per cycle,
+    so a deeper queue would hand the tracker stale frames after every slow frame.
+    """
+    sensor = qos_profile_sensor_data
+    return QoSProfile(depth=1, reliability=sensor.reliability, durability=sensor.durability,
+                      history=sensor.history)
+
+
 @dataclass(frozen=True)
 class TrackerNodeConfig:
     """Node-only parameters of the tracker."""
@@ -131,11 +142,8 @@ class TrackerNode(Node):
             else None
 
         sensor = qos_profile_sensor_data
-        # Depth 1: the executor takes one queued message per subscription per cycle, so a
-        # deeper queue would hand the tracker stale frames after every slow frame.
-        latest = QoSProfile(depth=1, reliability=sensor.reliability,
-                            durability=sensor.durability, history=sensor.history)
-        self.create_subscription(Image, "camera/depth/image_raw", self._on_image, latest)
+        self.create_subscription(Image, "camera/depth/image_raw", self._on_image,
+                                 depth_image_qos())
         self.create_subscription(CameraInfo, "camera/depth/camera_info", self._on_info, sensor)
         self.create_subscription(HandShapeMsg, "hand/shape", self._on_shape, 10)
         self.pub_pose = self.create_publisher(HandPose, "hand/pose", 10)

@@ -1,0 +1,277 @@
+"""Held-out and split sections of ``hand-suite bench tracking`` (issue 13).
+
+* **Held-out family** (:mod:`hand_capture.evaldata`, nothing of it used in training): hands
+  of capsules and ellipsoids with varied finger thickness, palm and nails, analytic ray
+  casting, stereo-like noise, D435-like (640x480, 848x480) and D405-like (640x480) cameras,
+  sinusoid / random-walk motions, clutter (table, object, body) in half of the sequences;
+  without and with a forearm (and sleeve) in view. Each subject calibrates first (II.3.6)
+  from frames of the calibration poses rendered the same way (with the forearm when it is
+  in view, as a user's would be) and is tracked with the product settings.
+* **Calibration bone lengths**: subjects of global scale 0.85..1.15 from both families;
+  mean relative bone-length error of the calibrated model (16 bones) beside the template's.
+* **Settings split**: ``cost_temporal_weight`` (lambda_2 of eq. II.20) chosen on a
+  validation split (synthetic-camera shapes 21, 22) and reported on a test split (the
+  bench's shapes 11..13), both from the training family.
+* **Resolution**: the same held-out sequences at 424x240, 640x480 and 848x480 (tracker CPU
+  time per frame and accuracy), for the camera defaults.
+* **Transport**: share of 640x480 16UC1 frames published at 30 Hz that reach a subscriber
+  with the tracker's QoS in another process, with the graphs' DDS profile and, as the
+  baseline, with Fast DDS defaults.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from hand_capture.bench import print_table
+
+#: (camera, clutter, seed) of the held-out sequences; forearm sequences use seed + 100
+HELDOUT = (("d435_640", False, 101), ("d435_640", True, 102), ("d435_848", False, 103),
+           ("d435_848", True, 104), ("d405_640", False, 105), ("d405_640", True, 106))
+HELDOUT_QUICK = (("d435_640", False, 101), ("d405_640", True, 106))
+SCALES = (0.85, 0.925, 1.0, 1.075, 1.15)
+TEMPORAL_GRID = (0.0, 10.0, 30.0, 100.0, 300.0)
+VAL_SEEDS = (21, 22)
+
+
+def _bone_err_pct(model, true_model) -> float:
+    lf, lt = np.asarray(model.bone_lengths), np.asarray(true_model.bone_lengths)
+    return float(np.mean(np.abs(lf - lt) / lt) * 100.0)
+
+
+def _score(tracker, frames, truth) -> dict:
+    from hand_capture.bench.tracking import _run_mode, _summary
+
+    e, w, c, fl, _, _ = _run_mode(tracker, frames, truth)
+    s = _summary(e)
+    s.update(errs=e, cpu=c, wall=w, flags=fl)
+    return s
+
+
+def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
+                    frames: tuple[int, int] | None = None) -> dict:
+    """Track the held-out family without and with a forearm (see the module doc);
+    ``cases`` / ``frames`` ((count, step)) override the quick / full choice."""
+    from hand_capture.bench.tracking import _summary
+    from hand_capture.evaldata import calibration_frames, make_sequence
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import CALIBRATION_POSES, calibrate
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    cases = cases or (HELDOUT_QUICK if quick else HELDOUT)
+    n, step = frames or ((12, 3) if quick else (60, 1))
+    base = HandModel()
+    rows, agg = [], {"heldout": [], "forearm": []}
+    cpu = {"heldout": [], "forearm": []}
+    for arm in (False, True):
+        key = "forearm" if arm else "heldout"
+        for k, (cam, clutter, seed) in enumerate(cases):
+            seed = seed + (100 if arm else 0)
+            t0 = time.perf_counter()
+            # with a forearm: bare arm and sleeve alternate (each camera gets both)
+            seq = make_sequence(seed, n, cam, forearm=arm, clutter=clutter, step=step,
+                                sleeve=bool((k + k // 2) % 2))
+            t_render = (time.perf_counter() - t0) / n
+            cal = calibrate(calibration_frames(seq.model, seq.surface,
+                                               list(CALIBRATION_POSES.values()), cam,
+                                               np.random.default_rng(seed)), model=base)
+            model = base.with_shape(cal.shape)
+            tracker = HybridTracker(base, config, reg)
+            tracker.set_calibration(cal)   # as the node: the shape, and tau from the fit
+            s = _score(tracker, seq.frames, seq.keypoints)
+            agg[key].append(s["errs"])
+            cpu[key].append(s["cpu"])
+            rows.append([key, cam, "yes" if clutter else "no",
+                         "sleeve" if seq.surface.sleeve else ("arm" if arm else "-"),
+                         f"{seq.model.shape.global_scale:.3f}",
+                         f"{model.shape.global_scale:.3f}",
+                         _bone_err_pct(model, seq.model), len(seq.frames), s["mean"],
+                         s["median"], s["s20"], float(np.mean(s["flags"])),
+                         1e3 * float(np.mean(s["cpu"])), 1e3 * t_render])
+    print_table("held-out family (hand_capture.evaldata: capsule/ellipsoid hands, ray casting, "
+                "stereo-like noise, other cameras and motions), calibrated per subject, "
+                "product settings",
+                ["set", "camera", "clutter", "arm", "s_g true", "s_g fit", "bone err %",
+                 "frames", "mean mm", "median mm", "succ@20", "flag rate", "cpu ms",
+                 "render ms"], rows)
+    out = {}
+    for key in ("heldout", "forearm"):
+        e = np.concatenate(agg[key])
+        s = _summary(e)
+        c = np.concatenate(cpu[key])
+        out.update({f"{key}_mean_mm": s["mean"], f"{key}_median_mm": s["median"],
+                    **{f"{key}_success_{t}mm": s[f"s{t}"] for t in (10, 20, 30, 50)},
+                    f"{key}_frames": len(e), f"{key}_cpu_ms": 1e3 * float(np.mean(c)),
+                    f"{key}_cpu_ms_p99": 1e3 * float(np.percentile(c, 99))})
+    return out
+
+
+def calibration_section(quick: bool, scales: tuple[float, ...] | None = None) -> dict:
+    """Bone-length error of calibration on both families, scales 0.85..1.15."""
+    from hand_capture.evaldata import calibration_frames, sample_subject, sample_surface
+    from hand_capture.model import N_ALPHA, HandModel, HandShape
+    from hand_capture.tracking.calibration import (
+        CALIBRATION_POSES,
+        calibrate,
+        render_calibration_frames,
+    )
+    from hand_capture.tracking.train import default_intrinsics
+
+    scales = scales or ((0.85, 1.15) if quick else SCALES)
+    base = HandModel()
+    rows, fit, tmpl = [], {"suite": [], "heldout": []}, {"suite": [], "heldout": []}
+    for k, s in enumerate(scales):
+        rng = np.random.default_rng(300 + k)
+        # the suite's family: its mesh, rasteriser and noise model, 320x240
+        alpha = np.clip(rng.normal(0.0, 0.7, N_ALPHA), -1.5, 1.5)
+        true_s = HandModel(HandShape(s, tuple(alpha)))
+        frames_s = render_calibration_frames(true_s, default_intrinsics(), rng)
+        # the held-out family: capsule hand, ray casting, stereo-like noise, D435 640x480
+        true_h = sample_subject(rng, scale=s)
+        frames_h = calibration_frames(true_h, sample_surface(rng, forearm=False),
+                                      list(CALIBRATION_POSES.values()), "d435_640", rng)
+        for fam, true, frames in (("suite", true_s, frames_s), ("heldout", true_h, frames_h)):
+            t0 = time.perf_counter()
+            cal = calibrate(frames, model=base)
+            m = base.with_shape(cal.shape)
+            fit[fam].append(_bone_err_pct(m, true))
+            tmpl[fam].append(_bone_err_pct(base, true))
+            rows.append([fam, s, f"{cal.shape.global_scale:.3f}", tmpl[fam][-1],
+                         fit[fam][-1], cal.residual_mm, time.perf_counter() - t0])
+    print_table("calibration: mean relative bone-length error [%] of the 16 bones (template = "
+                "no calibration)", ["family", "true s_g", "fit s_g", "template %",
+                                    "calibrated %", "resid mm", "time s"], rows)
+    allfit = fit["suite"] + fit["heldout"]
+    return {"calib_bone_err_pct": float(np.max(allfit)),
+            "calib_bone_err_pct_mean": float(np.mean(allfit)),
+            "calib_bone_err_pct_suite": float(np.mean(fit["suite"])),
+            "calib_bone_err_pct_heldout": float(np.mean(fit["heldout"])),
+            "calib_bone_err_pct_template": float(np.mean(tmpl["suite"] + tmpl["heldout"])),
+            "calib_scales": list(scales)}
+
+
+def _suite_frames(seed: int, clip: str, n: int, step: int, t0: float):
+    from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
+
+    cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed, clip=clip,
+                                                noise_seed=seed + 1000))
+    cam.open()
+    last = int(math.floor(cam.motion.duration * 30))
+    idx = list(range(0, last + 1, step))[:n]
+    rendered = [cam.render(t0 + i / 30.0) for i in idx]
+    return (cam.model, cam.intrinsics, [(f.depth, f.depth_intrinsics) for f in rendered],
+            [cam.model.joint_positions(f.pose) for f in rendered])
+
+
+def split_section(reg, config, quick: bool) -> dict:
+    """Choose ``cost_temporal_weight`` on validation shapes, report it on test shapes."""
+    from hand_capture.bench.tracking import MOTIONS, SHAPE_SEEDS
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import calibrate, render_calibration_frames
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    grid = (0.0, 30.0, 300.0) if quick else TEMPORAL_GRID
+    motions = ("finger_counting", "wrist_rotation") if quick else MOTIONS
+    n, step = (10, 3) if quick else (45, 2)
+    splits = {"validation": VAL_SEEDS[:1] if quick else VAL_SEEDS,
+              "test": SHAPE_SEEDS[:1] if quick else SHAPE_SEEDS}
+    base = HandModel()
+    data: dict[str, list] = {"validation": [], "test": []}
+    for split, seeds in splits.items():
+        for seed in seeds:
+            rng = np.random.default_rng(seed + 500)
+            for clip in motions:
+                true, intr, frames, truth = _suite_frames(seed, clip, n, step, 0.0)
+                cal = calibrate(render_calibration_frames(true, intr, rng), model=base)
+                data[split].append((base.with_shape(cal.shape), frames, truth))
+    res: dict[str, dict[float, float]] = {"validation": {}, "test": {}}
+    s20: dict[float, float] = {}
+    for w in grid:
+        cfg = dataclasses.replace(config, cost_temporal_weight=w)
+        for split in ("validation", "test"):
+            errs = [_score(HybridTracker(m, cfg, reg), fr, tr)["errs"]
+                    for m, fr, tr in data[split]]
+            e = np.concatenate(errs)
+            res[split][w] = float(e.mean())
+            if split == "test":
+                s20[w] = float(np.mean(e.max(axis=1) < 20.0))
+    chosen = min(grid, key=lambda w: (round(res["validation"][w], 2), w))
+    rows = [[w, res["validation"][w], res["test"][w], s20[w],
+             "chosen" if w == chosen else ("config" if w == config.cost_temporal_weight
+                                           else "")] for w in grid]
+    print_table(f"cost_temporal_weight (eq. II.20 lambda_2): chosen on validation shapes "
+                f"{splits['validation']}, reported on test shapes {splits['test']} "
+                f"(config/tracker.yaml: {config.cost_temporal_weight})",
+                ["weight", "val mean mm", "test mean mm", "test succ@20", ""], rows)
+    return {"temporal_weight_chosen": chosen,
+            "temporal_weight_config": config.cost_temporal_weight,
+            "temporal_weight_val_mean_mm": res["validation"][chosen],
+            "temporal_weight_test_mean_mm": res["test"][chosen],
+            "temporal_weight_test_success_20mm": s20[chosen],
+            "temporal_weight_config_test_mean_mm": res["test"].get(
+                config.cost_temporal_weight, float("nan"))}
+
+
+def resolution_section(reg, config, quick: bool) -> dict:
+    """The same held-out sequences seen by a D435 at 424x240, 640x480 and 848x480: tracker
+    CPU time per frame and accuracy (what ``config/camera.yaml`` defaults to)."""
+    from hand_capture.evaldata import calibration_frames, make_sequence
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import CALIBRATION_POSES, calibrate
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    seeds = (401,) if quick else (401, 402, 403)
+    n, step = (10, 3) if quick else (60, 1)
+    base = HandModel()
+    rows, out = [], {}
+    for cam in ("d435_424", "d435_640", "d435_848"):
+        errs, cpu = [], []
+        for seed in seeds:
+            seq = make_sequence(seed, n, cam, step=step)
+            cal = calibrate(calibration_frames(seq.model, seq.surface,
+                                               list(CALIBRATION_POSES.values()), cam,
+                                               np.random.default_rng(seed)), model=base)
+            s = _score(HybridTracker(base.with_shape(cal.shape), config, reg), seq.frames,
+                       seq.keypoints)
+            errs.append(s["errs"])
+            cpu.append(s["cpu"])
+        e, c = np.concatenate(errs), np.concatenate(cpu)
+        r = {"mean_mm": float(e.mean()), "success_20mm": float(np.mean(e.max(axis=1) < 20)),
+             "cpu_ms": 1e3 * float(c.mean()), "cpu_ms_p99": 1e3 * float(np.percentile(c, 99))}
+        out[cam] = r
+        rows.append([cam, len(e), r["mean_mm"], r["success_20mm"], r["cpu_ms"],
+                     r["cpu_ms_p99"]])
+    print_table("camera resolution (held-out, no forearm, same subjects and motions): the "
+                "tracker's CPU time per frame (30 Hz leaves 33 ms)",
+                ["camera", "frames", "mean mm", "succ@20", "cpu ms", "cpu ms p99"], rows)
+    return {"resolution": out}
+
+
+def transport_section(quick: bool) -> dict:
+    """640x480 frames at 30 Hz to the tracker's QoS: graphs' profile vs Fast DDS defaults."""
+    from hand_capture.bench.delivery import measure_delivery
+
+    n = 30 if quick else 150
+    rows, out = [], {}
+    for name, prof in (("graphs' profile", True), ("Fast DDS defaults", False)):
+        r = measure_delivery(n, 30.0, 640, 480, profile=prof, timeout_s=60.0)
+        rows.append([name, r["sent"], r["received"], r["delivery"]])
+        out["large_frame_delivery" if prof else "large_frame_delivery_default"] = r["delivery"]
+    print_table("transport: 640x480 16UC1 at 30 Hz, camera QoS -> tracker QoS, two processes",
+                ["DDS", "sent", "received", "delivery"], rows)
+    return out
+
+
+def run_sections(reg, config, quick: bool) -> dict:
+    """Every section above, in order; their figures merged."""
+    out = {}
+    out.update(heldout_section(reg, config, quick))
+    out.update(calibration_section(quick))
+    out.update(split_section(reg, config, quick))
+    out.update(resolution_section(reg, config, quick))
+    out.update(transport_section(quick))
+    return out
