@@ -215,3 +215,34 @@ def test_training_samples_with_forearms_are_cut_like_live_frames():
         d = (kp[0] - kp[9]) / np.linalg.norm(kp[0] - kp[9])
         # the forearm (up to 0.5 m long) is cut near the wrist in every training crop
         assert np.percentile((s.points - kp[0]) @ d, 99) < 0.12
+
+
+def test_an_arm_reaching_towards_the_camera_does_not_hide_the_hand():
+    """The arm enters the image nearer than the hand (beyond the depth band behind its
+    nearest pixel): the segment grows along the continuous surface to the hand, and the
+    forearm cut then takes the arm off."""
+    hand = HandModel()
+    q = _pose("flat")
+    q[0:3] = (0.0, -0.03, 0.55)
+    kp = hand.joint_positions(q)
+    tip = np.array([0.02, 0.45, 0.2])          # off the image, 0.2 m from the camera
+    axis = tip - kp[0]
+    length = float(np.linalg.norm(axis))
+    d = axis / length
+    V, F = cylinder(0.03, length, 20)
+    arm = Mesh(V @ _rot_z_to(d).T + kp[0] + d * (0.5 * length - 0.015), F, 2, closed=True)
+    res = make_renderer("zbuffer").render([Mesh(hand.vertices(q), hand.faces, 1, closed=True),
+                                           arm], default_intrinsics())
+    depth = np.rint(res.depth * 1000).astype(np.uint16)
+    intr = default_intrinsics()
+    visible = res.label == 1                   # hand pixels not hidden by the arm
+    n_hand = int(np.count_nonzero(visible))
+    assert np.percentile(res.depth[res.label == 2], 1) < np.median(res.depth[visible]) - 0.16
+    for grow, expect in ((0.0, False), (0.4, True)):
+        cfg = TrackerConfig(grow_m=grow)
+        obs = segment_hand(depth, intr, cfg)
+        assert (np.count_nonzero(obs.mask & visible) > 0.9 * n_hand) == expect
+    cut, did = cut_forearm(obs, cfg, 1.0)
+    assert did
+    assert np.count_nonzero(cut.mask & visible) > 0.9 * n_hand
+    assert np.count_nonzero(cut.mask & ~visible) < 0.2 * cut.n_points

@@ -21,6 +21,11 @@ class TrackerConfig:
     far_m: float = param(1.2, "farthest depth considered [m]", lo=0.01, hi=20.0)
     band_m: float = param(0.16, "depth band kept behind the nearest hand pixel [m]", lo=0.01,
                           hi=2.0)
+    grow_m: float = param(0.4, "when the band's component runs out of the image (an arm "
+                          "reaching in), grow it over depth-continuous pixels up to this "
+                          "far behind the band (preprocess); 0 = off [m]", lo=0.0, hi=2.0)
+    jump_m: float = param(0.02, "depth step between neighbouring pixels that separates "
+                          "surfaces when growing [m]", lo=0.001, hi=0.5)
     min_hand_pixels: int = param(60, "fewer hand pixels than this = no hand in view", lo=1)
     wrist_cut_m: float = param(0.0, "drop points farther than this from the cloud centroid; "
                                "0 = no wrist cut [m]", lo=0.0, hi=1.0)

@@ -212,6 +212,12 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     mask_b = lab == best
     mask = np.zeros(d.shape, bool)
     mask[r0:r1, c0:c1] = mask_b
+    if cfg.grow_m > 0 and _touches_border(mask_b, r0, c0, d.shape):
+        mask = _grow_continuous(d, valid, mask, z0 + cfg.band_m + cfg.grow_m, cfg)
+        rows = np.flatnonzero(mask.any(axis=1))
+        cols = np.flatnonzero(mask.any(axis=0))
+        r0, c0 = int(rows[0]), int(cols[0])
+        mask_b = mask[r0:int(rows[-1]) + 1, c0:int(cols[-1]) + 1]
     v, u = np.nonzero(mask_b)
     v += r0
     u += c0
@@ -228,6 +234,47 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     depth_hand[v, u] = d[v, u]
     box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
     return HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
+
+
+def _touches_border(mask_b: np.ndarray, r0: int, c0: int, shape: tuple[int, int]) -> bool:
+    """Whether a mask (its bounding-box crop at row ``r0``, column ``c0``) reaches within
+    2 px of the image border."""
+    H, W = shape
+    r1, c1 = r0 + mask_b.shape[0], c0 + mask_b.shape[1]
+    return bool((r0 <= 1 and mask_b[:2 - r0].any()) or (c0 <= 1 and mask_b[:, :2 - c0].any())
+                or (r1 >= H - 1 and mask_b[H - 2 - r0:].any())
+                or (c1 >= W - 1 and mask_b[:, W - 2 - c0:].any()))
+
+
+def _grow_continuous(d: np.ndarray, valid: np.ndarray, mask: np.ndarray, z_max: float,
+                     cfg: TrackerConfig) -> np.ndarray:
+    """The segment grown over depth-continuous pixels up to ``z_max`` [m].
+
+    An addition to the depth band (ch. II.2 assumes the hand is the nearest object): a
+    forearm reaching towards the camera from outside the image is nearer than the hand, so
+    the band behind its nearest pixel can hold the arm alone. When the band's component runs
+    out of the image, it is extended along the surface: pixels up to ``z_max`` connected to
+    it without a depth step larger than ``jump_m`` between 4-neighbours. The forearm is then
+    removed by :func:`cut_forearm`."""
+    ok = valid & (d <= z_max)
+    # a pixel with a larger step to a neighbour is a surface edge: not a bridge
+    edge = np.zeros_like(ok)
+    dv = np.abs(np.diff(d, axis=0)) > cfg.jump_m
+    dh = np.abs(np.diff(d, axis=1)) > cfg.jump_m
+    edge[:-1] |= dv
+    edge[1:] |= dv
+    edge[:, :-1] |= dh
+    edge[:, 1:] |= dh
+    inner = ok & ~edge
+    n, lab = cv2.connectedComponents(inner.astype(np.uint8), connectivity=4)
+    if n <= 1:
+        return mask
+    hit = np.unique(lab[mask & inner])
+    hit = hit[hit > 0]
+    grown = np.isin(lab, hit) | mask
+    # the surface-edge pixels next to the grown region belong to it (its outline)
+    rim = ok & edge & (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    return grown | rim
 
 
 def depth_normals(obs: HandObservation) -> np.ndarray:
