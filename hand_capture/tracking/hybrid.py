@@ -32,6 +32,12 @@ the frame is tracked from the previous pose and published first, then
 :meth:`HybridTracker.run_deferred` runs steps 1-2 on the same frame and keeps its best
 candidate for the next frame's pool when it fits that frame better than the tracked pose.
 
+Departures for real hands (issue 13): the forearm is cut off the segment first
+(``preprocess.cut_forearm``: at the previous pose's wrist while tracking, else from the
+cloud's shape; after a cloud-only cut the selected pose's wrist cuts again and the pose is
+refined on those points); the ICP data term is Huber-weighted (``robust_mm``); tau of eq.
+II.19 follows the calibration fit (:attr:`HybridTracker.tau_mm`, :meth:`set_calibration`).
+
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
 """
