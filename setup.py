@@ -20,6 +20,7 @@ NODES = {
     "sim": "hand_control.nodes.sim:main",
     "controller": "hand_control.nodes.controller:main",
     "tracker": "hand_capture.nodes.tracker:main",
+    "rig_sync": "hand_capture.nodes.rig_sync:main",
 }
 
 setup(
@@ -34,11 +35,13 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.xml")),
         (f"share/{PACKAGE}/config/graphs", glob("config/graphs/*.yaml")),
         (f"share/{PACKAGE}/config/servo_maps", glob("config/servo_maps/*.yaml")),
+        (f"share/{PACKAGE}/config/rigs", glob("config/rigs/*.yaml")),
         (f"share/{PACKAGE}/config/scenarios", glob("config/scenarios/*.yaml")),
         (f"share/{PACKAGE}/data/touch", glob("data/touch/*.npz")),
         (f"share/{PACKAGE}/data/tracker", glob("data/tracker/*.npz")),
         (f"share/{PACKAGE}/data/teleop", glob("data/teleop/*.npz")),
         (f"share/{PACKAGE}/data/sample_capture", glob("data/sample_capture/*")),
+        (f"share/{PACKAGE}/data/sample_rig_capture", glob("data/sample_rig_capture/*")),
     ],
     install_requires=["setuptools"],
     extras_require={"realsense": ["pyrealsense2"]},

@@ -4,9 +4,10 @@ Full-size depth images (640x480 16UC1 = 614 kB) are larger than Fast DDS's defau
 shared-memory segment (512 kB), so they travel as UDP fragments, and a best-effort reader
 loses whole frames when a fragment is dropped. ``config/fastdds_profile.xml`` gives every
 participant a shared-memory transport with a larger segment (and large socket buffers for
-the UDP fallback). The graph runner (``hand-suite run``) and the launch files hand it to
-every node through ``FASTDDS_DEFAULT_PROFILES_FILE`` (Fast DDS 3) and
-``FASTRTPS_DEFAULT_PROFILES_FILE`` (Fast DDS 2), unless the user already set one.
+the UDP fallback). The graph runner (``hand-suite run``), the launch files, every node's
+``main()`` (:func:`hand_capture.nodes.shell.run_node`) and ``hand-suite`` itself set
+``FASTDDS_DEFAULT_PROFILES_FILE`` (Fast DDS 3) and ``FASTRTPS_DEFAULT_PROFILES_FILE`` (Fast
+DDS 2) to it, unless the user already set one.
 """
 
 from __future__ import annotations

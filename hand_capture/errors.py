@@ -20,6 +20,11 @@ class InputError(HandSuiteError, ValueError):
     """Data handed to a core function is malformed (NaN, Inf, wrong shape, unknown name)."""
 
 
+class RejectedInputError(InputError):
+    """A message failed the input-validation layer (:mod:`hand_capture.validate`): the text
+    names the field, the value and the valid range with its unit. Nodes count and log it."""
+
+
 class DeviceError(HandSuiteError):
     """A hardware device (camera, touch surface, servo bus) is missing or failed."""
 

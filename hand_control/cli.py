@@ -3,10 +3,12 @@
     hand-suite run GRAPH [--params FILE] [-p node.param:=value ...] | run --list
     hand-suite record -o DIR [--storage mcap|sqlite3] [--all] TOPIC ...
     hand-suite play DIR [--rate R] [--loop] [--start S]
-    hand-suite bag info DIR | bag recover DIR [-o OUT]
-    hand-suite bench NAME [--quick] | bench --list
+    hand-suite bag info DIR | bag check DIR | bag recover DIR [-o OUT]
+    hand-suite bench NAME [--quick | --smoke] | bench --list
     hand-suite capture [-o DIR] [--clip C] [--seconds S] [--fps F] [--shape-seed N]
+    hand-suite capture --rig studio6 [-o DIR] [--seconds S] [--fps F] [--objects box]
     hand-suite train touch|tracker [ARGS] fit the touch encodings / the tracker's forest
+    hand-suite calibrate rig BAG_OR_DIR -o config/rigs/NAME.yaml [--board 7x5:0.05:0.036]
     hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
     hand-suite demo [--out DIR]          the README's main job
@@ -17,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import inspect
 import os
 import pkgutil
 import shutil
@@ -25,6 +28,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hand_capture.dds import dds_environment
 from hand_capture.errors import HandSuiteError
 
 BENCH_PACKAGES = ("hand_capture.bench", "hand_control.bench")
@@ -35,7 +39,11 @@ def _setup_environment() -> None:
     if not os.environ.get("DISPLAY"):
         os.environ.setdefault("MUJOCO_GL", "osmesa")
         os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    from hand_capture.network import apply_network_defaults
+
+    apply_network_defaults()
+    # the Fast DDS profile for large images, for this process and the ones it starts
+    os.environ.update(dds_environment(os.environ))
 
 
 def _parse_value(text: str) -> Any:
@@ -109,12 +117,18 @@ def cmd_bag(a: argparse.Namespace) -> int:
 
     if a.action == "recover":
         res = recover_bag(a.bag, a.output)
-        print(f"recovered {res.messages} messages on {len(res.topics)} topics into {res.output}")
+        print(res.describe())
         return 0
-    with BagReader(a.bag) as r:
+    with BagReader(a.bag) as r:  # refuses a bag whose CRCs do not match, naming the part
         counts: dict[str, int] = {}
         for m in r.messages():
             counts[m.topic] = counts.get(m.topic, 0) + 1
+            if a.action == "check":
+                r.check(m)  # every payload decodes
+        if a.action == "check":
+            crc = "CRCs and payloads" if r.crc_verified else "payloads (no CRCs in this bag)"
+            print(f"{a.bag}: ok ({sum(counts.values())} messages, {crc} checked)")
+            return 0
         print(f"bag:      {a.bag}\nduration: {r.duration_s:.3f} s\nmessages: {r.message_count}")
         for topic, msgtype in sorted(r.topics.items()):
             print(f"  {topic:40s} {msgtype:36s} {counts.get(topic, 0)}")
@@ -142,8 +156,12 @@ def cmd_bench(a: argparse.Namespace) -> int:
     if a.name not in benches:
         raise HandSuiteError(f"unknown benchmark {a.name!r}; available: {sorted(benches)}")
     module = importlib.import_module(benches[a.name])
-    figures = module.run(quick=a.quick)
-    print(json_line({"bench": a.name, "quick": bool(a.quick), **figures}))
+    kwargs: dict[str, bool] = {"quick": bool(a.quick or a.smoke)}
+    if a.smoke and "smoke" in inspect.signature(module.run).parameters:
+        kwargs["smoke"] = True  # else its --quick run is its smallest
+    figures = module.run(**kwargs)
+    smoke = {"smoke": True} if a.smoke else {}
+    print(json_line({"bench": a.name, "quick": kwargs["quick"], **smoke, **figures}))
     return 0
 
 
@@ -151,6 +169,8 @@ def cmd_capture(a: argparse.Namespace) -> int:
     from hand_capture.cameras.synthetic import SyntheticCameraConfig
     from hand_capture.nodes.capture import SAMPLE_CAPTURE, write_capture
 
+    if a.rig:
+        return _capture_rig(a)
     if a.params:  # the synthetic_camera section (and /**) of a ROS parameter file
         from dataclasses import replace
 
@@ -165,6 +185,28 @@ def cmd_capture(a: argparse.Namespace) -> int:
     res = write_capture(a.output or SAMPLE_CAPTURE, cfg, seconds=a.seconds, overwrite=True)
     print(f"wrote {res.frames} frames ({res.messages} messages, {res.size_bytes / 1e6:.2f} MB) "
           f"to {res.path}")
+    return 0
+
+
+def _capture_rig(a: argparse.Namespace) -> int:
+    from hand_capture.multiview.studio import StudioNoise
+    from hand_capture.nodes.rig_capture import SAMPLE_RIG_CAPTURE, write_rig_capture
+
+    out = Path(a.output) if a.output else SAMPLE_RIG_CAPTURE
+    objects: list[object] = [o for o in a.objects.split(",") if o]
+    qpos = None
+    if a.scenario:  # physically consistent motion: the scenario simulated, then rendered
+        from hand_control.sim.lockstep import record_motion
+        from hand_control.sim.scenario import load_scenario
+
+        objects, qpos = record_motion(load_scenario(a.scenario), a.fps, a.seconds)
+    res = write_rig_capture(out, a.rig, seconds=a.seconds, fps=a.fps, objects=objects,
+                            qpos=qpos,
+                            noise=StudioNoise(sensor_sigma=a.sensor_noise, seed=a.noise_seed),
+                            noise_seed=a.noise_seed, two_hands=a.two_hands,
+                            overwrite=a.output is None or a.overwrite)
+    print(f"wrote {res.frames} groups of {res.cameras} cameras ({res.messages} messages, "
+          f"{res.size_bytes / 1e6:.2f} MB) to {res.path}")
     return 0
 
 
@@ -200,6 +242,28 @@ def cmd_demo(a: argparse.Namespace) -> int:
     from hand_control.demo import teleop_demo
 
     return teleop_demo(Path(a.out))
+
+
+def cmd_calibrate(a: argparse.Namespace) -> int:
+    from hand_capture.bench import print_table
+    from hand_capture.multiview.calibrate import calibrate_rig
+    from hand_capture.multiview.charuco import parse_board
+    from hand_capture.multiview.rig import save_rig
+    from hand_capture.multiview.views import load_views
+
+    spec = parse_board(a.board)
+    images = load_views(a.input, a.cameras.split(",") if a.cameras else None)
+    name = a.name or Path(a.output).stem
+    res = calibrate_rig(images, spec, name=name, reference_view=a.reference_view)
+    print_table(f"rig {name}: {len(res.rig)} cameras, {len(res.board_poses)} board views",
+                ["camera", "views", "reprojection RMS [px]", "fx [px]", "fy [px]", "cx", "cy"],
+                [[c.name, res.observations[c.name], res.reproj_px[c.name], c.intrinsics.fx,
+                  c.intrinsics.fy, c.intrinsics.cx, c.intrinsics.cy] for c in res.rig.cameras])
+    out = save_rig(res.rig, a.output, header=[
+        f"written by: hand-suite calibrate rig {a.input} --board {a.board}",
+        f"world frame: the board at view {a.reference_view}, z up when it lies face up"])
+    print(f"\nwrote {out}")
+    return 0
 
 
 def cmd_test(a: argparse.Namespace) -> int:
@@ -243,7 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
     pl.set_defaults(func=cmd_play)
 
     b = sub.add_parser("bag", help="inspect or recover a bag")
-    b.add_argument("action", choices=["info", "recover"])
+    b.add_argument("action", choices=["info", "check", "recover"])
     b.add_argument("bag")
     b.add_argument("-o", "--output", default=None, help="recover: output bag")
     b.set_defaults(func=cmd_bag)
@@ -251,6 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
     be = sub.add_parser("bench", help="run a benchmark")
     be.add_argument("name", nargs="?")
     be.add_argument("--quick", action="store_true")
+    be.add_argument("--smoke", action="store_true",
+                    help="the smallest run through the same code (the test suite's check); "
+                         "--quick for a bench without a smaller mode")
     be.add_argument("--list", action="store_true")
     be.set_defaults(func=cmd_bench)
 
@@ -264,12 +331,35 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--fps", type=float, default=12.0)
     cp.add_argument("--shape-seed", type=int, default=-1, help="-1 = default hand shape")
     cp.add_argument("--noise-seed", type=int, default=0)
+    cp.add_argument("--rig", default="", help="multi-view: render this rig's cameras "
+                    "(config/rigs/NAME.yaml) in the studio (default output "
+                    "data/sample_rig_capture)")
+    cp.add_argument("--objects", default="box", help="--rig: objects on the table (comma list)")
+    cp.add_argument("--sensor-noise", type=float, default=2.0,
+                    help="--rig: colour sensor noise [grey levels]; 0 compresses far better")
+    cp.add_argument("--overwrite", action="store_true", help="--rig: replace -o if it exists")
+    cp.add_argument("--two-hands", action="store_true", help="--rig: a left hand too")
+    cp.add_argument("--scenario", default="", help="--rig: motion of a simulated scenario "
+                    "(config/scenarios/NAME.yaml) instead of the studio's performance")
     cp.set_defaults(func=cmd_capture)
 
     tr = sub.add_parser("train", help="train a learned component (touch, tracker)")
     tr.add_argument("what")
     tr.add_argument("train_args", nargs=argparse.REMAINDER)
     tr.set_defaults(func=cmd_train)
+
+    ca = sub.add_parser("calibrate", help="calibrate a multi-view camera rig (ChArUco)")
+    ca.add_argument("what", choices=["rig"])
+    ca.add_argument("input", help="bag with <cam>/color/image_raw topics, or a folder of "
+                    "<cam>/<view>.png images")
+    ca.add_argument("-o", "--output", required=True, help="rig file to write")
+    ca.add_argument("--board", default="7x5:0.05:0.036:DICT_4X4_50",
+                    help="ChArUco board: SQUARESxSQUARES:SQUARE_M:MARKER_M[:DICTIONARY]")
+    ca.add_argument("--cameras", default="", help="comma-separated cameras (default: all)")
+    ca.add_argument("--reference-view", type=int, default=0,
+                    help="view whose board (lying face up) defines the world frame")
+    ca.add_argument("--name", default="", help="rig name (default: the output's stem)")
+    ca.set_defaults(func=cmd_calibrate)
 
     mj = sub.add_parser("mjcf", help="write the MuJoCo hand.xml and scenes",
                         add_help=False)

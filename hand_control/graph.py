@@ -138,20 +138,30 @@ def ros_args(node: NodeSpec, params_files: list[Path],
 def launch_description(name: str) -> Any:
     """The graph as a ``launch.LaunchDescription`` for ``ros2 launch`` (workstations only).
 
-    Launch argument ``params_file`` adds a parameter file on top of the graph's own.
+    Launch argument ``params_file`` adds a parameter file on top of the graph's own. The nodes
+    get loopback-only discovery unless the environment sets ``ROS_AUTOMATIC_DISCOVERY_RANGE``
+    (:mod:`hand_capture.network`).
     """
-    from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler
+    from launch.actions import (
+        DeclareLaunchArgument,
+        EmitEvent,
+        RegisterEventHandler,
+        SetEnvironmentVariable,
+    )
     from launch.event_handlers import OnProcessExit
     from launch.events import Shutdown
-    from launch.substitutions import LaunchConfiguration
+    from launch.substitutions import EnvironmentVariable, LaunchConfiguration
     from launch_ros.actions import Node
 
+    from hand_capture.network import DEFAULT_DISCOVERY_RANGE, DISCOVERY_RANGE_VAR
     from launch import LaunchDescription
 
     graph = load_graph(name)
     # the Fast DDS profile for large images (a profile the user set wins)
     dds_env = {k: v for k, v in dds_environment(os.environ).items() if k in PROFILE_VARS}
-    actions: list[Any] = []
+    actions: list[Any] = [SetEnvironmentVariable(
+        DISCOVERY_RANGE_VAR,
+        EnvironmentVariable(DISCOVERY_RANGE_VAR, default_value=DEFAULT_DISCOVERY_RANGE))]
     base: list[Any] = [str(f) for f in graph.params_files]
     if graph.params_files:
         # params_file defaults to the graph's last file; a user file given on the command

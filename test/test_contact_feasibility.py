@@ -100,3 +100,69 @@ def test_bad_input_raises_input_error(kwargs):
     args = dict(mass=MASS, com=np.zeros(3)) | kwargs
     with pytest.raises(InputError):
         dynamic_feasibility(contacts, **args)
+
+
+# -- joint torque limits through the contact Jacobians -------------------------------------
+
+def cartesian_pinch(mu: float) -> ContactSet:
+    """Antipodal pinch by two Cartesian fingers (3 orthogonal prismatic joints each): the
+    contact Jacobian of finger i is the identity on its own three joints, so a joint's torque
+    limit bounds one force component [N]."""
+    jacp = np.zeros((2, 3, 6))
+    jacp[0, :, 0:3] = np.eye(3)
+    jacp[1, :, 3:6] = np.eye(3)
+    return ContactSet([[-0.03, 0, 0], [0.03, 0, 0]], [[1, 0, 0], [-1, 0, 0]], mu, jacp=jacp)
+
+
+def test_torque_limits_bound_the_squeeze():
+    """Each finger needs normal force W / (2 mu) (1.962 N for 0.2 kg at mu 0.5): feasible with
+    3 N per joint, infeasible with 1.5 N (status 'torque_limits': the cones alone could hold
+    it), and the unbounded LP of the dissertation says yes to any mass."""
+    contacts = cartesian_pinch(0.5)
+    ok = dynamic_feasibility(contacts, MASS, np.zeros(3), torque_limits=np.full(6, 3.0))
+    assert ok.feasible and ok.status == "optimal"
+    assert_balanced(contacts, ok)
+    tau = np.einsum("kjv,kj->v", contacts.jacp, ok.forces)
+    np.testing.assert_allclose(ok.joint_torques, tau, atol=1e-9)
+    assert np.abs(tau).max() <= 3.0 + 1e-9
+    weak = dynamic_feasibility(contacts, MASS, np.zeros(3), torque_limits=np.full(6, 1.5))
+    assert not weak.feasible and weak.status == "torque_limits"
+    heavy = dynamic_feasibility(contacts, 50.0, np.zeros(3), torque_limits=np.full(6, 3.0))
+    assert not heavy.feasible
+    assert dynamic_feasibility(contacts, 50.0, np.zeros(3)).feasible  # no limits: says yes
+    # an unlimited joint (inf) does not constrain: the normal joints (x) carry the squeeze
+    lim = np.array([3.0, 1.5, 1.5, 3.0, 1.5, 1.5])
+    assert dynamic_feasibility(contacts, 0.25, np.zeros(3), torque_limits=lim).feasible
+    lim[[2, 5]] = 0.5  # the vertical joints must carry W / 2 = 1.23 N each
+    assert not dynamic_feasibility(contacts, 0.25, np.zeros(3), torque_limits=lim).feasible
+    lim[[2, 5]] = np.inf
+    assert dynamic_feasibility(contacts, 0.25, np.zeros(3), torque_limits=lim).feasible
+
+
+@pytest.mark.parametrize("bad", [np.full(5, 1.0), np.full(6, -1.0), np.full(6, np.nan)])
+def test_bad_torque_limits_raise_input_error(bad):
+    with pytest.raises(InputError):
+        dynamic_feasibility(cartesian_pinch(0.5), MASS, np.zeros(3), torque_limits=bad)
+
+
+def test_torque_limits_need_jacobians():
+    contacts = ContactSet([[-0.03, 0, 0], [0.03, 0, 0]], [[1, 0, 0], [-1, 0, 0]], 0.5)
+    with pytest.raises(InputError, match="Jacobians"):
+        dynamic_feasibility(contacts, MASS, np.zeros(3), torque_limits=np.ones(6))
+
+
+def test_grid_cell_beyond_the_hand_is_infeasible():
+    """The lift-and-carry grid's planned grasp of the box, with the simulated hand's actuator
+    limits: 0.2 kg at mu 0.5 is feasible; 8 kg at mu 0.3 (the grid's heavy cell) is not, the
+    fingers cannot press hard enough; without the limits the LP said yes to both."""
+    from hand_control.bench._grasp_grid import HEAVY_MASS, grasp_feasibility, grid_spec
+    from hand_control.sim.lockstep import LockstepRunner
+
+    runner = LockstepRunner(grid_spec("box", 0.2, 0.5, quick=True))
+    light = grasp_feasibility(runner)
+    assert light.feasible, light.status
+    heavy = grasp_feasibility(runner, mu=0.3, mass=HEAVY_MASS)
+    assert not heavy.feasible and heavy.status == "torque_limits"
+    # the LP as printed (no force bounds) says yes to the same contacts
+    pose = runner.world.object_pose(runner.obj.name).position
+    assert dynamic_feasibility(runner.plan.contact_set(0.3), HEAVY_MASS, pose).feasible

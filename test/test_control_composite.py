@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hand_capture.model.joints import JOINT_NAMES
-from hand_control.contact import ContactForceQP, ContactQPConfig, ContactSet
+from hand_control.contact import ContactForceQP, ContactSet
 from hand_control.control import (
     CompositeControlConfig,
     CompositeController,
@@ -142,8 +142,8 @@ def test_pd_servos_use_the_table_gains():
 
 @pytest.mark.parametrize("method", ["dissertation", "seed000"])
 def test_composite_torques_are_pd_plus_gravity_plus_grasp(method):
-    qp_cfg = ContactQPConfig(method=method)
-    ctrl = CompositeController(qp_config=qp_cfg)
+    qp_cfg = CompositeControlConfig(method=method)  # gains and QP settings: one config
+    ctrl = CompositeController(qp_cfg)
     contacts = pinch_contacts(forces=True)
     q, qd, qt = states(np.random.default_rng(5))
     gravity = np.full(NV, 0.01)
@@ -162,7 +162,7 @@ def test_composite_torques_are_pd_plus_gravity_plus_grasp(method):
 
 
 def test_failed_qp_falls_back_to_pd_only_and_is_counted():
-    ctrl = CompositeController(qp_config=ContactQPConfig(max_iter=1))
+    ctrl = CompositeController(CompositeControlConfig(max_iter=1))
     q, qd, qt = states(np.random.default_rng(6))
     for step in range(3):
         out = ctrl.compute(q, qd, qt, HELD, AT_TARGET, pinch_contacts())

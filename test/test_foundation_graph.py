@@ -88,10 +88,13 @@ def test_launch_description_builds_the_same_graph(monkeypatch: pytest.MonkeyPatc
     mods = {
         "launch": {"LaunchDescription": lambda actions: actions},
         "launch.actions": {"DeclareLaunchArgument": type("DeclareLaunchArgument", (Rec,), {}),
-                           "EmitEvent": Rec, "RegisterEventHandler": Rec},
+                           "EmitEvent": Rec, "RegisterEventHandler": Rec,
+                           "SetEnvironmentVariable": type("SetEnvironmentVariable", (Rec,), {})},
         "launch.event_handlers": {"OnProcessExit": Rec},
         "launch.events": {"Shutdown": Rec},
-        "launch.substitutions": {"LaunchConfiguration": lambda name: f"$({name})"},
+        "launch.substitutions": {"LaunchConfiguration": lambda name: f"$({name})",
+                                 "EnvironmentVariable": lambda name, default_value="":
+                                 f"$(env {name} {default_value})"},
         "launch_ros.actions": {"Node": type("Node", (Rec,), {})},
         "launch_ros": {},
     }
@@ -101,7 +104,13 @@ def test_launch_description_builds_the_same_graph(monkeypatch: pytest.MonkeyPatc
         monkeypatch.delenv(var, raising=False)
     from hand_control.graph import launch_description
 
-    launch_description("replay")
+    actions = launch_description("replay")
+    # loopback-only discovery unless the environment sets it (issue #20 item 12), before
+    # any node starts
+    env = actions[0]
+    assert type(env).__name__ == "SetEnvironmentVariable"
+    assert env.args == ("ROS_AUTOMATIC_DISCOVERY_RANGE",
+                        "$(env ROS_AUTOMATIC_DISCOVERY_RANGE LOCALHOST)")
     nodes = [c for c in created if c["type"] == "Node"]
     graph = load_graph("replay")
     assert [(n["name"], n["executable"]) for n in nodes] == [
@@ -180,11 +189,14 @@ def test_signal_stops_every_node_and_exits_zero(tmp_path: Path, sig: int) -> Non
     assert (tmp_path / "o" / "metadata.yaml").is_file(), "recorder did not finish its bag"
 
 
-def test_failing_node_is_named_with_traceback_and_graph_exits_nonzero(tmp_path: Path) -> None:
+def test_failing_node_is_named_with_one_line_and_graph_exits_nonzero(tmp_path: Path) -> None:
+    """A suite error (here a missing bag) is one named line, not a (double) traceback."""
     p = hand_suite("run", "bag_roundtrip", "-p", f"bag_player.bag:={tmp_path}/missing",
                    "-p", f"bag_recorder.output:={tmp_path}/o")
     out, _ = p.communicate(timeout=30)
     assert p.returncode != 0
-    assert "[bag_player] Traceback" in out or "[bag_player] [bag_player] failed" in out, out
+    assert "Traceback" not in out, out
+    assert [ln for ln in out.splitlines() if "bag not found" in ln] == [
+        ln for ln in out.splitlines() if "[bag_player]" in ln and "error: bag not found" in ln]
     assert "bag not found" in out
     assert "node bag_player failed with exit code 1" in out

@@ -98,3 +98,104 @@ def test_corrupt_first_message_refused_at_start(ros, tmp_path: Path) -> None:
     w.close()
     with pytest.raises(BagError, match=str(bag)):
         PlayerNode(parameter_overrides=[Parameter("bag", value=str(bag))])
+
+
+def test_mcap_without_qos_metadata_is_played(ros, tmp_path: Path) -> None:
+    """Issue #20 item 10: an MCAP file from the mcap tools (no QoS metadata, channels not
+    repeated in the summary) was refused as a 'truncated bag'."""
+    from mcap.writer import Writer
+    from rclpy.serialization import serialize_message
+
+    f = tmp_path / "ext.mcap"
+    with f.open("wb") as fh:
+        w = Writer(fh, repeat_channels=False)
+        w.start(profile="ros2", library="mcap-tools")
+        sid = w.register_schema(name="hand_msgs/msg/HandPose", encoding="ros2msg",
+                                data=b"")  # definition taken from the suite's store
+        cid = w.register_channel(topic="/hand/pose", message_encoding="cdr", schema_id=sid)
+        for k in range(5):
+            data = serialize_message(HandPose(positions=[0.1 * k]))
+            w.add_message(cid, log_time=(k + 1) * 10_000_000, data=data,
+                          publish_time=(k + 1) * 10_000_000)
+        w.finish()
+    got: list[float] = []
+    probe = rclpy.create_node("probe")
+    probe.create_subscription(HandPose, "/hand/pose", lambda m: got.append(m.positions[0]),
+                              QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE))
+    player = PlayerNode(parameter_overrides=[Parameter("bag", value=str(f)),
+                                             Parameter("wait_for_subscribers", value=True)])
+    ex = SingleThreadedExecutor()
+    for n in (player, probe):
+        ex.add_node(n)
+    try:
+        ex.spin_until_future_complete(player.done, timeout_sec=30)
+        assert player.done.result() == 0
+        deadline = time.monotonic() + 10.0
+        while len(got) < 5 and time.monotonic() < deadline:  # the last ones still queued
+            ex.spin_once(timeout_sec=0.1)
+        assert got == pytest.approx([0.0, 0.1, 0.2, 0.3, 0.4])
+    finally:
+        player.on_shutdown()
+        for n in (player, probe):
+            n.destroy_node()
+
+
+def test_latched_topic_is_replayed_transient_local(ros, tmp_path: Path) -> None:
+    """Issue #20 item 10: hand/shape (recorded transient local) reaches a subscriber that
+    joins after the player published it."""
+    from hand_msgs.msg import HandShape
+    from rclpy.qos import DurabilityPolicy
+    from rclpy.serialization import serialize_message
+
+    from hand_capture.bag import make_qos
+
+    bag = tmp_path / "latched"
+    w = BagWriter(bag)
+    w.add_topic("/hand/shape", "hand_msgs/msg/HandShape", [make_qos(True, True, depth=1)])
+    w.write("/hand/shape", 1_000, serialize_message(HandShape(global_scale=1.07)))
+    w.close()
+    player = PlayerNode(parameter_overrides=[Parameter("bag", value=str(bag)),
+                                             Parameter("clock_rate", value=0.0)])
+    ex = SingleThreadedExecutor()
+    ex.add_node(player)
+    late = rclpy.create_node("late_subscriber")
+    try:
+        ex.spin_until_future_complete(player.done, timeout_sec=30)
+        assert player.done.result() == 0 and player.published == 1
+        got: list[float] = []
+        late.create_subscription(
+            HandShape, "/hand/shape", lambda m: got.append(m.global_scale),
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        ex.add_node(late)
+        deadline = time.monotonic() + 20.0
+        while not got and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.1)
+        assert got and got[0] == pytest.approx(1.07)
+    finally:
+        player.on_shutdown()
+        player.destroy_node()
+        late.destroy_node()
+
+
+def test_damaged_bag_given_to_play_is_one_line(tmp_path: Path) -> None:
+    """Issue #20 items 6 and 9: a bit-flipped bag is refused by play before anything is
+    published, with one line naming the damage (no traceback)."""
+    import os
+    import subprocess
+    import sys
+
+    bag = tmp_path / "s"
+    write_sample_bag(bag, duration=0.5)
+    f = bag / "s.mcap"
+    data = bytearray(f.read_bytes())
+    data[len(data) // 3] ^= 0x10
+    f.write_bytes(bytes(data))
+    root = Path(__file__).resolve().parents[1]
+    p = subprocess.run([sys.executable, "-m", "hand_control.cli", "play", str(bag)],
+                       capture_output=True, text=True, timeout=120,
+                       env={**os.environ, "PYTHONPATH": str(root)})
+    assert p.returncode != 0
+    assert "Traceback" not in p.stderr + p.stdout, p.stderr
+    errors = [ln for ln in p.stderr.splitlines() if "error" in ln]
+    assert len(errors) == 1 and "CRC mismatch" in errors[0] and "s.mcap" in errors[0], p.stderr

@@ -16,11 +16,15 @@ from hand_capture.model import (
 )
 from hand_capture.model.mjcf import (
     DEFAULT_SCENES,
+    FINGER_ARMATURE,
+    GAIN_TABLE,
     ObjectSpec,
-    PDGains,
     build_hand,
     build_scene,
+    dof_gains,
     export_mjcf,
+    finger_torque_limits,
+    gain_row,
     home_pose,
 )
 
@@ -85,7 +89,11 @@ def _step_random(xml: str, seconds: float, seed: int) -> tuple[object, object]:
     m, d = _load(xml)
     mujoco.mj_resetDataKeyframe(m, d, 0)
     rng = np.random.default_rng(seed)
-    lo, hi = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
+    # targets within each servo's control range, or its joint's range (finger servos)
+    lim = m.actuator_ctrllimited.astype(bool)
+    jnt = m.actuator_trnid[:, 0]
+    lo = np.where(lim, m.actuator_ctrlrange[:, 0], m.jnt_range[jnt, 0])
+    hi = np.where(lim, m.actuator_ctrlrange[:, 1], m.jnt_range[jnt, 1])
     for i in range(int(round(seconds / m.opt.timestep))):
         if i % 50 == 0:
             d.ctrl[:] = rng.uniform(lo, hi)
@@ -124,9 +132,8 @@ def test_left_scene_and_objects_rest_on_the_table() -> None:
     assert m.body_subtreemass[cup] == pytest.approx(0.3)
 
 
-def test_explicit_pd_with_table_gains_is_stable() -> None:
-    """The controller's own PD torques (eq. 8, Table 1 gains) on the motors at 1 ms."""
-    gains = PDGains()
+def test_position_servos_with_table_gains_track_and_are_stable() -> None:
+    """Every DoF is a MuJoCo position servo with the gains of Table 1 (eq. 8): ctrl = target."""
     m, d = _load(build_scene(["box"]))
     mujoco.mj_resetDataKeyframe(m, d, 0)
     rng = np.random.default_rng(3)
@@ -134,9 +141,7 @@ def test_explicit_pd_with_table_gains_is_stable() -> None:
     for i in range(1500):
         if i % 300 == 0:
             target[6:] = rng.uniform(JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1])
-        tau = gains.torque(target, d.qpos[:27], d.qvel[:27])
-        d.ctrl[:6] = target[:6]
-        d.ctrl[6:] = tau[6:]
+        d.ctrl[:] = target
         mujoco.mj_step(m, d)
     assert all(int(w.number) == 0 for w in d.warning)
     assert np.abs(d.qvel[6:27]).max() < 5.0  # settled, no oscillation
@@ -144,21 +149,50 @@ def test_explicit_pd_with_table_gains_is_stable() -> None:
     assert np.median(err) < 0.05
 
 
-def test_pd_gains_table() -> None:
-    g = PDGains().by_name()
-    assert g["root_tx"] == (400.0, 50.0) and g["root_rz"] == (600.0, 50.0)
-    assert g["thumb_tm_abd"] == g["thumb_tm_flex"] == (10.0, 0.3)
-    assert g["thumb_mcp_flex"] == (8.0, 0.2) and g["thumb_ip_flex"] == (4.0, 0.4)
-    assert g["index_mcp_abd"] == (4.0, 0.2) and g["index_dip_flex"] == (2.0, 0.1)
-    assert g["middle_pip_flex"] == (4.0, 0.1) and g["little_mcp_flex"] == (4.0, 0.4)
-    tau = PDGains().torque(np.ones(27), np.zeros(27), np.ones(27))
-    np.testing.assert_allclose(tau, np.array(PDGains().kp) - np.array(PDGains().kd))
+def test_servo_gains_and_torque_limits_are_written_into_the_mjcf() -> None:
+    kp, kd = dof_gains()
+    m, _ = _load(build_hand())
+    assert m.nu == 27 and (m.actuator_biastype == mujoco.mjtBias.mjBIAS_AFFINE).all()
+    np.testing.assert_allclose(m.actuator_gainprm[:, 0], kp)
+    np.testing.assert_allclose(m.actuator_biasprm[:, 1], -kp)
+    np.testing.assert_allclose(m.actuator_biasprm[:, 2], -kd)
+    for name, k in (("root_tx", 0), ("root_rz", 5), ("thumb_tm_abd", 6), ("index_dip_flex", 14),
+                    ("little_mcp_flex", 23)):
+        assert (kp[k], kd[k]) == GAIN_TABLE[gain_row(name)]
+    lim = finger_torque_limits()
+    np.testing.assert_allclose(m.actuator_forcerange[6:, 1], lim[6:])
+    # a fingertip force (40 N, thumb 80 N) times the joint-to-tip distance: MCP > PIP > DIP
+    i = {n: JOINT_NAMES.index(n) for n in ("index_mcp_flex", "index_pip_flex",
+                                           "index_dip_flex", "thumb_tm_flex")}
+    assert lim[i["index_mcp_flex"]] > lim[i["index_pip_flex"]] > lim[i["index_dip_flex"]]
+    assert 2.0 < lim[i["index_mcp_flex"]] < 6.0 and 0.4 < lim[i["index_dip_flex"]] < 1.5
+    assert lim[i["thumb_tm_flex"]] > lim[i["index_mcp_flex"]]
+    # other gains go into the file, and bad ones are refused
+    m2, _ = _load(build_hand(servo_kp=2 * kp, servo_kd=kd))
+    np.testing.assert_allclose(m2.actuator_gainprm[:, 0], 2 * kp)
     with pytest.raises(ConfigError):
-        PDGains(kp=(1.0,) * 26)
+        build_hand(servo_kp=kp[:26])
     with pytest.raises(ConfigError):
-        PDGains(kd=(-1.0,) * 27)
-    with pytest.raises(InputError):
-        PDGains().torque(np.zeros(26), np.zeros(27), np.zeros(27))
+        build_scene(servo_kp=-kp)
+    with pytest.raises(ConfigError):
+        gain_row("wrist")
+
+
+def test_armature_is_small_against_the_links() -> None:
+    """The finger armature is below the inertia of every MCP / TM link about its axis (the
+    former 1e-3 was 10x-5000x the links)."""
+    m, d = _load(build_hand())
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    mujoco.mj_forward(m, d)
+    full = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, full)
+    link = np.diag(full)[6:27] - m.dof_armature[6:27]  # the links' inertia about each axis
+    assert np.allclose(m.dof_armature[6:27], FINGER_ARMATURE)
+    assert 1e-7 < link.min() < 1e-6 and link.max() < 1e-3
+    root = [JOINT_NAMES.index(n) - 6 for n in JOINT_NAMES[6:]
+            if "_mcp_" in n or "_tm_" in n]
+    assert (FINGER_ARMATURE <= link[root]).all()
+    assert FINGER_ARMATURE <= 1e-3 / 50
 
 
 def test_object_spec_validation() -> None:

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from hand_capture.model.joints import ARTICULATED_JOINTS
+from hand_capture.model.joints import ARTICULATED_JOINTS, joint_limits_dict
 from hand_control.dynamixel import control_table as ct
 from hand_control.dynamixel import protocol as p2
 from hand_control.dynamixel.bridge import BridgeConfig, BridgeState, ServoBridge
@@ -119,7 +119,8 @@ def test_goal_current_goes_out_by_sync_write_when_it_changes(leap, clock) -> Non
 
 def test_hand_pose_becomes_the_mapped_goals_of_16_servos(leap, clock) -> None:
     rng = np.random.default_rng(0)
-    q = pose(**{n: float(rng.uniform(-0.3, 1.2)) for n in NAMES})
+    lim = joint_limits_dict()  # angles within the hand model's joint limits
+    q = pose(**{n: float(rng.uniform(*lim[n])) for n in NAMES})
     run(leap, clock, q, 300)  # 1.5 s of control time: filter and rate limit settle
     assert goals(leap) == expected_ticks(leap, q)
     assert all(leap.emulator.value(i, "torque_enable") == 1 for i in leap.ids)
@@ -177,10 +178,12 @@ def _failed_read_cycle(gen: ServoBridge, clock: FakeClock, mode: str) -> None:
     n_before = len(emu.writes(GOAL, 2))
     gen.handle_pose(NAMES, pose(index_mcp_flex=1.0), now=clock.t)
     r = gen.step()
-    if mode == "sync":  # the others answered and were commanded
-        assert list(r.fresh) == [True, False, True] and r.written == 2
-    else:  # one status packet for all: a bad CRC spoils every servo's data
-        assert not r.fresh.any() and r.written == 0
+    if mode == "fast_sync":
+        # one status packet for all: the bad CRC spoils every servo's data; the Sync Read
+        # that follows in the same cycle reads each servo (the CRC fault was transient)
+        assert r.fresh.all() and r.written == 3 and gen.read_mode == "fast_sync"
+        return
+    assert list(r.fresh) == [True, False, True] and r.written == 2  # the others commanded
     assert len(emu.writes(GOAL, 2)) == n_before
     assert np.isnan(r.position[1])  # not published as a stale value
     run(gen, clock, pose(index_mcp_flex=1.0), 1)
@@ -189,7 +192,8 @@ def _failed_read_cycle(gen: ServoBridge, clock: FakeClock, mode: str) -> None:
 
 
 def test_goals_are_clamped_to_the_position_limits(gen, clock) -> None:
-    q = pose(index_mcp_flex=3.0, index_pip_flex=3.0, index_dip_flex=3.0)  # far past the limit
+    # valid angles (within the model's limits + the validation margin) past the servo's limit
+    q = pose(index_mcp_flex=1.85, index_pip_flex=2.2, index_dip_flex=1.85)
     run(gen, clock, q, 300)
     assert goals(gen)[1] == gen.map.by_id(2).min_position  # direction -1: closes downwards
     assert all(gen.map.by_id(2).min_position <= p2.from_le(d) for _, _, d in
@@ -491,3 +495,73 @@ def test_diagnostics_report_servo_state(gen, clock) -> None:
     thumb = d["servo_bridge: thumb"]
     assert thumb.values["temperature_c"] == "65" and thumb.level == 1  # near its 70 C limit
     assert thumb.values["voltage_v"] == "5.0" and thumb.values["torque"] == "on"
+
+
+def test_fast_sync_read_names_the_dead_servo_and_keeps_the_others(clock) -> None:
+    """Issue #20 item 8: with Fast Sync Read one dead servo failed every ID, so the ERROR
+    named all of them and the whole hand stopped."""
+    b = make("generic_3dof", clock, read_mode="fast_sync", max_comm_failures=3,
+             packet_timeout_ms=30.0)
+    b.configure()
+    b.activate()
+    try:
+        run(b, clock, pose(), 2)
+        b.emulator.set_no_reply(2)
+        clock.t += 0.005
+        b.handle_pose(NAMES, pose(), now=clock.t)
+        r = b.step()
+        assert list(r.fresh) == [True, False, True] and r.written == 2
+        assert b.read_mode == "sync"  # while servo 2 is dead
+        run(b, clock, pose(), 2)
+        assert b.state is BridgeState.ERROR
+        assert "2 (" in b.error_reason and "1 (" not in b.error_reason \
+            and "3 (" not in b.error_reason, b.error_reason
+        b.emulator.set_no_reply(2, False)
+        ok, msg = b.reboot()
+        assert ok and b.state is BridgeState.ACTIVE and b.read_mode == "fast_sync", msg
+    finally:
+        b.close()
+
+
+def test_reboot_and_activate_reopen_a_replugged_port(clock, tmp_path) -> None:
+    """Issue #20 item 8: after the adapter is pulled and plugged back (same device path, new
+    device), ~/reboot (or activate) reopens the port instead of reusing the dead one."""
+    smap = load_servo_map("generic_3dof")
+    emu = BusEmulator.from_map(smap)
+    link = tmp_path / "ttyUSB_hand"
+    link.symlink_to(emu.start())
+    b = ServoBridge(BridgeConfig(servo_map="generic_3dof", port=str(link),
+                                 packet_timeout_ms=30.0, max_comm_failures=3), clock=clock)
+    try:
+        b.configure()
+        b.activate()
+        run(b, clock, pose(), 2)
+        emu.stop()  # pulled
+        run(b, clock, pose(), 3)
+        assert b.state is BridgeState.ERROR
+        ok, msg = b.reboot()  # still unplugged: refused, named
+        assert not ok and "still failing" in msg and b.state is BridgeState.ERROR
+        b.deactivate()  # what the node's lifecycle does on the ERROR
+        with pytest.raises(ServoError):
+            b.activate()
+        link.unlink()
+        link.symlink_to(emu.start())  # plugged back: a new device under the same path
+        b.activate()  # re-activation reopens the port and checks every servo
+        assert b.state is BridgeState.ACTIVE
+        assert all(emu.value(i, "torque_enable") == 1 for i in b.ids)
+        q = pose(index_mcp_flex=0.3)
+        run(b, clock, q, 300)
+        assert goals_of(emu, b) == expected_ticks(b, q)
+        emu.stop()
+        run(b, clock, pose(), 3)
+        link.unlink()
+        link.symlink_to(emu.start())
+        ok, msg = b.reboot()  # the reboot service's path: reopen, re-read, active again
+        assert ok and b.state is BridgeState.ACTIVE, msg
+    finally:
+        b.close()
+        emu.stop()
+
+
+def goals_of(emu: BusEmulator, b: ServoBridge) -> list[int]:
+    return [emu.value(i, "goal_position") for i in b.ids]

@@ -149,3 +149,60 @@ def test_standalone_emulator_prints_its_pty_and_serves_it() -> None:
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=10) == 0
+
+
+def test_out_of_range_values_get_a_data_range_error(bus_emu) -> None:
+    """Issue #20 item 11: LED = 2 was accepted; the status packet must carry Data Range
+    Error (0x04) and the value must not change."""
+    import dynamixel_sdk as sdk
+
+    bus, emu = bus_emu
+    result, error = bus.ph.write1ByteTxRx(bus.port, 1, ct.item("led")[0], 2)
+    assert result == sdk.COMM_SUCCESS and error & 0x7F == p2.ERR_DATA_RANGE
+    assert emu.value(1, "led") == 0
+    bus.write(1, ct.item("led")[0], 1, 1)
+    assert emu.value(1, "led") == 1
+    for name, value in (("status_return_level", 3), ("profile_acceleration", 40_000),
+                        ("position_p_gain", 20_000)):
+        with pytest.raises(ServoError, match="Data Range Error"):
+            bus.write(1, ct.item(name)[0], ct.item(name)[1], value)
+    with pytest.raises(ServoError, match="Data Limit Error"):  # beyond PWM Limit(36)
+        bus.write(1, ct.item("goal_pwm")[0], 2, 900)
+
+
+def test_bulk_read_and_bulk_write_through_the_sdk(bus_emu) -> None:
+    """Issue #20 item 11: Bulk Read / Bulk Write got no reply / were not applied."""
+    import dynamixel_sdk as sdk
+
+    bus, emu = bus_emu
+    emu.push(3, 1500)
+    w = sdk.GroupBulkWrite(bus.port, bus.ph)
+    assert w.addParam(1, ct.item("led")[0], 1, [1])
+    assert w.addParam(2, ct.item("profile_velocity")[0], 4, list(p2.u_le(77, 4)))
+    assert w.txPacket() == sdk.COMM_SUCCESS
+    assert emu.wait_idle()
+    assert emu.value(1, "led") == 1 and emu.value(2, "profile_velocity") == 77
+    for fast in (False, True):
+        r = sdk.GroupBulkRead(bus.port, bus.ph)
+        assert r.addParam(1, ct.item("led")[0], 1)
+        assert r.addParam(2, ct.item("profile_velocity")[0], 4)
+        assert r.addParam(3, ct.ADDR_PRESENT_POSITION, 4)
+        result = r.fastBulkRead() if fast else r.txRxPacket()
+        assert result == sdk.COMM_SUCCESS, (fast, bus.ph.getTxRxResult(result))
+        assert r.getData(1, ct.item("led")[0], 1) == 1
+        assert r.getData(2, ct.item("profile_velocity")[0], 4) == 77
+        assert r.getData(3, ct.ADDR_PRESENT_POSITION, 4) == 1500
+    kinds = {pkt.instruction for _, pkt in emu.log}
+    assert {p2.INST_BULK_WRITE, p2.INST_BULK_READ, p2.INST_FAST_BULK_READ} <= kinds
+
+
+def test_bulk_write_with_a_range_error_is_not_applied(bus_emu) -> None:
+    import dynamixel_sdk as sdk
+
+    bus, emu = bus_emu
+    w = sdk.GroupBulkWrite(bus.port, bus.ph)
+    assert w.addParam(1, ct.item("led")[0], 1, [2])  # out of range: refused
+    assert w.addParam(2, ct.item("led")[0], 1, [1])
+    assert w.txPacket() == sdk.COMM_SUCCESS
+    assert emu.wait_idle()
+    assert emu.value(1, "led") == 0 and emu.value(2, "led") == 1

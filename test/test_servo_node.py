@@ -293,3 +293,43 @@ def test_a_new_stamp_right_after_a_cycle_is_written_a_quarter_period_later(ros) 
     assert spin_until(lambda: node.core._cycle > c0, 5.0)
     assert node.core._cycle == c0 + 1
     assert node._input_stamp.sec == 2 and not node._pending
+
+
+def test_bus_error_reaches_the_lifecycle_and_reboot_reopens_the_port(ros, tmp_path) -> None:
+    """Issue #20 item 8: the bridge's ERROR took the node nowhere (still 'active'); now the
+    node goes inactive with torque off and says why, and ~/reboot reopens the port of a
+    replugged adapter and activates the node again."""
+    peer, add, spin_until = ros
+    emu = BusEmulator.from_map(load_servo_map("generic_3dof"))
+    link = tmp_path / "ttyUSB_hand"
+    link.symlink_to(emu.start())
+    try:
+        node = add(ServoBridgeNode(parameter_overrides=params(
+            port=str(link), packet_timeout_ms=30.0, max_comm_failures=3)))
+        assert node._state_machine.current_state[1] == "active"
+        diags: list[DiagnosticArray] = []
+        peer.create_subscription(DiagnosticArray, "diagnostics", diags.append, 10)
+        pub = peer.create_publisher(HandPose, "hand/pose", 10)
+        assert spin_until(lambda: emu.value(1, "torque_enable") == 1, 5.0,
+                          tick=lambda: pub.publish(hand_pose()))
+        emu.stop()  # the adapter is pulled
+        assert spin_until(lambda: node._state_machine.current_state[1] == "inactive", 20.0,
+                          tick=lambda: pub.publish(hand_pose()))
+        assert "consecutive failed cycles" in node._last_error
+
+        def bus_error() -> bool:
+            return any(s.level == b"\x02" and "after a bus error" in s.message
+                       for d in diags for s in d.status if "bus" in s.name)
+
+        assert spin_until(bus_error, 5.0)
+        link.unlink()
+        link.symlink_to(emu.start())  # plugged back in: a new device, same path
+        client = peer.create_client(Trigger, "servo_bridge/reboot")
+        assert client.wait_for_service(timeout_sec=5.0)
+        future = client.call_async(Trigger.Request())
+        assert spin_until(future.done, 20.0)
+        assert future.result().success, future.result().message
+        assert node._state_machine.current_state[1] == "active"
+        assert [emu.value(i, "torque_enable") for i in (1, 2, 3)] == [1, 1, 1]
+    finally:
+        emu.stop()

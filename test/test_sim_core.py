@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from hand_capture.model.mjcf import build_scene
+from hand_control.control import CompositeControlConfig, ControllerNodeConfig
 from hand_control.errors import InputError, SimulationError
 from hand_control.sim.config import SimConfig
-from hand_control.sim.control_loop import ControllerNodeConfig
 from hand_control.sim.lockstep import LockstepRunner, build_world
 from hand_control.sim.scenario import ScenarioSpec, load_scenario, scenario_names
 
@@ -166,7 +166,7 @@ def test_composite_lift_keeps_a_heavy_box_in_hand_while_pd_only_drops_it() -> No
     results = {}
     plan = None
     for mode in ("composite", "pd_only"):
-        r = LockstepRunner(spec, controller_config=ControllerNodeConfig(mode=mode),
+        r = LockstepRunner(spec, gains=CompositeControlConfig(mode=mode),
                            control_every=2, plan=plan)
         plan = r.plan
         results[mode] = r.run()
@@ -185,8 +185,14 @@ def test_parameter_files_fill_the_config_dataclasses() -> None:
     sim = load_node_params(SimConfig, root / "sim.yaml", "sim")
     node = load_node_params(SimNodeConfig, root / "sim.yaml", "sim")
     ctrl = load_node_params(ControllerNodeConfig, root / "controller.yaml", "controller")
+    gains = load_node_params(CompositeControlConfig, root / "controller.yaml", "controller")
     assert sim.timestep == 0.001 and sim.real_time and node.publish_clock
-    assert ctrl.mode == "composite" and ctrl.alpha3 == 1e-3
+    assert ctrl.reference == "scripted"
+    assert gains.mode == "composite" and gains.alpha3 == 1e-3 and gains.method == "dissertation"
+    assert gains == CompositeControlConfig()  # the YAML states the defaults, one source
+    # the sim's servos and the controller get the same PD gains
+    servo = load_node_params(CompositeControlConfig, root / "sim.yaml", "sim")
+    assert (servo.joint_kp, servo.joint_kd) == (gains.joint_kp, gains.joint_kd)
     for name in scenario_names():
         load_scenario(name)
 

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from hand_control.contact.qp import ContactForceResult
+from hand_control.control import Command
 from hand_control.errors import InputError
-from hand_control.sim.control_loop import Command
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import ScenarioSpec
 
@@ -206,7 +206,7 @@ def test_set_targets_is_set_command_with_zero_efforts() -> None:
     runner = _grasping_runner()
     w = runner.world
     target = runner.plan.q_grasp + 0.01
-    w.set_command(target, np.ones(w.n_hand))
+    w.set_command(target, 0.5 * w.effort_hi)  # any in-range efforts, replaced below
     w.set_targets(target.copy())
     ctrl, qfrc = w.data.ctrl.copy(), w.data.qfrc_applied.copy()
     w.set_command(target, np.zeros(w.n_hand))

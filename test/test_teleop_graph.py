@@ -46,8 +46,8 @@ def test_controller_period_matches_the_sims_state_rate() -> None:
     """The controller caps the object's rotational gains by its control period: in teleop it
     must be the period of the sim's joint states (timestep x steps_per_tick)."""
     from hand_capture.config import load_node_params
+    from hand_control.control import ControllerNodeConfig
     from hand_control.sim.config import SimConfig, SimNodeConfig
-    from hand_control.sim.control_loop import ControllerNodeConfig
 
     files = [config_dir() / f for f in ("sim.yaml", "controller.yaml", "teleop.yaml")]
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import socket
+import struct
+import threading
 import time
 
 import numpy as np
@@ -17,6 +19,7 @@ from hand_capture.touch.tuio import (
     TuioParser,
     TuioReceiver,
     cursor_bundle,
+    decode_osc,
 )
 
 W, H = 0.2, 0.15
@@ -111,6 +114,65 @@ def test_tuio_receiver_decodes_bundles_and_plain_messages():
         assert _by_id(frames[0])[6] == pytest.approx((0.25 * W, 0.75 * H, True))
         rx.poll(timeout=0.05)
         assert rx.stats.bad_datagrams == 1
+
+
+#: Datagrams that hung (negative element size) or could crash an OSC decoder, each with the
+#: reason it is malformed.
+_HOSTILE_DATAGRAMS = {
+    "negative element size": b"#bundle\x00" + bytes(8) + struct.pack(">i", -4),
+    "zero element size": b"#bundle\x00" + bytes(8) + struct.pack(">i", 0),
+    "huge element size": b"#bundle\x00" + bytes(8) + struct.pack(">i", 2**31 - 4),
+    "element past the end": b"#bundle\x00" + bytes(8) + struct.pack(">i", 16) + b"/a\x00\x00",
+    "truncated bundle header": b"#bundle\x00\x00\x00",
+    "huge blob": b"/tuio/2Dcur\x00,b\x00\x00" + struct.pack(">i", 2**31 - 1),
+    "negative blob": b"/tuio/2Dcur\x00,b\x00\x00" + struct.pack(">i", -8),
+    "truncated int": b"/tuio/2Dcur\x00,i\x00\x00\x00\x01",
+    "unterminated string": b"/tuio/2Dcur\x00,s\x00\x00abcd",
+    "deep nesting": b"".join(b"#bundle\x00" + bytes(8) + struct.pack(">i", 16 * (40 - k))
+                             for k in range(40)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(_HOSTILE_DATAGRAMS))
+def test_decode_osc_rejects_malformed(name):
+    from hand_capture.touch.tuio import OscDecodeError
+
+    with pytest.raises(OscDecodeError):
+        decode_osc(_HOSTILE_DATAGRAMS[name])
+
+
+def test_decode_osc_matches_python_osc_on_a_cursor_bundle():
+    from pythonosc.osc_packet import OscPacket
+
+    dgram = cursor_bundle({5: (0.5, 0.5), 6: (0.25, 0.75)}, 7, "test@local")
+    ref = [(m.message.address, list(m.message.params)) for m in OscPacket(dgram).messages]
+    assert decode_osc(dgram) == ref
+
+
+def test_tuio_hostile_datagram_is_counted_and_listener_keeps_working():
+    """Issue #20 item 3: a 20-byte bundle with a negative element size hung the listener."""
+    with TuioReceiver(_cfg()) as rx:
+        tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        frames: list = []
+
+        def listen() -> None:
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline and not frames:
+                frames.extend(rx.poll(timeout=0.05))
+
+        try:
+            for dgram in _HOSTILE_DATAGRAMS.values():
+                tx.sendto(dgram, rx.address)
+            tx.sendto(cursor_bundle({5: (0.5, 0.5)}, 1), rx.address)
+            t = threading.Thread(target=listen, daemon=True)
+            t.start()
+            t.join(timeout=30.0)
+        finally:
+            tx.close()
+        assert not t.is_alive(), "TUIO listener hung on a malformed datagram"
+        assert rx.stats.bad_datagrams == len(_HOSTILE_DATAGRAMS)
+        assert "from ('127.0.0.1'" in rx.stats.last_bad_datagram  # who sent it, and why
+        assert len(frames) == 1 and _by_id(frames[0])[5][2]
 
 
 def test_tuio_port_in_use_is_device_error():

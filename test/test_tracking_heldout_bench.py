@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from hand_capture.bench.tracking_heldout import (
+from hand_capture.bench._tracking_heldout import (
     TEMPORAL_GRID,
     calibration_section,
     heldout_section,

@@ -142,6 +142,9 @@ def test_tracker_node_rejects_bad_input_without_crashing(ros, frame):
     sm = HandShapeMsg(global_scale=float("nan"))
     node._on_shape(sm)
     assert node.rejected["bad_shape"] == 1
+    # the same rejections per topic through the node's InputGate (logged, on diagnostics)
+    assert node.gate.rejected == {"camera/depth/image_raw": 4, "hand/shape": 1,
+                                  "camera/depth/camera_info": 1}
     sm = HandShapeMsg(global_scale=1.05, alpha=[0.0] * 6, beta=[0.0] * 5, subject_id="x")
     node._on_shape(sm)
     assert node.tracker.model.shape.global_scale == pytest.approx(1.05)

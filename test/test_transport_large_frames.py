@@ -37,7 +37,7 @@ def test_profile_gives_a_shared_memory_segment_larger_than_a_frame() -> None:
 
 def test_640x480_frames_at_30hz_reach_the_tracker_subscription() -> None:
     """Fails on the old transport (Fast DDS defaults: about 40-80 % of frames arrive)."""
-    from hand_capture.bench.delivery import measure_delivery
+    from hand_capture.bench._delivery import measure_delivery
 
     r = measure_delivery(60, 30.0, 640, 480, profile=True, timeout_s=90.0)
     assert r["sent"] == 60, r

@@ -5,9 +5,13 @@
   and flushes it to the file, sqlite3 commits the transaction. A process killed with SIGKILL
   therefore loses at most the last ``flush_period`` seconds; the bag then has no
   ``metadata.yaml`` and :func:`recover_bag` rebuilds a complete bag from what was flushed.
+  MCAP files carry real CRC32s (rosbags writes zeros): each chunk's uncompressed data, the
+  data section (DataEnd record) and the summary section (footer), per the MCAP specification.
 * :class:`BagReader` opens a bag, refuses a missing, truncated or corrupt one with
   :class:`~hand_capture.errors.BagError` naming the file, and yields raw CDR messages in time
-  order. :meth:`BagReader.check` deserialises a message so garbage is never published.
+  order. On open it verifies an MCAP file's summary and data-section CRCs (a damaged bag is
+  refused before a message is read, naming the damaged part); chunk CRCs are checked as chunks
+  are read. :meth:`BagReader.check` deserialises a message so garbage is never published.
 """
 
 from __future__ import annotations
@@ -15,9 +19,10 @@ from __future__ import annotations
 import shutil
 import sqlite3
 import struct
+import tempfile
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability
@@ -33,6 +38,12 @@ from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.rosbag2.storage_mcap import McapWriter
 from rosbags.typesys.store import Typestore
 
+from hand_capture.bag.mcapio import (
+    CrcMcapWriter,
+    McapSource,
+    verify_mcap,
+    written_by_rosbags,
+)
 from hand_capture.bag.typestore import default_typestore, ensure_type
 from hand_capture.errors import BagError
 
@@ -107,10 +118,13 @@ class BagWriter:
             self._writer.open()
         except WriterError as e:
             raise BagError(f"cannot create bag {self.path}: {e}") from e
+        if type(self._writer.storage) is McapWriter:
+            CrcMcapWriter.adopt(self._writer.storage)
         self._conns: dict[str, object] = {}
         # MCAP: messages are appended to rosbags' pending chunk directly (same bytes and
         # bookkeeping as its McapWriter.write, without its per-message Python overhead)
-        self._mcap = self._writer.storage if type(self._writer.storage) is McapWriter else None
+        self._mcap = (self._writer.storage if isinstance(self._writer.storage, McapWriter)
+                      else None)
         self._last_flush = time.monotonic()
         self.count = 0
         self.bytes = 0
@@ -243,9 +257,18 @@ class BagReader:
                 f"{self.path} has no metadata.yaml: the recorder did not finish; run "
                 f"'hand-suite bag recover {self.path}' to rebuild it from what was flushed"
             )
+        #: whether every storage file carried a data-section CRC that matched (MCAP)
+        self.crc_verified = False
+        files = sorted(self.path.glob("*.mcap")) if self.path.is_dir() else [self.path]
+        checked = [verify_mcap(f) for f in files if f.suffix == ".mcap"]
+        self.crc_verified = bool(checked) and all(checked)
         try:
-            self._reader = Reader(self.path)
-            self._reader.open()
+            if (self.path.is_file() and self.path.suffix == ".mcap"
+                    and not written_by_rosbags(self.path)):
+                self._reader = McapSource(self.path)
+            else:
+                self._reader = Reader(self.path)
+                self._reader.open()
         except (ReaderError, FileNotFoundError, OSError, ValueError, KeyError) as e:
             raise BagError(f"cannot open bag {self.path}: {e}") from e
         except Exception as e:  # rosbags/mcap raise many types on corrupt files
@@ -267,6 +290,14 @@ class BagReader:
     def topics(self) -> dict[str, str]:
         """Topic -> message type."""
         return {c.topic: c.msgtype for c in self._reader.connections}
+
+    def qos(self, topic: str) -> list[Qos]:
+        """The QoS profiles recorded for ``topic`` (empty when the bag has none, e.g. MCAP
+        files from the ``mcap`` tools)."""
+        for c in self._reader.connections:
+            if c.topic == topic:
+                return list(getattr(c.ext, "offered_qos_profiles", []) or [])
+        return []
 
     @property
     def message_count(self) -> int:
@@ -343,21 +374,46 @@ def _types_from_conn(conn: object) -> dict:
 
 @dataclass(frozen=True)
 class RecoveryResult:
-    """What :func:`recover_bag` saved: output bag, messages, topics."""
+    """What :func:`recover_bag` saved.
+
+    Attributes:
+        output: the new bag.
+        messages: messages salvaged.
+        topics: topic -> message type of every connection found.
+        per_topic: topic -> messages salvaged on it.
+        start_ns, end_ns: receive times of the first and last salvaged message [ns] (0 if none).
+        stopped: where and why reading the damaged storage stopped.
+    """
 
     output: Path
     messages: int
     topics: dict[str, str]
+    per_topic: dict[str, int] = field(default_factory=dict)
+    start_ns: int = 0
+    end_ns: int = 0
+    stopped: str = ""
+
+    def describe(self) -> str:
+        """Human-readable summary: what was salvaged, per topic, and where reading stopped."""
+        span = (self.end_ns - self.start_ns) * 1e-9 if self.messages else 0.0
+        lines = [f"recovered {self.messages} messages on {len(self.topics)} topics "
+                 f"({span:.3f} s) into {self.output}"]
+        for topic, msgtype in sorted(self.topics.items()):
+            lines.append(f"  {topic:40s} {msgtype:36s} {self.per_topic.get(topic, 0)}")
+        if self.stopped:
+            lines.append(f"reading stopped: {self.stopped}")
+        return "\n".join(lines)
 
 
-def _recover_mcap(file: Path) -> tuple[dict[str, str], list[BagMessage]]:
+def _recover_mcap(file: Path) -> tuple[dict[str, str], list[BagMessage], str]:
     from mcap.exceptions import McapError
-    from mcap.records import Channel, Message, Schema
+    from mcap.records import Channel, DataEnd, Message, Schema
     from mcap.stream_reader import StreamReader
 
     schemas: dict[int, str] = {}
     channels: dict[int, tuple[str, str]] = {}
     msgs: list[BagMessage] = []
+    stopped = "end of file reached without a DataEnd record (recording was cut off)"
     with file.open("rb") as fh:
         try:
             for rec in StreamReader(fh, validate_crcs=True).records:
@@ -368,55 +424,101 @@ def _recover_mcap(file: Path) -> tuple[dict[str, str], list[BagMessage]]:
                 elif isinstance(rec, Message) and rec.channel_id in channels:
                     topic, msgtype = channels[rec.channel_id]
                     msgs.append(BagMessage(topic, msgtype, rec.log_time, bytes(rec.data)))
-        except (McapError, EOFError, ValueError, OSError):
-            pass  # the file ends where the killed process stopped writing
+                elif isinstance(rec, DataEnd):
+                    stopped = ""
+                    break
+        except (McapError, EOFError, ValueError, OSError) as e:
+            # the file ends where the killed process stopped writing, or a chunk is damaged
+            # (CRC): everything from there on is dropped
+            stopped = (f"at byte {fh.tell()} of {file.stat().st_size}: "
+                       f"{type(e).__name__}: {e}; later data dropped")
         except Exception as e:  # other damage also ends it
             if not msgs:
                 raise BagError(f"{file} is not a readable MCAP file: {e}") from e
-    return dict(channels.values()), msgs
+            stopped = f"at byte {fh.tell()}: {type(e).__name__}: {e}; later data dropped"
+    return dict(channels.values()), msgs, stopped
 
 
-def _recover_sqlite(file: Path) -> tuple[dict[str, str], list[BagMessage]]:
-    try:
-        db = sqlite3.connect(f"file:{file}?mode=ro", uri=True)
-        topics = {tid: (name, typ) for tid, name, typ in
-                  db.execute("SELECT id, name, type FROM topics")}
-        rows = db.execute("SELECT topic_id, timestamp, data FROM messages ORDER BY timestamp")
-        msgs = [BagMessage(topics[t][0], topics[t][1], int(ts), bytes(d))
-                for t, ts, d in rows if t in topics]
-        db.close()
-    except sqlite3.DatabaseError as e:
-        raise BagError(f"{file} is not a readable sqlite3 bag: {e}") from e
-    return dict(topics.values()), msgs
+def _recover_sqlite(file: Path) -> tuple[dict[str, str], list[BagMessage], str]:
+    # A killed writer leaves a hot rollback journal (or a WAL): sqlite must roll it back before
+    # reading, which a read-only connection cannot do ("attempt to write a readonly
+    # database"). Work on a copy so the original files stay untouched.
+    with tempfile.TemporaryDirectory(prefix="hand_suite_recover_") as tmp:
+        copy = Path(tmp) / file.name
+        for suffix in ("", "-journal", "-wal", "-shm"):
+            part = file.with_name(file.name + suffix)
+            if part.exists():
+                shutil.copy2(part, Path(tmp) / part.name)
+        try:
+            db = sqlite3.connect(copy)
+            try:
+                topics = {tid: (name, typ) for tid, name, typ in
+                          db.execute("SELECT id, name, type FROM topics")}
+                rows = db.execute(
+                    "SELECT topic_id, timestamp, data FROM messages ORDER BY timestamp")
+                msgs = [BagMessage(topics[t][0], topics[t][1], int(ts), bytes(d))
+                        for t, ts, d in rows if t in topics]
+            finally:
+                db.close()
+        except sqlite3.DatabaseError as e:
+            raise BagError(f"{file} is not a readable sqlite3 bag: {e}") from e
+    note = ("uncommitted writes after the last flush were rolled back"
+            if file.with_name(file.name + "-journal").exists()
+            or file.with_name(file.name + "-wal").exists() else "")
+    return dict(topics.values()), msgs, note
+
+
+def _free_output(src: Path, output: str | Path | None) -> Path:
+    """The output directory: ``output`` if it does not exist (never overwritten), else a
+    numbered ``<src>_recovered[_N]`` that does not exist."""
+    if output is not None:
+        out = Path(output)
+        if out.exists():
+            raise BagError(f"output {out} exists; recover never overwrites or deletes a "
+                           f"folder: choose another with -o, or move it away")
+        if out.resolve() == src.resolve():
+            raise BagError(f"output {out} is the damaged bag itself")
+        return out
+    out = src.with_name(src.name + "_recovered")
+    n = 2
+    while out.exists():
+        out = src.with_name(f"{src.name}_recovered_{n}")
+        n += 1
+    return out
 
 
 def recover_bag(path: str | Path, output: str | Path | None = None) -> RecoveryResult:
-    """Rebuild a complete bag from an unfinished one (recorder killed before closing).
+    """Rebuild a complete bag from an unfinished or damaged one (recorder killed before
+    closing, or a damaged MCAP chunk).
 
-    Reads every message that was flushed to the storage file and writes them, with their
-    definitions, into a new bag ``output`` (default: ``<path>_recovered``).
+    Reads every message that was flushed to the storage file (for MCAP: up to the first
+    damaged or cut-off record; chunks are CRC-checked) and writes them, with their
+    definitions, into a new bag ``output`` (default: ``<path>_recovered``, or
+    ``<path>_recovered_N`` if that exists). An existing ``output`` is refused, never replaced.
 
     Raises:
-        BagError: no storage file, or nothing readable in it.
+        BagError: no storage file, nothing readable in it, or ``output`` exists.
     """
     src = Path(path)
-    out = Path(output) if output is not None else src.with_name(src.name + "_recovered")
     mcaps = sorted(src.glob("*.mcap"))
     dbs = sorted(src.glob("*.db3"))
-    if mcaps:
-        storage, (topics, msgs) = "mcap", _recover_mcap(mcaps[0])
-    elif dbs:
-        storage, (topics, msgs) = "sqlite3", _recover_sqlite(dbs[0])
-    else:
+    if not mcaps and not dbs:
         raise BagError(f"no .mcap or .db3 storage file in {src}")
-    if out.exists():
-        shutil.rmtree(out)
+    out = _free_output(src, output)
+    if mcaps:
+        storage, (topics, msgs, stopped) = "mcap", _recover_mcap(mcaps[0])
+    else:
+        storage, (topics, msgs, stopped) = "sqlite3", _recover_sqlite(dbs[0])
     writer = BagWriter(out, storage=storage)
+    per_topic: dict[str, int] = {}
     try:
         for topic, msgtype in topics.items():
             writer.add_topic(topic, msgtype)
         for m in sorted(msgs, key=lambda m: m.timestamp_ns):
             writer.write(m.topic, m.timestamp_ns, m.data)
+            per_topic[m.topic] = per_topic.get(m.topic, 0) + 1
     finally:
         writer.close()
-    return RecoveryResult(out, len(msgs), topics)
+    stamps = [m.timestamp_ns for m in msgs]
+    return RecoveryResult(out, len(msgs), topics, per_topic, min(stamps, default=0),
+                          max(stamps, default=0), stopped)

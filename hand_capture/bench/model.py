@@ -2,18 +2,24 @@
 
 Baselines measured in the same run:
 
-* FK + LBS: a naive implementation, one 4x4 homogeneous transform per joint composed in a
-  Python loop, then skinning as a sum over all 16 bones of weight x transformed vertex;
+* FK + LBS (the headline): :class:`VectorisedHand`, the textbook vectorised numpy
+  implementation -- batched Rodrigues rotations composed bone by bone (vectorised over poses),
+  then linear blend skinning by blending the 16 bones' 3x4 skinning matrices per vertex with
+  one ``einsum`` and applying them;
+* FK + LBS, extra row: :class:`NaiveHand`, one 4x4 homogeneous transform per joint composed in
+  a Python loop, then skinning as a sum over all 16 bones of weight x transformed vertex;
 * Jacobian: central finite differences of the model's own (fast) vertex function, 54 calls.
 
 Figures (JSON keys): ``fk_lbs_ms`` (one pose, FK + LBS of all vertices + keypoints),
 ``fk_lbs_batch100_ms`` (100 poses in one call), ``jacobian_ms`` (analytic pose Jacobian of every
 vertex), ``jacobian_300_ms`` (300 vertices, what a tracker iteration uses), the baselines and
-the speed-up ratios.
+the speed-up ratios (``fk_lbs_speedup``, ``fk_lbs_batch_speedup``: against the vectorised
+baseline; ``*_vs_naive``: against the naive one).
 
 A renderer can add its figures: if ``hand_capture.cameras.synthetic`` defines
 ``render_benchmark(model, quick) -> dict`` its result is merged into the figures (e.g.
-``render_fps``).
+``render_fps``); its headline baseline is Open3D's ``RaycastingScene``
+(``render_speedup_vs_raycast``), the per-triangle renderer an extra row.
 """
 
 from __future__ import annotations
@@ -84,6 +90,55 @@ class NaiveHand:
         return v
 
 
+def _rotations(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations about the unit ``axis`` by the ``angle`` (n,) (Rodrigues)."""
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
+    return np.eye(3) + s * k + (1.0 - c) * (k @ k)
+
+
+class VectorisedHand:
+    """FK vectorised over poses and LBS by blended skinning matrices (the strong baseline)."""
+
+    def __init__(self, model: HandModel) -> None:
+        sk = model._sk
+        self.rest_rot = sk.rest_rot
+        self.offset = model._offset
+        self.abd_axis = np.array([0.0, 0.0, sk.abd_axis_sign])
+        self.weights = model.skinning_weights  # (V, 16)
+        self.gr, self.gt = model._gr, model._gt  # inverse rest transforms
+        self.vt = model._vt  # (V, 3) rest vertices
+
+    def frames(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bone rotations (n, 16, 3, 3) and origins (n, 16, 3) of the poses ``q`` (n, 27)."""
+        n = q.shape[0]
+        rot = np.empty((n, N_BONES, 3, 3))
+        pos = np.empty((n, N_BONES, 3))
+        ex, ey, ez = np.eye(3)
+        rot[:, 0] = _rotations(ex, q[:, 3]) @ _rotations(ey, q[:, 4]) @ _rotations(ez, q[:, 5])
+        pos[:, 0] = q[:, :3]
+        for b in range(1, N_BONES):
+            p = BONE_PARENT[b]
+            r = rot[:, p] @ self.rest_rot[b]
+            if BONE_ABD_DOF[b] >= 0:
+                r = r @ _rotations(self.abd_axis, q[:, BONE_ABD_DOF[b]])
+            rot[:, b] = r @ _rotations(ey, q[:, BONE_FLEX_DOF[b]])
+            pos[:, b] = pos[:, p] + rot[:, p] @ self.offset[b]
+        return rot, pos
+
+    def vertices(self, q: np.ndarray) -> np.ndarray:
+        """Skinned vertices (n, V, 3) of the poses ``q`` (n, 27)."""
+        rot, pos = self.frames(q)
+        skin = np.empty(rot.shape[:2] + (3, 4))  # frame x inverse rest, per bone
+        skin[..., :3] = rot @ self.gr
+        skin[..., 3] = (rot @ self.gt[..., None])[..., 0] + pos
+        # (V, 16) @ (n, 16, 12): the per-vertex blended 3x4 matrices in one BLAS product
+        blended = (self.weights @ skin.reshape(len(q), N_BONES, 12)).reshape(
+            len(q), -1, 3, 4)
+        return np.einsum("nvij,vj->nvi", blended[..., :3], self.vt, optimize=True) \
+            + blended[..., 3]
+
+
 def _optional_render_figures(model: HandModel, quick: bool) -> dict[str, Any]:
     try:
         synthetic = importlib.import_module("hand_capture.cameras.synthetic")
@@ -95,9 +150,11 @@ def _optional_render_figures(model: HandModel, quick: bool) -> dict[str, Any]:
     return dict(fn(model, quick))
 
 
-def run(quick: bool = False) -> dict[str, Any]:
-    """Measure and print; returns the figures (see the module docstring)."""
-    n = 30 if quick else 200
+def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
+    """Measure and print; returns the figures (see the module docstring). ``smoke``: a few
+    calls of each (the renderer's quick run)."""
+    n = 5 if smoke else 30 if quick else 200
+    quick = quick or smoke
     t0 = time.perf_counter()
     model = HandModel(sample_shape(0))
     build_s = time.perf_counter() - t0
@@ -107,6 +164,9 @@ def run(quick: bool = False) -> dict[str, Any]:
     idx300 = rng.choice(model.n_vertices, 300, replace=False)
     naive = NaiveHand(model)
     naive_err = float(np.abs(naive.vertices(q) - model.vertices(q)).max())
+    vec = VectorisedHand(model)
+    vec_err = float(np.abs(vec.vertices(poses) - model.vertices(poses)).max())
+    q1 = q[None]
 
     def fd_jac() -> np.ndarray:
         cols = []
@@ -129,23 +189,35 @@ def run(quick: bool = False) -> dict[str, Any]:
     t_naive_fk = np.median(time_calls(lambda: naive.frames(q), n)) * ms
     t_fk_only = np.median(time_calls(lambda: model.joint_positions(q), n)) * ms
     t_fd = np.median(time_calls(fd_jac, max(n // 10, 3), warmup=1)) * ms
+    t_vec = np.median(time_calls(lambda: vec.vertices(q1), n)) * ms
+    t_vec_batch = np.median(time_calls(lambda: vec.vertices(poses), max(n // 10, 5))) * ms
+    t_vec_fk = np.median(time_calls(lambda: vec.frames(q1), n)) * ms
 
+    nan = float("nan")
     rows = [
-        ("FK + LBS, 1 pose", t_fk, t_naive, t_naive / t_fk),
-        ("FK + LBS, 100 poses (per call)", t_batch, 100 * t_naive, 100 * t_naive / t_batch),
-        ("FK only (21 keypoints)", t_fk_only, t_naive_fk, t_naive_fk / t_fk_only),
-        ("pose Jacobian, all vertices", t_jac, t_fd, t_fd / t_jac),
-        ("pose Jacobian, 300 vertices", t_jac300, float("nan"), float("nan")),
-        ("keypoint Jacobian (21)", t_kpjac, float("nan"), float("nan")),
-        ("shape Jacobian, 300 vertices", t_shape, float("nan"), float("nan")),
-        ("vertex normals", t_normals, float("nan"), float("nan")),
+        ("FK + LBS, 1 pose", t_fk, "vectorised numpy", t_vec, t_vec / t_fk),
+        ("FK + LBS, 100 poses (per call)", t_batch, "vectorised numpy", t_vec_batch,
+         t_vec_batch / t_batch),
+        ("FK only (bone frames / 21 keypoints)", t_fk_only, "vectorised numpy", t_vec_fk,
+         t_vec_fk / t_fk_only),
+        ("FK + LBS, 1 pose", t_fk, "naive 4x4 loop", t_naive, t_naive / t_fk),
+        ("FK + LBS, 100 poses (per call)", t_batch, "naive 4x4 loop", 100 * t_naive,
+         100 * t_naive / t_batch),
+        ("FK only (21 keypoints)", t_fk_only, "naive 4x4 loop", t_naive_fk,
+         t_naive_fk / t_fk_only),
+        ("pose Jacobian, all vertices", t_jac, "finite differences", t_fd, t_fd / t_jac),
+        ("pose Jacobian, 300 vertices", t_jac300, "", nan, nan),
+        ("keypoint Jacobian (21)", t_kpjac, "", nan, nan),
+        ("shape Jacobian, 300 vertices", t_shape, "", nan, nan),
+        ("vertex normals", t_normals, "", nan, nan),
     ]
     print_table(f"hand model ({model.n_vertices} vertices, {len(model.faces)} faces), "
-                f"median of {n} calls [ms]; baseline = naive 4x4 loop FK + per-bone LBS, "
-                f"finite differences for the Jacobian", ["operation", "ms", "baseline ms",
-                                                         "speed-up"], rows)
-    print(f"template build {build_s:.2f} s; naive vs model max vertex difference "
-          f"{naive_err:.2e} m; analytic vs finite-difference Jacobian {jac_err:.2e}")
+                f"median of {n} calls [ms]; headline baseline = vectorised numpy FK + "
+                "blended-matrix LBS", ["operation", "ms", "baseline", "baseline ms",
+                                       "speed-up"], rows)
+    print(f"template build {build_s:.2f} s; max vertex difference to the model: vectorised "
+          f"{vec_err:.2e} m, naive {naive_err:.2e} m; analytic vs finite-difference Jacobian "
+          f"{jac_err:.2e}")
     figures: dict[str, Any] = {
         "bench": "model",
         "quick": quick,
@@ -157,10 +229,15 @@ def run(quick: bool = False) -> dict[str, Any]:
         "keypoint_jacobian_ms": t_kpjac,
         "shape_jacobian_300_ms": t_shape,
         "normals_ms": t_normals,
-        "baseline_fk_lbs_ms": t_naive,
+        "baseline_fk_lbs_ms": t_vec,
+        "baseline_fk_lbs_batch100_ms": t_vec_batch,
         "baseline_jacobian_fd_ms": t_fd,
-        "fk_lbs_speedup": t_naive / t_fk,
-        "fk_lbs_batch_speedup": 100 * t_naive / t_batch,
+        "fk_lbs_speedup": t_vec / t_fk,
+        "fk_lbs_batch_speedup": t_vec_batch / t_batch,
+        "vectorised_max_diff_m": vec_err,
+        "naive_fk_lbs_ms": t_naive,
+        "fk_lbs_speedup_vs_naive": t_naive / t_fk,
+        "fk_lbs_batch_speedup_vs_naive": 100 * t_naive / t_batch,
         "jacobian_speedup": t_fd / t_jac,
         "naive_max_diff_m": naive_err,
         "jacobian_fd_max_diff": jac_err,

@@ -55,9 +55,9 @@ def _sem(x: np.ndarray) -> float:
     return float(x.std(ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
 
 
-def datasets(quick: bool) -> tuple[TouchDataset, TouchDataset]:
+def datasets(quick: bool, smoke: bool = False) -> tuple[TouchDataset, TouchDataset]:
     """(train, test)."""
-    per_seed = 80 if quick else 210
+    per_seed = 10 if smoke else 80 if quick else 210
     train = load_or_generate(TRAIN)  # the full set in quick runs too: with a third of it the
     # quadratic (136 coefficients per DoF) already overfits the joint angles
     test_model = build_model(TEST_SHAPE_SEED)
@@ -114,9 +114,11 @@ def _time_labelling(labeller: FingerLabeller, test: TouchDataset, n: int = 200,
     return 1e3 * float(np.median(times)), 1e3 * float(np.min(times))
 
 
-def run(quick: bool = False) -> dict[str, Any]:
+def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
+    """The figures; ``smoke``: a few held-out sequences and frames through the same code."""
     t_start = time.perf_counter()
-    train, test = datasets(quick)
+    quick = quick or smoke
+    train, test = datasets(quick, smoke)
     model = fit_model(train)
     ref_rows = np.sort(np.random.default_rng(0).choice(
         len(model.reference_poses), min(MAX_REFERENCE, len(model.reference_poses)), False))
@@ -132,7 +134,7 @@ def run(quick: bool = False) -> dict[str, Any]:
         est = enc.reconstruct(test.pads, test.contact)
         results[name] = errors(test.poses, est)
     pk = PcaIk(build_model(-1), rel_train)
-    n_ik = min(len(test), 120 if quick else 600)
+    n_ik = min(len(test), 10 if smoke else 120 if quick else 600)
     ik_rows = np.sort(np.random.default_rng(3).choice(len(test), n_ik, replace=False))
     gc.collect()
     t0 = time.perf_counter()
@@ -168,7 +170,7 @@ def run(quick: bool = False) -> dict[str, Any]:
                     rows)
 
     # --- Table 2 ---------------------------------------------------------------------------
-    n_lab = len(test) if not quick else min(len(test), 400)
+    n_lab = len(test) if not quick else min(len(test), 40 if smoke else 400)
     lab_rows = np.sort(np.random.default_rng(4).choice(len(test), n_lab, replace=False))
     rows = []
     labellers = {name: FingerLabeller(enc, reference) for name, enc in model.encoders.items()}

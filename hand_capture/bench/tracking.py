@@ -305,7 +305,7 @@ def run(quick: bool = False) -> dict:
         "calibration_kp_err_default_mm": float(np.mean([r[4] for r in rows_cal])),
     }
     # held-out family, calibration bone lengths, settings split, transport (issue 13)
-    from hand_capture.bench.tracking_heldout import run_sections
+    from hand_capture.bench._tracking_heldout import run_sections
 
     out.update(run_sections(reg, configs["hybrid"], quick))
     return out

@@ -53,6 +53,10 @@ class RealSenseConfig:
     lost_after_s: float = param(
         3.0, "no frame for this long while the device is gone = disconnected [s]", lo=0.1,
         hi=60.0)
+    inter_cam_sync_mode: int = param(
+        0, "hardware sync of a multi-camera rig (D400 sync cable): 0 free-running, "
+        "1 master (drives the others' trigger), 2 slave (follows the master)",
+        choices=(0, 1, 2), read_only=True)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -85,6 +89,21 @@ def list_realsense_devices() -> list[dict[str, str]]:
                 info[key] = ""
         out.append(info)
     return out
+
+
+def apply_sync_mode(rs: Any, device: Any, mode: int, serial: str) -> None:
+    """Set the depth sensor's ``inter_cam_sync_mode`` (0 leaves the device as it is).
+
+    Raises:
+        DeviceError: the device has no such option (e.g. an L500 or an old firmware).
+    """
+    if mode == 0:
+        return
+    sensor = device.first_depth_sensor()
+    if not sensor.supports(rs.option.inter_cam_sync_mode):
+        raise DeviceError(f"RealSense {serial} does not support inter_cam_sync_mode "
+                          f"(hardware sync needs a D400-series camera and its sync cable)")
+    sensor.set_option(rs.option.inter_cam_sync_mode, float(mode))
 
 
 def _intrinsics(rs: Any, profile: Any, frame_id: str) -> Intrinsics:
@@ -163,6 +182,7 @@ class RealSenseSource(FrameSource):
                 f"RealSense {self._serial} ({self._name}) cannot stream {c.width}x{c.height} "
                 f"@ {c.fps} Hz: {e}") from e
         try:
+            apply_sync_mode(rs, profile.get_device(), c.inter_cam_sync_mode, self._serial)
             if c.enable_depth:
                 sensor = profile.get_device().first_depth_sensor()
                 self._depth_scale = float(sensor.get_depth_scale())
@@ -181,6 +201,9 @@ class RealSenseSource(FrameSource):
             pipe.stop()
             raise DeviceError(f"RealSense {self._serial}: cannot read stream settings: {e}"
                               ) from e
+        except DeviceError:
+            pipe.stop()
+            raise
         self._pipe = pipe
         self._seq = 0
         self._last_frame_t = time.monotonic()

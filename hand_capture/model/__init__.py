@@ -18,7 +18,7 @@ Pure numpy (MJCF export needs only the standard library). Typical use::
 
 See joints.py for the frame and angle conventions (root orientation = intrinsic XYZ hinge
 angles, matching the MJCF export exactly). MuJoCo models and scenes: ``hand_capture.model.mjcf``
-(``build_hand``, ``build_scene``, ``export_mjcf``, ``PDGains``, ``ObjectSpec``);
+(``build_hand``, ``build_scene``, ``export_mjcf``, ``GAIN_TABLE``, ``ObjectSpec``);
 ``python -m hand_capture.model.mjcf OUT_DIR`` writes hand.xml and the scene files.
 """
 

@@ -9,17 +9,24 @@ joint axes, limits and DoF order), so MuJoCo's ``mj_kinematics`` body positions 
 * Joints: JOINT_NAMES, in that order, so the hand's ``qpos[:27]`` / ``qvel[:27]`` are the model's
   pose / velocity vector. The root is three slides (world x, y, z) and three hinges about the
   moving x, y, z axes (joints.py); slides have ``ref`` = the body position so that
-  ``qpos = root position``, and the default ``qpos0`` holds the hand above the table.
-* Actuators, named like their joints and in the same order (``ctrl[i]`` drives DoF i):
-  the root by ``position`` servos with the root gains of seed 000 Table 1 (``kp``, ``kv``);
-  every finger DoF by a ``motor`` (torque) because the composite controller computes its PD
-  torque itself (eq. 8 / III.19). :class:`PDGains` carries the tables' finger gains.
+  ``qpos = root position``, and the default ``qpos0`` holds the hand above the table. The
+  root orientation stays three hinges, not a ball joint: the suite's pose vector (tracking,
+  FK, servo maps, bags) is 27 angles, a MuJoCo ``position`` actuator drives one scalar DoF
+  (a ball joint's 3 DoFs would need a custom servo), and the singularity at ``root_ry =
+  +-pi/2`` (palm pointing straight up or down, in the numpy model as well) is outside the
+  scenarios' reach; a user who needs it there re-parameterises in joints.py.
+* Actuators, named like their joints and in the same order (``ctrl[i]`` drives DoF i): a
+  MuJoCo ``position`` servo per DoF, ``kp (ctrl - q) - kv qd`` (eq. 8 / III.20, gains of seed
+  000 Table 1 = Table III.1 or those given), clipped to the DoF's force range (the finger
+  torque limits of :func:`finger_torque_limits`). This is the model the simulation steps:
+  ``SimWorld`` writes ``ctrl`` and never rewrites the actuators, so the exported files behave
+  the same in MuJoCo's viewer.
 * Geoms: one capsule per collision capsule of the model (``HandModel.capsules``), density of
   soft tissue (1100 kg/m^3), ``condim=4`` (torsional friction, as the papers' contact model
   uses torsional torques). The hand does not collide with itself (contype 2 / conaffinity 1);
   objects and the table collide with everything.
-* Stability: finger joints carry ``armature`` so that an explicit PD torque with the tables'
-  gains integrates stably at the 1 ms step (``kd * dt / armature < 2``; here at most 0.4).
+* Inertia: finger joints carry an ``armature`` below the MCP links' own inertia
+  (:data:`FINGER_ARMATURE`, the reasons there); the servo damping is integrated implicitly.
 """
 
 from __future__ import annotations
@@ -32,7 +39,6 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from hand_capture.config import param, validate
 from hand_capture.errors import ConfigError, InputError
 from hand_capture.model.hand import HandModel
 from hand_capture.model.joints import (
@@ -59,16 +65,53 @@ TISSUE_DENSITY: float = 1100.0
 #: mass of the palm body (carpus + metacarpals + soft tissue) [kg]; with the fingers the hand
 #: weighs about 0.4 kg, ~0.6 % of a 70 kg body (de Leva 1996 segment mass fraction 0.61 %)
 PALM_MASS: float = 0.30
-#: finger joint armature [kg m^2] (module docstring)
-FINGER_ARMATURE: float = 1e-3
-ROOT_ROT_ARMATURE: float = 2e-3
+#: finger joint armature [kg m^2]: the reflected rotor inertia a joint drive adds. The
+#: template hand's links about their joint axes (the joint's diagonal of the mass matrix at
+#: home, computed from the capsules at TISSUE_DENSITY; test_model_mjcf checks it) range from
+#: 2e-7 (little DIP) and 3-5e-7 (other DIPs) over 2e-6 - 1e-5 (IP, PIPs) to 3e-5 - 1.8e-4
+#: kg m^2 (MCPs, thumb TM). The armature is 2e-5: below every MCP / TM link (<= 0.7x), but
+#: 2-10x the PIP / IP links and 40-100x the distal ones (the former 1e-3 was 10x - 5000x the
+#: links). It is not smaller because a force-limited servo whose damping saturates with its
+#: force (a target step of a radian) then whips the lighter links past 200 rad/s within a
+#: few ms (tried: 5e-7 and 5e-6 trip the 200 rad/s guard of SimWorld on a random target
+#: step); a finger's tendons and muscles add inertia of their own. The servos' damping is
+#: integrated implicitly (``implicitfast``). Light links need stiffer contacts:
+#: :data:`HAND_SOLREF`.
+FINGER_ARMATURE: float = 2e-5
+#: contact softness of the hand's and the objects' geoms (MuJoCo solref: time constant [s],
+#: damping ratio; solimp: MuJoCo's default). MuJoCo's constraint model is mass-normalised:
+#: the penetration that carries a force F grows with the inverse effective mass at the
+#: contact, (1 - d) / d * F / (m k), k ~ 1 / timeconst^2. With realistic (light) finger
+#: links the default 0.02 s lets a 15 N grasp sink millimetres into the object and slip;
+#: 4 ms (>= 2 timesteps, MuJoCo's stability rule) makes the contact 25x stiffer. Measured on
+#: a grid of boxes 0.2 - 1 kg, mu 0.3 - 0.8: with the default the composite controller
+#: lifts 4 of 9, with 4 ms 9 of 9; (0.004, d = 0.95 - 0.99) also lifts them but loses the
+#: noisy-teleop lift of test_teleop_graph.
+HAND_SOLREF: tuple[float, float] = (0.004, 1.0)
+HAND_SOLIMP: tuple[float, float, float] = (0.9, 0.95, 0.001)
+#: wrist rotation armature [kg m^2] (the hand's inertia about the wrist axes: 5e-4 - 3e-3)
+ROOT_ROT_ARMATURE: float = 1e-4
 #: default height of the wrist above the table top at qpos0 [m]
 DEFAULT_ROOT_POS: tuple[float, float, float] = (0.0, 0.0, 0.12)
+#: largest fingertip force of a finger's flexors [N], for the finger torque limits
+#: (:func:`finger_torque_limits`): in a maximal power grip of ~115 N the index and middle
+#: fingers each carry ~32 % = ~37 N (Z.-M. Li 2002, "The influence of wrist position on
+#: individual finger forces during forceful grip", J Hand Surg Am 27(5): 886-896); the
+#: thumb opposes the fingers and carries about twice that.
+FINGER_TIP_FORCE: float = 40.0
+THUMB_TIP_FORCE: float = 80.0
+#: smallest finger joint torque limit [N m] (abduction DoFs near the tip)
+MIN_FINGER_TORQUE: float = 0.3
+#: force / torque limits of the wrist servos [N, N m]
+ROOT_FORCE_LIMIT: float = 150.0
+ROOT_TORQUE_LIMIT: float = 20.0
 
 # --- Table 1 of seed 000 (= Table III.1 of 003): (kp, kd) per table row, root to tip ---------
 #: The gain table, one row per joint of the hand numbered from the root (``index1`` = MCP,
 #: ``thumb1`` = TM), plus the wrist translation [N/m, N s/m] and rotation [N m/rad, N m s/rad].
-#: The single copy of the table: the controller's rows (hand_control.control.gains) come from it.
+#: Data only: the controller's one gain config (hand_control.control.CompositeControlConfig)
+#: takes its defaults from it, and the MJCF's position servos get their gains from that
+#: config (``build_scene(servo_kp=..., servo_kd=...)``), the table's when none is given.
 GAIN_TABLE: dict[str, tuple[float, float]] = {
     "root_translate": (400.0, 50.0), "root_rotate": (600.0, 50.0),
     "thumb1": (10.0, 0.3), "thumb2": (8.0, 0.2), "thumb3": (4.0, 0.4),
@@ -77,70 +120,69 @@ GAIN_TABLE: dict[str, tuple[float, float]] = {
     "ring1": (4.0, 0.4), "ring2": (3.0, 0.1), "ring3": (2.0, 0.1),
     "pinky1": (4.0, 0.4), "pinky2": (3.0, 0.1), "pinky3": (2.0, 0.1),
 }
+#: the rows of the table, in the order of the gain config's ``joint_kp`` / ``joint_kd``
+GAIN_ROWS: tuple[str, ...] = tuple(GAIN_TABLE)
 _TABLE_FINGER = {"little": "pinky"}  # the tables call the little finger "pinky"
+# joint of the model -> its number in the tables (root to tip)
+_THUMB_JOINT = {"tm": 1, "mcp": 2, "ip": 3}
+_FINGER_JOINT = {"mcp": 1, "pip": 2, "dip": 3}
 
 
-def _table_gains() -> tuple[tuple[float, ...], tuple[float, ...]]:
-    kp = np.zeros(N_DOF)
-    kd = np.zeros(N_DOF)
-    kp[0:3], kd[0:3] = GAIN_TABLE["root_translate"]
-    kp[3:6], kd[3:6] = GAIN_TABLE["root_rotate"]
+def gain_row(joint_name: str) -> str:
+    """The row of Table 1 / III.1 that holds the gains of a joint of the hand model (a
+    joint's DoFs share its row: ``index_mcp_abd`` and ``index_mcp_flex`` use ``index1``).
+
+    Raises:
+        ConfigError: for a name outside the model's vocabulary (``JOINT_NAMES``).
+    """
+    if joint_name in ("root_tx", "root_ty", "root_tz"):
+        return "root_translate"
+    if joint_name in ("root_rx", "root_ry", "root_rz"):
+        return "root_rotate"
+    finger, _, rest = joint_name.partition("_")
+    joint = rest.partition("_")[0]
+    numbers = _THUMB_JOINT if finger == "thumb" else _FINGER_JOINT
+    if finger in FINGERS and joint in numbers:
+        return f"{_TABLE_FINGER.get(finger, finger)}{numbers[joint]}"
+    raise ConfigError(f"joint {joint_name!r} has no row in the gain table (rows: {GAIN_ROWS})")
+
+
+def dof_gains(row_kp: Sequence[float] | None = None, row_kd: Sequence[float] | None = None,
+              joint_names: Sequence[str] = JOINT_NAMES) -> tuple[np.ndarray, np.ndarray]:
+    """Per-DoF ``(kp, kd)`` for ``joint_names`` from per-row gains (``GAIN_ROWS`` order;
+    ``None`` = the table's)."""
+    kp_rows = np.array([GAIN_TABLE[r][0] for r in GAIN_ROWS] if row_kp is None else row_kp,
+                       dtype=np.float64)
+    kd_rows = np.array([GAIN_TABLE[r][1] for r in GAIN_ROWS] if row_kd is None else row_kd,
+                       dtype=np.float64)
+    if kp_rows.shape != (len(GAIN_ROWS),) or kd_rows.shape != (len(GAIN_ROWS),):
+        raise ConfigError(f"gains need one value per row {GAIN_ROWS}")
+    rows = [GAIN_ROWS.index(gain_row(n)) for n in joint_names]
+    return kp_rows[rows], kd_rows[rows]
+
+
+def finger_torque_limits(model: HandModel | None = None) -> np.ndarray:
+    """(27,) torque limit of every finger DoF [N m] (root entries 0): the largest fingertip
+    force (``FINGER_TIP_FORCE``, thumb ``THUMB_TIP_FORCE``) times the distance from the joint
+    to the fingertip in the model's rest pose, at least ``MIN_FINGER_TORQUE``. For the
+    template hand: ~3.6 N m at the index MCP, ~1.8 at the PIP, ~0.9 at the DIP (Purves and
+    Berme 1980, J Biomed Eng 2(4): 285-289, measured 0.6 / 1.0 N m at the index PIP / MCP
+    in a two-finger twisting task, below these maxima)."""
+    model = model or HandModel()
+    frames = model.forward(np.zeros(N_DOF)).joint_frames
+    lim = np.zeros(N_DOF)
     for fi, f in enumerate(FINGERS):
-        for lvl in range(3):  # joint number 1..3 from the root = the bone level
+        tip_bone = LEVELS[2, fi]
+        rot, org = frames[tip_bone][:3, :3], frames[tip_bone][:3, 3]
+        tip = org + rot @ model.bone_tips[tip_bone]
+        force = THUMB_TIP_FORCE if f == "thumb" else FINGER_TIP_FORCE
+        for lvl in range(3):
             b = LEVELS[lvl, fi]
+            arm = float(np.linalg.norm(tip - frames[b][:3, 3]))
             for d in (BONE_ABD_DOF[b], BONE_FLEX_DOF[b]):
                 if d >= 0:
-                    kp[d], kd[d] = GAIN_TABLE[f"{_TABLE_FINGER.get(f, f)}{lvl + 1}"]
-    return tuple(kp.tolist()), tuple(kd.tolist())
-
-
-_KP, _KD = _table_gains()
-
-
-@dataclass(frozen=True)
-class PDGains:
-    """PD servo gains per DoF (eq. 8 of seed 000), defaults from its Table 1 = Table III.1.
-
-    A joint's DoFs share its table row (``index_mcp_abd`` and ``index_mcp_flex`` both use
-    ``index1``; the thumb's ``thumb1`` is the TM joint, ``thumb3`` the IP joint). Root
-    translation gains are in N/m and N s/m, rotations and fingers in N m/rad and N m s/rad.
-    """
-
-    kp: tuple[float, ...] = param(_KP, "PD stiffness per DoF in JOINT_NAMES order", lo=0.0)
-    kd: tuple[float, ...] = param(_KD, "PD damping per DoF in JOINT_NAMES order", lo=0.0)
-    object_kp_translate: float = param(5.0, "virtual object servo, Table III.1 [N/m]", lo=0.0)
-    object_kd_translate: float = param(0.5, "virtual object servo, Table III.1 [N s/m]", lo=0.0)
-    object_kp_rotate: float = param(5.0, "virtual object servo, Table III.1 [N m/rad]", lo=0.0)
-    object_kd_rotate: float = param(0.5, "virtual object servo, Table III.1 [N m s/rad]",
-                                    lo=0.0)
-
-    def __post_init__(self) -> None:
-        validate(self)
-        for name in ("kp", "kd"):
-            if len(getattr(self, name)) != N_DOF:
-                raise ConfigError(f"PDGains.{name} needs {N_DOF} values (JOINT_NAMES order), "
-                                  f"got {len(getattr(self, name))}")
-
-    def by_name(self) -> dict[str, tuple[float, float]]:
-        """``{joint_name: (kp, kd)}``."""
-        return {n: (self.kp[i], self.kd[i]) for i, n in enumerate(JOINT_NAMES)}
-
-    def torque(self, target: object, q: object, qdot: object) -> np.ndarray:
-        """``tau = kp (target - q) - kd qdot`` (eq. 8 of seed 000), arrays (27,) or (B, 27)."""
-        t, q, v = (np.asarray(a, dtype=float) for a in (target, q, qdot))
-        if not (t.shape[-1:] == q.shape[-1:] == v.shape[-1:] == (N_DOF,)):
-            raise InputError("target, q and qdot must have 27 entries (JOINT_NAMES order)")
-        return np.asarray(self.kp) * (t - q) - np.asarray(self.kd) * v
-
-    def effort_limits(self) -> np.ndarray:
-        """Finger motor torque limits [N m]: kp x 0.6 rad, at least 1 N m (root: 0)."""
-        lim = np.maximum(np.asarray(self.kp) * 0.6, 1.0)
-        lim[:6] = 0.0
-        return lim
-
-
-def default_pd_gains() -> PDGains:
-    return PDGains()
+                    lim[d] = max(force * arm, MIN_FINGER_TORQUE)
+    return lim
 
 
 # ---------------------------------------------------------------------------------------------
@@ -235,29 +277,28 @@ def _attrs(**kw: object) -> str:
 # ---------------------------------------------------------------------------------------------
 # Hand
 # ---------------------------------------------------------------------------------------------
-def _hand_defaults(gains: PDGains) -> str:
-    kp_t, kd_t = gains.kp[0], gains.kd[0]
-    kp_r, kd_r = gains.kp[3], gains.kd[3]
+def _hand_defaults() -> str:
     return f"""  <default>
     <default class="hand">
       <joint type="hinge" armature="{_f(FINGER_ARMATURE)}" damping="0" limited="true"/>
       <geom type="capsule" contype="2" conaffinity="1" condim="4" friction="1 0.005 0.0001"
+            solref="{_f(HAND_SOLREF[0])} {_f(HAND_SOLREF[1])}" solimp="{_v(HAND_SOLIMP)}"
             density="{_f(TISSUE_DENSITY)}" rgba="0.87 0.68 0.58 1" group="2"/>
       <site type="sphere" size="0.004" rgba="0.9 0.1 0.1 1" group="4"/>
-      <motor ctrllimited="true"/>
+      <position ctrllimited="false" forcelimited="true"/>
       <default class="root_slide">
         <joint type="slide" armature="0" limited="false"/>
-        <position kp="{_f(kp_t)}" kv="{_f(kd_t)}" ctrllimited="true" forcelimited="true"
-                  forcerange="-150 150"/>
+        <position ctrllimited="true" forcerange="{_f(-ROOT_FORCE_LIMIT)} {_f(ROOT_FORCE_LIMIT)}"/>
       </default>
       <default class="root_hinge">
         <joint type="hinge" armature="{_f(ROOT_ROT_ARMATURE)}" limited="false"/>
-        <position kp="{_f(kp_r)}" kv="{_f(kd_r)}" ctrllimited="true" forcelimited="true"
-                  forcerange="-20 20"/>
+        <position ctrllimited="true"
+                  forcerange="{_f(-ROOT_TORQUE_LIMIT)} {_f(ROOT_TORQUE_LIMIT)}"/>
       </default>
     </default>
     <default class="object">
-      <geom contype="1" conaffinity="3" condim="4" priority="1" group="1"/>
+      <geom contype="1" conaffinity="3" condim="4" priority="1" group="1"
+            solref="{_f(HAND_SOLREF[0])} {_f(HAND_SOLREF[1])}" solimp="{_v(HAND_SOLIMP)}"/>
     </default>
   </default>
 """
@@ -322,19 +363,41 @@ def _hand_body(model: HandModel, root_pos: Sequence[float], indent: str = "    "
     return "\n".join(lines)
 
 
-def _actuators(gains: PDGains, root_pos: Sequence[float]) -> str:
-    eff = gains.effort_limits()
+def _servo_gains(servo_kp: Sequence[float] | None, servo_kd: Sequence[float] | None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-DoF servo gains (JOINT_NAMES order), the table's where ``None``."""
+    kp, kd = dof_gains()
+    kp = kp if servo_kp is None else np.asarray(servo_kp, dtype=np.float64)
+    kd = kd if servo_kd is None else np.asarray(servo_kd, dtype=np.float64)
+    if kp.shape != (N_DOF,) or kd.shape != (N_DOF,) or not (
+            np.isfinite(kp).all() and np.isfinite(kd).all() and (kp > 0).all()
+            and (kd >= 0).all()):
+        raise ConfigError(f"servo gains need {N_DOF} finite values (kp > 0, kd >= 0), "
+                          "JOINT_NAMES order")
+    return kp, kd
+
+
+def _actuators(root_pos: Sequence[float], kp: np.ndarray, kd: np.ndarray,
+               torque_limits: np.ndarray) -> str:
+    """One MuJoCo ``position`` servo per DoF: ``kp (ctrl - q) - kv qd`` (eq. 8 / III.20,
+    gains of Table 1 = Table III.1 unless given), clipped to the DoF's force range. The
+    finger servos have no control range: a feed-forward effort ``e`` is commanded as the set
+    point ``target + e / kp`` (``SimWorld``)."""
     out = ["  <actuator>"]
-    for k in range(3):
-        r = float(root_pos[k])
-        out.append(f'    <position name="{JOINT_NAMES[k]}" joint="{JOINT_NAMES[k]}" '
-                   f'class="root_slide" ctrlrange="{_f(r - 0.5)} {_f(r + 0.5)}"/>')
-    for k in range(3, 6):
-        out.append(f'    <position name="{JOINT_NAMES[k]}" joint="{JOINT_NAMES[k]}" '
-                   f'class="root_hinge" ctrlrange="{_f(-math.pi)} {_f(math.pi)}"/>')
-    for k in range(6, N_DOF):
-        out.append(f'    <motor name="{JOINT_NAMES[k]}" joint="{JOINT_NAMES[k]}" class="hand" '
-                   f'ctrlrange="{_f(-eff[k])} {_f(eff[k])}"/>')
+    for k in range(N_DOF):
+        n = JOINT_NAMES[k]
+        gains = f'kp="{_f(kp[k])}" kv="{_f(kd[k])}"'
+        if k < 3:
+            r = float(root_pos[k])
+            out.append(f'    <position name="{n}" joint="{n}" class="root_slide" {gains} '
+                       f'ctrlrange="{_f(r - 0.5)} {_f(r + 0.5)}"/>')
+        elif k < 6:
+            out.append(f'    <position name="{n}" joint="{n}" class="root_hinge" {gains} '
+                       f'ctrlrange="{_f(-math.pi)} {_f(math.pi)}"/>')
+        else:
+            lim = torque_limits[k]
+            out.append(f'    <position name="{n}" joint="{n}" class="hand" {gains} '
+                       f'forcerange="{_f(-lim)} {_f(lim)}"/>')
     out.append("  </actuator>")
     return "\n".join(out)
 
@@ -372,24 +435,28 @@ def _check_side(hand: str) -> None:
 
 
 def build_hand(shape: HandShape | None = None, hand: str = "right",
-               root_pos: Sequence[float] = DEFAULT_ROOT_POS, gains: PDGains | None = None,
+               root_pos: Sequence[float] = DEFAULT_ROOT_POS,
+               servo_kp: Sequence[float] | None = None,
+               servo_kd: Sequence[float] | None = None,
                model: HandModel | None = None) -> str:
-    """MJCF of the hand alone (``hand.xml``): defaults, the hand, actuators, a ``home`` key."""
+    """MJCF of the hand alone (``hand.xml``): defaults, the hand, actuators, a ``home`` key.
+    ``servo_kp``, ``servo_kd``: (27,) servo gains per DoF (JOINT_NAMES order; ``None`` =
+    Table 1 / III.1, :func:`dof_gains` maps per-row gains)."""
     _check_side(hand)
     model = model or HandModel(shape, side=hand)
-    gains = gains or PDGains()
+    kp, kd = _servo_gains(servo_kp, servo_kd)
     home = _home_qpos_hand(root_pos)
     return f"""<mujoco model="hand_suite {hand} hand">
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{_f(TIMESTEP)}" integrator="implicitfast" cone="elliptic" impratio="10"/>
-{_hand_defaults(gains)}
+{_hand_defaults()}
   <worldbody>
 {_hand_body(model, root_pos)}
   </worldbody>
-{_actuators(gains, root_pos)}
+{_actuators(root_pos, kp, kd, finger_torque_limits(model))}
 {_sensors()}
   <keyframe>
-    <key name="home" qpos="{_v(home)}" ctrl="{_v(np.r_[home[:6], np.zeros(N_DOF - 6)])}"/>
+    <key name="home" qpos="{_v(home)}" ctrl="{_v(home)}"/>
   </keyframe>
 </mujoco>
 """
@@ -462,7 +529,8 @@ def _as_spec(o: ObjectSpec | str) -> ObjectSpec:
 
 def build_scene(objects: Sequence[ObjectSpec | str] = (), shape: HandShape | None = None,
                 hand: str = "right", root_pos: Sequence[float] = DEFAULT_ROOT_POS,
-                gains: PDGains | None = None, table_friction: float = 0.5,
+                servo_kp: Sequence[float] | None = None,
+                servo_kd: Sequence[float] | None = None, table_friction: float = 0.5,
                 hand_gravcomp: bool = False, model: HandModel | None = None) -> str:
     """A self-contained MJCF scene: floor, a table whose top is the plane z = 0, the hand and
     free objects (kinds 'box', 'ball', 'stick', 'cup' or :class:`ObjectSpec`).
@@ -471,13 +539,13 @@ def build_scene(objects: Sequence[ObjectSpec | str] = (), shape: HandShape | Non
     JOINT_NAMES order; each object adds a free joint ``{name}_free`` (7 qpos, 6 qvel). The
     ``home`` keyframe holds the hand above the table and the objects at rest on it.
     ``hand_gravcomp`` cancels gravity on the hand bodies (then the controller must not add
-    its own gravity term, eq. III.19).
+    its own gravity term, eq. III.19). ``servo_kp``, ``servo_kd``: as :func:`build_hand`.
     """
     _check_side(hand)
     if not (math.isfinite(table_friction) and 0 < table_friction <= 5):
         raise InputError(f"table_friction must be in (0, 5], got {table_friction}")
     model = model or HandModel(shape, side=hand)
-    gains = gains or PDGains()
+    kp, kd = _servo_gains(servo_kp, servo_kd)
     specs = [_as_spec(o) for o in objects]
     names = [o.name for o in specs]
     if len(set(names)) != len(names):
@@ -494,7 +562,7 @@ def build_scene(objects: Sequence[ObjectSpec | str] = (), shape: HandShape | Non
         qpos_obj.append(q)
     home = _home_qpos_hand(root_pos)
     key_qpos = np.concatenate([home] + qpos_obj)
-    key_ctrl = np.r_[home[:6], np.zeros(N_DOF - 6)]
+    key_ctrl = home
     objs = "\n".join(bodies)
     return f"""<mujoco model="hand_suite scene ({hand} hand)">
   <compiler angle="radian" autolimits="true"/>
@@ -503,7 +571,7 @@ def build_scene(objects: Sequence[ObjectSpec | str] = (), shape: HandShape | Non
     <headlight diffuse="0.6 0.6 0.6" ambient="0.3 0.3 0.3" specular="0 0 0"/>
     <global offwidth="640" offheight="480"/>
   </visual>
-{_hand_defaults(gains)}
+{_hand_defaults()}
   <worldbody>
     <light pos="0 0 1.5" dir="0 0 -1" directional="true"/>
     <geom name="floor" type="plane" size="2 2 0.05" pos="0 0 -0.75" rgba="0.5 0.5 0.5 1"
@@ -513,7 +581,7 @@ def build_scene(objects: Sequence[ObjectSpec | str] = (), shape: HandShape | Non
 {_hand_body(model, root_pos, gravcomp=hand_gravcomp)}
 {objs}
   </worldbody>
-{_actuators(gains, root_pos)}
+{_actuators(root_pos, kp, kd, finger_torque_limits(model))}
 {_sensors()}
   <keyframe>
     <key name="home" qpos="{_v(key_qpos)}" ctrl="{_v(key_ctrl)}"/>

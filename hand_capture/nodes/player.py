@@ -5,6 +5,12 @@ payload is checked (deserialised) before it is published, so a corrupt record st
 with an error naming the file and is never sent. ``/clock`` carries the bag time at
 ``clock_rate`` Hz so nodes with ``use_sim_time`` follow the recording. When the bag ends the node
 exits 0 (or starts over with ``loop``).
+
+QoS: every topic is republished reliable (a reliable publisher serves reliable and best-effort
+subscribers alike) with the recorded durability: a topic recorded transient-local (latched, e.g.
+``hand/shape``) is republished transient-local with the recorded depth, so a subscriber that
+joins late still gets it. A topic without recorded QoS (MCAP files from the ``mcap`` tools) is
+played reliable and volatile, with a note in the log.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ from dataclasses import dataclass
 
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
@@ -67,8 +73,7 @@ class PlayerNode(Node):
         for topic, msgtype in self.reader.topics.items():
             if wanted and topic not in wanted:
                 continue
-            qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.VOLATILE)
+            qos = self._replay_qos(topic)
             self.pubs[topic] = self.create_publisher(message_class(msgtype), topic, qos)
         self.clock_pub = (self.create_publisher(Clock, "/clock", 10)
                           if self.cfg.clock_rate > 0 else None)
@@ -88,6 +93,25 @@ class PlayerNode(Node):
         self.get_logger().info(
             f"playing {self.cfg.bag}: {self.reader.message_count} messages on "
             f"{len(self.pubs)} topics, {self.reader.duration_s:.2f} s at rate {self.cfg.rate}")
+
+    def _replay_qos(self, topic: str) -> QoSProfile:
+        """Reliable, with the recorded durability (see the module docstring)."""
+        from rosbags.interfaces import QosDurability
+
+        offered = self.reader.qos(topic)
+        if not offered:
+            self.get_logger().info(f"{topic}: no QoS recorded in the bag; playing it reliable, "
+                                   f"volatile")
+            latched = False
+        else:
+            latched = all(q.durability == QosDurability.TRANSIENT_LOCAL for q in offered)
+        if latched:
+            depth = max(1, max(int(q.depth) for q in offered))
+            return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                              reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        return QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
 
     def _warm_up(self) -> None:
         """Check the first message of every topic before playing.

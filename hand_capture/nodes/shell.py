@@ -3,14 +3,17 @@
 ``run_node(MyNode)`` does what ros2/demos do by hand in each file: ``rclpy.init`` with the
 process arguments, build the node, spin it, and shut down cleanly on Ctrl-C, SIGTERM or an
 external shutdown. A node that raises while starting or spinning has its traceback printed with
-its name and the process exits non-zero, which the graph runner reports. Nodes spin on
-:class:`~hand_capture.nodes.executor.LeanExecutor` (rclpy's single-threaded executor without its
-per-wake-up Python cost) unless ``executor_factory`` names another. Every node gets the
-``realtime_priority`` parameter (:mod:`hand_capture.nodes.realtime`).
+its name and the process exits non-zero, which the graph runner reports; a
+:class:`~hand_capture.errors.HandSuiteError` (e.g. a damaged bag) is printed as one line.
+Nodes spin on :class:`~hand_capture.nodes.executor.LeanExecutor` (rclpy's single-threaded
+executor without its per-wake-up Python cost) unless ``executor_factory`` names another.
+Every node gets the ``realtime_priority`` parameter (:mod:`hand_capture.nodes.realtime`) and
+loopback-only discovery unless the environment sets it (:mod:`hand_capture.network`).
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import traceback
@@ -21,6 +24,9 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
 
+from hand_capture.dds import dds_environment
+from hand_capture.errors import HandSuiteError
+from hand_capture.network import apply_network_defaults
 from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.realtime import apply_realtime_priority
 
@@ -50,6 +56,8 @@ def run_node(
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _signal_to_keyboardinterrupt)
     argv = list(sys.argv if args is None else args)
+    apply_network_defaults()  # loopback-only discovery unless the environment says otherwise
+    os.environ.update(dds_environment(os.environ))  # Fast DDS profile for large images
     code = 0
     node: Node | None = None
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
@@ -68,6 +76,12 @@ def run_node(
             executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except HandSuiteError as e:
+        # the suite's own errors (a damaged bag, a bad parameter, a missing device) already
+        # say what is wrong and where: one line, not a traceback
+        name = node.get_name() if node is not None else getattr(factory, "__name__", "node")
+        sys.stderr.write(f"[{name}] error: {e}\n")
+        code = 1
     except Exception:
         # A signal that lands inside rclpy's C++ (e.g. while a message is taken) surfaces as a
         # RuntimeError from pybind11, not as KeyboardInterrupt: still a requested stop.

@@ -3,8 +3,10 @@
 For every ``hand_msgs/TouchFrame`` it publishes one ``hand_msgs/HandPose`` (same stamp and
 frame as the touch frame, ``joint_names`` = the articulated joints, ``wrist_pose`` from the root
 degrees of freedom, ``source`` "touch_encoder"). Frames without contact repeat the last pose
-with STATUS_LOST. Malformed frames (NaN coordinates, more than five contacts) are rejected,
-logged and counted on ``diagnostics``; the graph keeps running. Parameters:
+with STATUS_LOST. Malformed frames (NaN coordinates, touches off the surface by more than 10 %
+of its size, a surface size outside (0, 10] m, more than five contacts: the checks of
+:func:`hand_capture.validate.validate_touch_frame` and the encoder's) are rejected, logged and
+counted on ``diagnostics``; the graph keeps running. Parameters:
 :class:`~hand_capture.touch.encoder.TouchEncoderConfig`.
 """
 
@@ -19,6 +21,7 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
 from hand_capture.errors import InputError
+from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import fill_pose_msg
@@ -29,13 +32,17 @@ from hand_capture.touch.encoder import (
     surface_pose,
 )
 from hand_capture.touch.frame import TouchFrame
+from hand_capture.validate import DEFAULT_LIMITS, InputLimits, validate_touch_frame
 
 
-def frame_from_msg(msg: TouchFrameMsg) -> TouchFrame:
-    """A hand_msgs/TouchFrame as a core TouchFrame (InputError when malformed)."""
+def frame_from_msg(msg: TouchFrameMsg, limits: InputLimits = DEFAULT_LIMITS) -> TouchFrame:
+    """A hand_msgs/TouchFrame as a core TouchFrame, after the validation layer's checks
+    (:func:`~hand_capture.validate.validate_touch_frame`; InputError when malformed)."""
     pts = msg.points
-    return TouchFrame([p.session_id for p in pts], [(p.x, p.y) for p in pts],
-                      [p.in_contact for p in pts], msg.width, msg.height,
+    ids, flags = [p.session_id for p in pts], [p.in_contact for p in pts]
+    pos = validate_touch_frame(ids, [(p.x, p.y) for p in pts], flags, msg.width, msg.height,
+                               limits)
+    return TouchFrame(ids, pos, flags, msg.width, msg.height,
                       msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
                       msg.header.frame_id)
 
@@ -61,17 +68,21 @@ class TouchEncoderNode(Node):
                                  qos_profile_sensor_data)
         self.create_timer(1.0, self._diagnostics)
         self.published = 0
-        self.rejected = 0
+        self.gate = InputGate(self)
         self.relabels = 0
         self.get_logger().info(f"touch encoder: {self.cfg.encoding} encoding, "
                                f"{len(self.core.model.reference_poses)} reference poses")
 
+    @property
+    def rejected(self) -> int:
+        """Touch frames rejected so far."""
+        return self.gate.total
+
     def _on_frame(self, msg: TouchFrameMsg) -> None:
         try:
-            res = self.core.process(frame_from_msg(msg))
+            res = self.core.process(frame_from_msg(msg, self.gate.limits))
         except InputError as e:
-            self.rejected += 1
-            self.get_logger().warning(f"rejected touch frame: {e}", throttle_duration_sec=1.0)
+            self.gate.reject("touch/frame", e)
             return
         if res is None:
             return
@@ -87,6 +98,7 @@ class TouchEncoderNode(Node):
         st.values = [KeyValue(key="published", value=str(self.published)),
                      KeyValue(key="rejected", value=str(self.rejected)),
                      KeyValue(key="relabels", value=str(self.relabels))]
+        st.values += [KeyValue(key=k, value=v) for k, v in self.gate.values().items()]
         arr = DiagnosticArray(status=[st])
         arr.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(arr)

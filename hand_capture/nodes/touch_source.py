@@ -74,6 +74,7 @@ class TouchSourceNode(Node):
         self.source: TuioReceiver | EvdevTouchReader | None = None
         self.published = 0
         self.errors = 0
+        self._bad_seen = 0  # malformed TUIO datagrams already logged
         self.last_error = ""
         self._next_try = 0.0
         if not self._open() and self.cfg.require_device:
@@ -100,6 +101,7 @@ class TouchSourceNode(Node):
                                     throttle_duration_sec=10.0)
             return False
         self.last_error = ""
+        self._bad_seen = 0
         self.get_logger().info(f"touch source {self.cfg.source} on {where}")
         return True
 
@@ -118,6 +120,12 @@ class TouchSourceNode(Node):
             self.source = None
             self._next_try = time.monotonic() + self.cfg.retry_period
             return
+        stats = getattr(self.source, "stats", None)
+        if stats is not None and getattr(stats, "bad_datagrams", 0) > self._bad_seen:
+            self._bad_seen = stats.bad_datagrams
+            self.get_logger().warning(
+                f"dropped malformed TUIO datagram(s) ({stats.bad_datagrams} so far), last: "
+                f"{stats.last_bad_datagram}", throttle_duration_sec=5.0)
         for frame in frames:
             msg = frame_to_msg(frame)
             msg.header.stamp = self.get_clock().now().to_msg()

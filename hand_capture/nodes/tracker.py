@@ -55,6 +55,7 @@ from hand_capture.cameras.threads import limit_blas_threads
 from hand_capture.config import param, validate
 from hand_capture.errors import HandSuiteError
 from hand_capture.model import ARTICULATED_JOINTS, JOINT_INDEX, HandModel, HandShape
+from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.images import image_to_array, intrinsics_from_msg, rgb_image_msg
 from hand_capture.nodes.markers import SerializedMarkers
 from hand_capture.nodes.params import declare_config
@@ -72,6 +73,7 @@ from hand_capture.tracking.hybrid import HybridTracker, TrackResult, default_mod
 from hand_capture.tracking.regressor import HandRegressor
 
 _ART_IDX = np.array([JOINT_INDEX[j] for j in ARTICULATED_JOINTS])
+_IMAGE = "camera/depth/image_raw"
 #: skeleton segments between keypoints (KEYPOINT_NAMES indices)
 _BONES = [(0, 1), (0, 5), (0, 9), (0, 13), (0, 17), (5, 9), (9, 13), (13, 17)] + [
     (b + k, b + k + 1) for b in (1, 5, 9, 13, 17) for k in range(3)]
@@ -162,6 +164,7 @@ class TrackerNode(Node):
         self.processed = 0
         self.dropped = 0
         self.rejected: Counter[str] = Counter()
+        self.gate = InputGate(self)  # rejections per topic, logged (diagnostics)
         self.status_count: Counter[str] = Counter()
         self.proc_s = 0.0
         self.cpu_s = 0.0
@@ -199,8 +202,7 @@ class TrackerNode(Node):
             shape = HandShape.from_msg_fields(msg.global_scale, list(msg.alpha),
                                               list(msg.beta), msg.subject_id)
         except HandSuiteError as e:
-            self.rejected["bad_shape"] += 1
-            self.get_logger().warning(f"rejected hand/shape: {e}")
+            self._reject("bad_shape", "hand/shape", e)
             return
         if np.allclose(shape.params, self.tracker.model.shape.params):
             return  # our own calibration coming back, or a repeat
@@ -218,6 +220,12 @@ class TrackerNode(Node):
         m.residual = float(residual_mm * 1e-3) if np.isfinite(residual_mm) else 0.0
         self.shape_msg = m
 
+    def _reject(self, reason: str, topic: str, text: object) -> None:
+        """Count a rejected input by reason (diagnostics ``rejected_<reason>``) and through
+        the node's :class:`InputGate` (per topic, logged at most once a second)."""
+        self.rejected[reason] += 1
+        self.gate.reject(topic, f"{reason}: {text}")
+
     # ------------------------------------------------------------------------ processing
     def _process_latest(self) -> None:
         msg = self._pending
@@ -229,18 +237,20 @@ class TrackerNode(Node):
     def process(self, msg: Image) -> TrackResult | None:
         """Track one depth image message and publish the results (None if rejected)."""
         if msg.width == 0 or msg.height == 0 or len(msg.data) == 0:
-            self.rejected["empty_image"] += 1
+            self._reject("empty_image", _IMAGE, f"{msg.width} x {msg.height}, "
+                         f"{len(msg.data)} bytes")
             return None
         if msg.encoding not in ("16UC1", "32FC1", "mono16"):
-            self.rejected["bad_encoding"] += 1
+            self._reject("bad_encoding", _IMAGE, f"encoding {msg.encoding!r} (16UC1, 32FC1 "
+                         "or mono16)")
             return None
         if self._info is None:
-            self.rejected["no_camera_info"] += 1
+            self.rejected["no_camera_info"] += 1  # a start-up race, not bad input
             return None
         try:
             intr = intrinsics_from_msg(self._info)
-        except (HandSuiteError, ValueError, IndexError):
-            self.rejected["bad_camera_info"] += 1
+        except (HandSuiteError, ValueError, IndexError) as e:
+            self._reject("bad_camera_info", "camera/depth/camera_info", e)
             return None
         t0, c0 = time.perf_counter(), time.process_time()
         try:
@@ -249,8 +259,7 @@ class TrackerNode(Node):
                 self._calibration_step(depth, intr)
             res = self.tracker.process(depth, intr)
         except HandSuiteError as e:
-            self.rejected["bad_image"] += 1
-            self.get_logger().warning(f"rejected a depth image: {e}", throttle_duration_sec=5.0)
+            self._reject("bad_image", _IMAGE, e)
             return None
         self._account(t0, c0, res.timing, res.regressed)
         self.processed += 1
@@ -426,6 +435,7 @@ class TrackerNode(Node):
                 "last_cost_mm": f"{self.last_result.cost:.2f}" if self.last_result else "",
                 "shape_global_scale": f"{self.tracker.model.shape.global_scale:.4f}"}
         vals.update({f"rejected_{k}": str(v) for k, v in self.rejected.items()})
+        vals.update(self.gate.values())
         vals.update({f"status_{k}": str(v) for k, v in self.status_count.items()})
         vals.update({f"{k}_ms_mean": f"{1e3 * v / n:.2f}" for k, v in self.stage_s.items()})
         st.values = [KeyValue(key=k, value=v) for k, v in vals.items()]

@@ -10,16 +10,20 @@ TUIO 1.1 (tuio.org) sends, per surface frame, one OSC bundle on the ``/tuio/2Dcu
 
 :class:`TuioParser` is the pure state machine (feed it ``(address, args)`` pairs);
 :class:`TuioReceiver` owns a non-blocking UDP socket, decodes datagrams (messages or nested
-bundles) with python-osc and feeds the parser. Positions are scaled to metres with the surface
-size. A cursor that leaves the ``alive`` list is reported once with ``in_contact = False`` at its
-last position. Bad data (non-finite or out-of-range coordinates, wrong argument types,
-undecodable datagrams) is dropped and counted, never raised into the caller's loop.
+bundles) with :func:`decode_osc`, a bounds-checked OSC 1.0 walker (every size is checked against
+the bytes left, nesting and message counts are capped, so a hostile datagram costs time linear
+in its length and is rejected, never loops), and feeds the parser. Positions are scaled to
+metres with the surface size. A cursor that leaves the ``alive`` list is reported once with
+``in_contact = False`` at its last position. Bad data (non-finite or out-of-range
+coordinates, wrong argument types, undecodable datagrams) is dropped and counted, never raised
+into the caller's loop.
 """
 
 from __future__ import annotations
 
 import math
 import socket
+import struct
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -36,6 +40,113 @@ CURSOR_ADDRESS = "/tuio/2Dcur"
 #: Frames whose fseq is this much older than the newest one are taken as a restarted sender,
 #: as the TUIO reference client does.
 _FSEQ_RESTART_GAP = 100
+#: Caps of :func:`decode_osc`: bundle nesting depth and messages per datagram.
+MAX_BUNDLE_DEPTH = 8
+MAX_OSC_MESSAGES = 1024
+_BUNDLE_TAG = b"#bundle\x00"
+
+
+class OscDecodeError(ValueError):
+    """A datagram that is not well-formed OSC 1.0 (the message names the defect)."""
+
+
+def _osc_string(data: bytes, pos: int, end: int) -> tuple[str, int]:
+    """A NUL-terminated, 4-byte padded OSC string at ``pos``; returns (text, next pos)."""
+    nul = data.find(b"\x00", pos, end)
+    if nul < 0:
+        raise OscDecodeError(f"unterminated string at byte {pos}")
+    nxt = (nul + 4) & ~3
+    if nxt > end:
+        raise OscDecodeError(f"string padding at byte {pos} runs past the element end")
+    try:
+        return data[pos:nul].decode("utf-8"), nxt
+    except UnicodeDecodeError as e:
+        raise OscDecodeError(f"string at byte {pos} is not UTF-8") from e
+
+
+_FIXED = {"i": (4, ">i"), "f": (4, ">f"), "h": (8, ">q"), "d": (8, ">d"), "t": (8, ">Q"),
+          "c": (4, ">I"), "r": (4, ">I"), "m": (4, ">I")}
+_NO_DATA = {"T": True, "F": False, "N": None, "I": math.inf}
+
+
+def _osc_message(data: bytes, pos: int, end: int) -> tuple[str, list[Any]]:
+    """One OSC message occupying ``data[pos:end]``."""
+    address, pos = _osc_string(data, pos, end)
+    if not address.startswith("/"):
+        raise OscDecodeError(f"address {address[:32]!r} does not start with '/'")
+    if pos >= end:  # OSC 1.0 allows a message without a type tag string: no arguments
+        return address, []
+    tags, pos = _osc_string(data, pos, end)
+    if not tags.startswith(","):
+        raise OscDecodeError(f"type tags {tags[:32]!r} do not start with ','")
+    args: list[Any] = []
+    for tag in tags[1:]:
+        if tag in _FIXED:
+            size, fmt = _FIXED[tag]
+            if pos + size > end:
+                raise OscDecodeError(f"argument '{tag}' at byte {pos} runs past the end")
+            args.append(struct.unpack_from(fmt, data, pos)[0])
+            pos += size
+        elif tag in ("s", "S"):
+            text, pos = _osc_string(data, pos, end)
+            args.append(text)
+        elif tag == "b":
+            if pos + 4 > end:
+                raise OscDecodeError(f"blob size at byte {pos} runs past the end")
+            (n,) = struct.unpack_from(">i", data, pos)
+            if n < 0 or pos + 4 + n > end:
+                raise OscDecodeError(f"blob of {n} bytes at byte {pos} does not fit")
+            args.append(bytes(data[pos + 4:pos + 4 + n]))
+            pos = (pos + 4 + n + 3) & ~3
+        elif tag in _NO_DATA:
+            args.append(_NO_DATA[tag])
+        else:
+            raise OscDecodeError(f"unsupported type tag {tag!r}")
+    if pos > end:
+        raise OscDecodeError("arguments run past the element end")
+    return address, args
+
+
+def decode_osc(data: bytes, max_messages: int = MAX_OSC_MESSAGES,
+               max_depth: int = MAX_BUNDLE_DEPTH) -> list[tuple[str, list[Any]]]:
+    """The OSC messages of one datagram (a message or nested bundles), in bundle order.
+
+    Every element size is checked to be positive, a multiple of 4 and inside its bundle, so the
+    walk always advances and ends after at most ``len(data) / 4`` steps.
+
+    Raises:
+        OscDecodeError: the datagram is not well-formed OSC 1.0, nests bundles deeper than
+            ``max_depth`` or holds more than ``max_messages`` messages.
+    """
+    data = bytes(data)
+    out: list[tuple[str, list[Any]]] = []
+
+    def element(pos: int, end: int, depth: int) -> None:
+        if end - pos < 4 or (end - pos) % 4:
+            raise OscDecodeError(f"element of {end - pos} bytes at byte {pos} is not a "
+                                 f"positive multiple of 4")
+        if data.startswith(_BUNDLE_TAG, pos):
+            if depth >= max_depth:
+                raise OscDecodeError(f"bundles nested deeper than {max_depth}")
+            pos += len(_BUNDLE_TAG) + 8  # tag, time tag
+            if pos > end:
+                raise OscDecodeError("bundle header runs past the end")
+            while pos < end:
+                if pos + 4 > end:
+                    raise OscDecodeError(f"element size at byte {pos} runs past the end")
+                (n,) = struct.unpack_from(">i", data, pos)
+                if n <= 0 or n % 4 or pos + 4 + n > end:
+                    raise OscDecodeError(f"bundle element size {n} at byte {pos} is invalid "
+                                         f"({end - pos - 4} bytes left)")
+                element(pos + 4, pos + 4 + n, depth + 1)
+                pos += 4 + n
+        else:
+            if len(out) >= max_messages:
+                raise OscDecodeError(f"more than {max_messages} messages in one datagram")
+            out.append(_osc_message(data, pos, end))
+
+    element(0, len(data), 0)
+    return out
 
 
 @dataclass(frozen=True)
@@ -64,6 +175,7 @@ class TuioStats:
     bad_messages: int = 0
     bad_coordinates: int = 0
     bad_datagrams: int = 0
+    last_bad_datagram: str = ""  # sender and defect of the last malformed datagram
     other_profiles: int = 0
     sources: set[str] = field(default_factory=set)
 
@@ -194,11 +306,11 @@ class TuioReceiver:
         DeviceError: the socket cannot be bound (port in use, bad address).
     """
 
+    #: Datagrams read per :meth:`poll` at most, so a flood cannot hold the caller's loop.
+    MAX_DATAGRAMS_PER_POLL = 1000
+
     def __init__(self, config: TuioConfig | None = None,
                  clock: Callable[[], float] = time.time, max_datagram: int = 65536) -> None:
-        from pythonosc.osc_packet import OscPacket, ParseError
-
-        self._packet, self._parse_error = OscPacket, ParseError
         self.config = config or TuioConfig()
         self.parser = TuioParser(self.config, clock)
         self._max = max_datagram
@@ -220,14 +332,17 @@ class TuioReceiver:
     def stats(self) -> TuioStats:
         return self.parser.stats
 
-    def decode(self, datagram: bytes) -> list[tuple[str, list[Any]]]:
-        """OSC messages of one datagram (a message or nested bundles), in bundle order."""
+    def decode(self, datagram: bytes, sender: object = None) -> list[tuple[str, list[Any]]]:
+        """OSC messages of one datagram (a message or nested bundles), in bundle order; a
+        malformed datagram is counted in ``stats.bad_datagrams`` (``stats.last_bad_datagram``
+        names the sender and the defect) and gives none."""
         try:
-            packet = self._packet(datagram)
-        except self._parse_error:
+            return decode_osc(datagram)
+        except OscDecodeError as e:
             self.parser.stats.bad_datagrams += 1
+            self.parser.stats.last_bad_datagram = (
+                f"{len(datagram)} bytes{f' from {sender}' if sender else ''}: {e}")
             return []
-        return [(m.message.address, list(m.message.params)) for m in packet.messages]
 
     def poll(self, timeout: float = 0.0) -> list[TouchFrame]:
         """Read every datagram waiting (or up to ``timeout`` s for the first one)."""
@@ -236,14 +351,14 @@ class TuioReceiver:
             import select
 
             select.select([self._sock], [], [], timeout)
-        while True:
+        for _ in range(self.MAX_DATAGRAMS_PER_POLL):
             try:
-                data = self._sock.recv(self._max)
+                data, sender = self._sock.recvfrom(self._max)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError as e:
                 raise DeviceError(f"TUIO socket failed: {e}") from e
-            frames.extend(self.parser.feed_many(self.decode(data)))
+            frames.extend(self.parser.feed_many(self.decode(data, sender)))
         return frames
 
     def close(self) -> None:

@@ -93,8 +93,8 @@ class TrackerConfig:
     cost_downsample: int = param(2, "image downsampling of the E_d evaluation", lo=1, hi=8)
     cost_data_weight: float = param(1.0, "lambda_1 of the candidate cost (eq. II.20)", lo=0.0)
     cost_temporal_weight: float = param(0.0, "lambda_2 of the candidate cost (eq. II.20; "
-                                        "mm per rad^2 / m^2 of pose change); 0 measured best "
-                                        "on the synthetic benchmark", lo=0.0)
+                                        "mm per rad^2 / m^2 of pose change); 0 chosen on the "
+                                        "bench's validation split (bench tracking)", lo=0.0)
     # -- regression (II.4) ---------------------------------------------------------------
     n_modes: int = param(2, "palm modes kept by clustering the leaves (II.4.3)", lo=1, hi=16)
     ik_iterations: int = param(2, "finger IK Gauss-Newton steps per finger cascade stage",

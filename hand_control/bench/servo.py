@@ -31,7 +31,7 @@ import dynamixel_sdk as sdk
 import numpy as np
 
 from hand_capture.bench import json_line, print_table
-from hand_capture.model.joints import ARTICULATED_JOINTS
+from hand_capture.model.joints import ARTICULATED_JOINTS, joint_limits_dict
 from hand_control.dynamixel import control_table as ct
 from hand_control.dynamixel import protocol as p2
 from hand_control.dynamixel.bridge import BridgeConfig, ServoBridge
@@ -43,11 +43,14 @@ CONTROL_RATE_HZ = 300.0
 
 
 def _poses(n: int, seed: int = 0) -> np.ndarray:
-    """Smooth random hand poses (n, 21) [rad] within the map's ranges."""
+    """Smooth random hand poses (n, 21) [rad] within the hand model's joint limits (the
+    bridge refuses angles outside them)."""
     rng = np.random.default_rng(seed)
     t = np.arange(n)[:, None] * 0.05
     phase = rng.uniform(0, 2 * np.pi, len(ARTICULATED_JOINTS))
-    return 0.6 + 0.5 * np.sin(t + phase)
+    lim = np.array([joint_limits_dict()[j] for j in ARTICULATED_JOINTS])
+    mid, half = lim.mean(axis=1), 0.45 * (lim[:, 1] - lim[:, 0])
+    return mid + half * np.sin(t + phase)
 
 
 def _bridge_chunk(bridge: ServoBridge, seconds: float, out: dict[str, list]) -> None:

@@ -22,7 +22,7 @@ from typing import Any
 import mujoco
 
 from hand_capture.bench import print_table
-from hand_control.sim.control_loop import ControllerNodeConfig
+from hand_control.control import CompositeControlConfig
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import load_scenario
 
@@ -130,22 +130,26 @@ def _topics_two_processes(seconds: float) -> dict[str, float]:
     return {"topics2_control_hz": (c1 - c0) / (w1 - w0), "topics2_rtf": (t1 - t0) / (w1 - w0)}
 
 
-def run(quick: bool = False) -> dict[str, Any]:
+def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
+    """The figures; ``smoke``: short episodes and topic runs through the same code."""
     from hand_capture.cameras.threads import limit_blas_threads
 
     limit_blas_threads(1)  # one core: no BLAS worker threads beside the loop
     spec = load_scenario("lift_box")
-    if quick:
+    if smoke:
+        spec = spec.with_(t_reach=0.2, t_close=0.2, t_settle=0.1, t_lift=0.2, t_carry=0.2,
+                          t_hold=0.1)
+    elif quick:
         spec = spec.with_(t_lift=0.6, t_carry=0.6, t_hold=0.3)
     runner = LockstepRunner(spec)
-    baseline = _bare_rtf(runner, 1.0 if quick else 3.0)
+    baseline = _bare_rtf(runner, 0.3 if smoke else 1.0 if quick else 3.0)
     r1 = runner.run()
-    r4 = LockstepRunner(spec, controller_config=ControllerNodeConfig(), control_every=4,
+    r4 = LockstepRunner(spec, control_every=4, plan=runner.plan).run()
+    pd = LockstepRunner(spec, gains=CompositeControlConfig(mode="pd_only"),
                         plan=runner.plan).run()
-    pd = LockstepRunner(spec, controller_config=ControllerNodeConfig(mode="pd_only"),
-                        plan=runner.plan).run()
-    topics = _topics(3.0 if quick else 10.0)
-    topics.update(_topics_two_processes(3.0 if quick else 10.0))
+    seconds = 1.0 if smoke else 3.0 if quick else 10.0
+    topics = _topics(seconds)
+    topics.update(_topics_two_processes(seconds))
     rows = [
         ["bare mj_step (baseline)", baseline, 1.0, "-"],
         ["lockstep, composite @ 1 kHz", r1.rtf, r1.rtf / baseline, 1000.0],

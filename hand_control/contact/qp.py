@@ -33,6 +33,7 @@ import math
 import operator
 import struct
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 from functools import lru_cache
 from typing import Any
@@ -97,7 +98,19 @@ class ContactQPConfig:
         0, "iteration cap of the active-set solver; 0 = 3 x number of unknowns", lo=0
     )
     kkt_tol: float = param(
-        1e-9, "relative optimality (KKT) tolerance that accepts a solution", lo=0.0, hi=1e-2
+        1e-9,
+        "relative optimality (KKT) tolerance that accepts a solution: the gradient of the "
+        "least-squares objective must vanish to kkt_tol x |A| |b| (the column norms of the "
+        "stacked matrix times the norm of the weighted target), so the test does not depend "
+        "on the scale of the target",
+        lo=0.0, hi=1e-2,
+    )
+    unreachable_residual: float = param(
+        0.9,
+        "a solution whose net wrench misses the target by this fraction of |target| or more "
+        "(residual >= ratio |(f, tau)|) is reported 'unreachable' with found=False: the "
+        "contacts cannot apply the target (e.g. a pull through unilateral contacts)",
+        lo=1e-6, hi=1.0,
     )
     fallback: str = param(
         "nnls",
@@ -116,10 +129,15 @@ class ContactForceResult:
     """Outcome of one contact-force solve; arrays are never NaN.
 
     Attributes:
-        found: a solution that passed the optimality check (False: forces are zero).
-        status: ``"optimal"``, ``"no_contacts"``, ``"max_iter"``, ``"non_finite"``,
-            ``"inaccurate"`` or a cvxpy status (reference path).
-        forces: (K, 3) contact forces on the object [N].
+        found: a solution that passed the optimality check and reaches the target (False:
+            forces are zero, except for status ``"unreachable"``).
+        status: ``"optimal"``, ``"unreachable"`` (the exact optimum, but its net wrench misses
+            the target by ``config.unreachable_residual`` x |target| or more: the contacts
+            cannot apply it; ``residual`` says by how much), ``"no_contacts"``,
+            ``"max_iter"``, ``"non_finite"``, ``"inaccurate"`` or a cvxpy status (reference
+            path).
+        forces: (K, 3) contact forces on the object [N] (for ``"unreachable"``: the optimum,
+            the closest wrench the contacts can apply).
         torsion: (K,) torsional torque magnitudes ``l_k`` [N m]; the torque is ``l_k n_k``.
         wrench_error: (6,) net wrench of the solution minus the target (force, torque).
         residual: Euclidean norm of ``wrench_error``.
@@ -174,10 +192,13 @@ def _result(
     status: str, contacts: ContactSet, r: np.ndarray, targets: tuple[np.ndarray, np.ndarray],
     t0: float, method: str, solution: tuple[np.ndarray, np.ndarray, float] | None = None,
     wrench_error: np.ndarray | None = None, residual: float | None = None,
+    unreachable: float = math.inf,
 ) -> ContactForceResult:
     """The result of a solve; ``solution = (forces, torsion, objective)``, None if not found.
 
     ``residual``: the norm of ``wrench_error`` when the caller has it already.
+    ``unreachable``: ``config.unreachable_residual``; an optimal solution whose residual is at
+    least that fraction of the target's norm gets status ``"unreachable"``, found False.
     """
     if solution is None:
         forces, torsion, objective = np.zeros((len(r), 3)), np.zeros(len(r)), math.inf
@@ -188,8 +209,18 @@ def _result(
         wrench_error = _net_wrench_error(contacts, r, forces, torsion, *targets)
     if residual is None:
         residual = math.sqrt(float(wrench_error @ wrench_error))
-    return _new_result(solution is not None, status, forces, torsion, wrench_error, residual,
+    found = solution is not None
+    if found and status == "optimal" and _unreachable(residual, targets, unreachable):
+        found, status = False, "unreachable"
+    return _new_result(found, status, forces, torsion, wrench_error, residual,
                        float(objective), time.perf_counter() - t0, method, None)
+
+
+def _unreachable(residual: float, targets: tuple[Any, Any], ratio: float) -> bool:
+    """Whether a net wrench error of norm ``residual`` [N, N m] is at least ``ratio`` times the
+    norm of the target ``(force_target, torque_target)`` (and the target is not zero)."""
+    t2 = math.fsum(float(v) * float(v) for part in targets for v in part)
+    return t2 > 0.0 and residual * residual >= ratio * ratio * t2
 
 
 _RESULT_FIELDS = tuple(f.name for f in fields(ContactForceResult))
@@ -282,6 +313,10 @@ class _ContactForceSolver:
     """What both solvers share: input checks, the empty case and the choice of method."""
 
     config: ContactQPConfig
+    #: called with ``(contacts, com, force_target, torque_target)`` by every solve (both entry
+    #: points, :meth:`solve` and :meth:`solve_arrays`) before it runs: a benchmark records the
+    #: problems the control loop met. The arrays may be the simulator's live views: copy them.
+    recorder: Callable[[ContactSet, np.ndarray, np.ndarray, np.ndarray], None] | None = None
 
     def solve(
         self, contacts: ContactSet, com: Any, force_target: Any, torque_target: Any,
@@ -305,6 +340,14 @@ class _ContactForceSolver:
             com, tf, tt = _check_targets(contacts, com, force_target, torque_target)
         else:
             tf, tt = force_target, torque_target
+        if self.recorder is not None:
+            self.recorder(contacts, com, tf, tt)
+        return self._solve(contacts, com, tf, tt, t0)
+
+    def _solve(
+        self, contacts: ContactSet, com: np.ndarray, tf: np.ndarray, tt: np.ndarray, t0: float
+    ) -> ContactForceResult:
+        """:meth:`solve` after the checks (and the recorder)."""
         method = self.config.method
         r = contacts.points - com
         if len(contacts) == 0:
@@ -324,9 +367,16 @@ class _ContactForceSolver:
         torque_target``: the in-process control loop's path (unit normals, finite arrays of
         matching shapes, ``mu >= 0``; the caller vouches)."""
         t0 = time.perf_counter()
-        if self.config.method != "dissertation" or points.shape[0] == 0:
-            return self.solve(ContactSet.trusted(points, normals, mu), com,
-                              np.array(wrench[0:3]), np.array(wrench[3:6]), check=False)
+        if self.recorder is not None or self.config.method != "dissertation" \
+                or points.shape[0] == 0:
+            contacts, tf, tt = (ContactSet.trusted(points, normals, mu),
+                                np.array(wrench[0:3]), np.array(wrench[3:6]))
+            if self.recorder is not None:
+                self.recorder(contacts, com, tf, tt)
+                if self.config.method == "dissertation" and points.shape[0]:
+                    return self._dissertation(points, normals, mu, (points - com).tolist(),
+                                              wrench[0:3], wrench[3:6], t0)
+            return self._solve(contacts, com, tf, tt, t0)
         # the lever arms r_k = p_k - com as rows of floats (the same subtractions as numpy's,
         # without its per-call overhead on a few contacts)
         cx, cy, cz = com.tolist()
@@ -507,7 +557,7 @@ def _active_set(
     everywhere (gradient >= 0), ``|H x - g| <= tol`` where ``x > 0``, and ``x_P > 0``.
     """
     n = a6t.shape[0] - 1
-    enter_tol = 1e-4 * tol  # kkt_tol 1e-9 -> 1e-13 x max(1, |b|^2)
+    enter_tol = 1e-4 * tol  # kkt_tol 1e-9 -> 1e-13 x |A| |b|
     p: list[int] = list(passive)
     z = _EMPTY
     sub = cols = zz = None
@@ -649,6 +699,10 @@ class ContactForceQP(_ContactForceSolver):
             cfg.friction_edges, cfg.torsion_bound, cfg.torsional_friction
         )
         self._n_gen = self._basis.shape[1] // 4
+        # bound of the column norms of the stacked matrix: see _dissertation
+        lmax = max(1.0, cfg.torsional_friction)
+        self._col_a = cfg.alpha1 + cfg.alpha3 + cfg.alpha4 * lmax * lmax
+        self._col_b, self._col_l = cfg.alpha2, lmax
         self._maxiter = cfg.max_iter or None
         self._layouts: dict[tuple[int, bytes], _Layout] = {}
         self._last_layout: tuple[bytes | None, _Layout | None] = (None, None)
@@ -696,9 +750,13 @@ class ContactForceQP(_ContactForceSolver):
         if not math.isfinite(bb):  # an overflow while the problem was built
             return _result("non_finite", ContactSet.trusted(points, normals, mu),
                            _rows_array(rl), (tfl, ttl), t0, "dissertation")
-        # |grad| <= |a| |b| at the optimum, and the entries of a are O(1) (unit generators,
-        # lever arms well under 1 m): scale the tolerance with |b|^2 (>= |b| when |b| >= 1).
-        tol = self.config.kkt_tol * max(1.0, bb)
+        # The gradient A'(A x - b) of every generator is at most |a_j| |b| at the optimum:
+        # the tolerance scales with both (scale-invariant: a target s times larger gives an
+        # s times larger solution, gradient and tolerance). |a_j|^2 <= a1 + a2 (|r| + l)^2
+        # + a3 + a4 l^2 for a unit generator with torsion l (l <= 1 here: see _col_bound).
+        r2 = max([x * x + y * y + z * z for x, y, z in rl])
+        tol = self.config.kkt_tol * math.sqrt(bb * (self._col_a + self._col_b * (
+            math.sqrt(r2) + self._col_l) ** 2))
         maxiter = self._maxiter or 3 * lay.n
         warm = self._passive.get(k)
         hit = _warm_hit(a6t, lay, warm, tol) if warm else None
@@ -732,6 +790,16 @@ class ContactForceQP(_ContactForceSolver):
                 torsion=per_contact.dot(torsion), solve_time_s=time.perf_counter() - t0,
                 method="dissertation", contact_wrench=wrench,
                 _diagnostics=(cfg, self._s6, z, zz, sub, reg_p))
+            if zz is None:
+                zz = np.concatenate((z, _MINUS_ONE))
+            err = zz.dot(sub)  # s6 x the net wrench error A_P z - b
+            if s1 != 1.0 or s2 != 1.0:
+                err /= self._s6
+            residual = math.sqrt(float(err.dot(err)))
+            if _unreachable(residual, (tfl, ttl), cfg.unreachable_residual):
+                return _new_result(False, "unreachable", res.forces, res.torsion, err,
+                                   residual, res.objective, time.perf_counter() - t0,
+                                   "dissertation", wrench)
             return res
         # the same on floats (a weight alpha1 or alpha2 of zero, no generator in use): row p of
         # a6t holds s1 x the world force of generator p; lay.gen_l[p] its torsion per unit
@@ -766,9 +834,12 @@ class ContactForceQP(_ContactForceSolver):
         e0, e1, e2, e3, e4, e5 = err
         ef, et = e0 * e0 + e1 * e1 + e2 * e2, e3 * e3 + e4 * e4 + e5 * e5
         objective = cfg.alpha1 * ef + cfg.alpha2 * et + cfg.alpha3 * fsq + cfg.alpha4 * lsq
+        residual = math.sqrt(ef + et)
+        if _unreachable(residual, (tfl, ttl), cfg.unreachable_residual):
+            status = "unreachable"
         # what _result makes of the solution, inline (one result per control step)
-        return _new_result(True, status, np.array(fk).reshape(k, 3), np.array(lk),
-                           np.array(err), math.sqrt(ef + et), float(objective),
+        return _new_result(status == "optimal", status, np.array(fk).reshape(k, 3), np.array(lk),
+                           np.array(err), residual, float(objective),
                            time.perf_counter() - t0, "dissertation", None)
 
     def _solve_active_set(
@@ -865,7 +936,8 @@ class ContactForceQP(_ContactForceSolver):
         # net torque error = sum r x f + N l - tau_v = N l - rest = fit
         err = np.concatenate((np.add.reduce(forces, axis=0) - tf, fit))
         return _result(status, contacts, r, (tf, tt), t0, "seed000",
-                       (forces, torsion, objective), err)
+                       (forces, torsion, objective), err,
+                       unreachable=cfg.unreachable_residual)
 
     def _nnls(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray | None, str, float]:
         """``argmin |a x - b|^2, x >= 0`` by scipy's Lawson-Hanson and its objective, checked
@@ -899,9 +971,10 @@ class ContactForceQP(_ContactForceSolver):
         violation = -min(grad)
         if passive.size:
             violation = max(violation, max([grad[i] for i in passive.tolist()]))
-        # |grad| <= |a| |b| at the optimum, and the entries of a are O(1) (unit generators,
-        # lever arms well under 1 m): scale the tolerance with |b|^2 (>= |b| when |b| >= 1).
-        tol = self.config.kkt_tol * max(1.0, float(b.dot(b)))
+        # |grad_j| <= |a_j| |b| at the optimum: the tolerance scales with both (a target s
+        # times larger gives an s times larger x, gradient and tolerance)
+        col = float(np.sqrt(np.einsum("ij,ij->j", a, a).max())) if a.size else 0.0
+        tol = self.config.kkt_tol * col * math.sqrt(float(b.dot(b)))
         if not (math.isfinite(objective) and math.isfinite(violation) and math.isfinite(tol)):
             return "non_finite", math.inf
         if violation > tol:
@@ -948,7 +1021,8 @@ class ReferenceContactQP(_ContactForceSolver):
         if status != "optimal":
             return _result(status, contacts, r, (tf, tt), t0, method)
         return _result(status, contacts, r, (tf, tt), t0, method,
-                       (np.array(var["f"].value), np.array(var["l"].value), float(prob.value)))
+                       (np.array(var["f"].value), np.array(var["l"].value), float(prob.value)),
+                       unreachable=self.config.unreachable_residual)
 
     def _run(self, prob: Any) -> str:
         import cvxpy as cp
@@ -1029,4 +1103,5 @@ class ReferenceContactQP(_ContactForceSolver):
         if status != "optimal":
             return _result(status, contacts, r, (tf, tt), t0, "seed000")
         return _result(status, contacts, r, (tf, tt), t0, "seed000",
-                       (forces, np.array(var["l"].value), float(p10.value + p11.value)))
+                       (forces, np.array(var["l"].value), float(p10.value + p11.value)),
+                       unreachable=cfg.unreachable_residual)

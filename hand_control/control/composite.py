@@ -17,14 +17,14 @@ fallback is counted. Everything is arrays in, arrays out: no ROS, no simulator.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from hand_capture.model.joints import JOINT_NAMES
-from hand_control.contact.qp import ContactForceQP, ContactForceResult, ContactQPConfig
+from hand_control.contact.qp import ContactForceQP, ContactForceResult
 from hand_control.contact.types import ContactSet, as_finite_array, unchecked
 from hand_control.control.gains import CompositeControlConfig, joint_gains
 from hand_control.errors import InputError
@@ -245,8 +245,8 @@ class CompositeController:
     """Composite motion control of the hand (seed 000 eq. 8-13, dissertation eq. III.19-III.23).
 
     Args:
-        config: gains and switches; defaults are the papers' values.
-        qp_config: contact-force QP settings (method, weights, friction pyramid).
+        config: gains, switches and the contact-force QP's settings (method, weights,
+            friction pyramid; :class:`CompositeControlConfig` is the QP's config too).
         joint_names: the hand DoFs, in the order of every joint array (the model's
             vocabulary, ``hand_capture.model.joints``); the object's DoFs are not included.
 
@@ -259,11 +259,10 @@ class CompositeController:
     def __init__(
         self,
         config: CompositeControlConfig | None = None,
-        qp_config: ContactQPConfig | None = None,
         joint_names: Sequence[str] = JOINT_NAMES,
     ) -> None:
         self.config = config or CompositeControlConfig()
-        self.qp = ContactForceQP(qp_config)
+        self.qp = ContactForceQP(self.config)
         self.joint_names = tuple(joint_names)
         self.kp, self.kd = joint_gains(self.config, self.joint_names)
         self._gravity = np.asarray(self.config.gravity, dtype=np.float64)
@@ -275,6 +274,35 @@ class CompositeController:
     @property
     def nv(self) -> int:
         return len(self.joint_names)
+
+    def object_wrench(self, position: Sequence[float], quaternion: Sequence[float],
+                      velocity: Sequence[float], omega: Sequence[float],
+                      target_position: Sequence[float], target_quaternion: Sequence[float],
+                      mass: float) -> list[float]:
+        """Step 2: the wrench the contacts must apply, ``f_v - m g`` (weight compensated,
+        eq. 9) and ``tau_v`` (eq. III.22), as six floats, from the object's position, unit
+        quaternion (w, x, y, z), linear and angular velocity (world frame) [m, m/s, rad/s],
+        its target pose and its mass [kg]."""
+        gx, gy, gz = self._g
+        return _wrench_floats(self.config, position, quaternion, velocity, omega,
+                              target_position, target_quaternion,
+                              (mass * gx, mass * gy, mass * gz))
+
+    def realise(self, solve: Callable[[], ContactForceResult],
+                transpose: Callable[[ContactForceResult], np.ndarray]
+                ) -> tuple[np.ndarray | None, ContactForceResult]:
+        """Steps 3-4 of a grasp step: ``solve()`` the contact-force QP for the wrench (eq.
+        III.23 or eq. 10-11, ``config.method``), then ``transpose(result)`` maps the forces
+        and torsional torques to joint torques (eq. 12 / III.21: stacked Jacobians, or
+        MuJoCo's ``mj_applyFT`` in the simulator's process). Counts the step, and the
+        fallback when the QP finds no solution (``tau_grasp`` is then ``None``)."""
+        res = solve()
+        self.steps += 1
+        if not res.found:
+            self.fallbacks += 1
+            return None, res
+        self.grasp_steps += 1
+        return transpose(res), res
 
     def compute(
         self,
@@ -330,19 +358,19 @@ class CompositeController:
                     f"jacp={'absent' if contacts.jacp is None else contacts.jacp.shape}, "
                     f"jacr={'absent' if contacts.jacr is None else contacts.jacr.shape}"
                 )
-            # f_v - m g (weight compensated, eq. 9) and tau_v (eq. III.22)
-            m = obj.mass
-            wrench = np.array(_virtual_wrench(self.config, obj, target, (
-                m * self._g[0], m * self._g[1], m * self._g[2])))
-            force_target, torque_target = wrench[0:3], wrench[3:6]
-            qp_result = self.qp.solve(contacts, obj.position, force_target, torque_target,
-                                      check=check)
-            if qp_result.found:
-                tau_grasp = _grasp_torques(contacts, qp_result.forces, qp_result.torsion)
-        self.steps += 1
+            wrench = self.object_wrench(obj.position.tolist(), obj.quaternion.tolist(),
+                                        obj.linear_velocity.tolist(),
+                                        obj.angular_velocity.tolist(),
+                                        target.position.tolist(),
+                                        target.quaternion.tolist(), obj.mass)
+            force_target, torque_target = np.array(wrench[0:3]), np.array(wrench[3:6])
+            tau_grasp, qp_result = self.realise(
+                lambda: self.qp.solve(contacts, obj.position, force_target, torque_target,
+                                      check=check),
+                lambda r: _grasp_torques(contacts, r.forces, r.torsion))
+        else:
+            self.steps += 1
         fallback = attempt and not qp_result.found
-        self.fallbacks += int(fallback)
-        self.grasp_steps += int(attempt and not fallback)
         # eq. (13) / (III.19): tau = tau_pd + tau_gravity + tau_grasp
         if tau_gravity is None:
             tau_gravity = np.zeros(nv)

@@ -22,7 +22,11 @@ Safety behaviours (each covered by a test with an injected fault):
   poll -> that servo is switched off and no longer commanded; diagnostics name the bits; only
   :meth:`reboot` (the node's ``~/reboot`` service) clears it, re-reading the position first;
 * ``max_comm_failures`` consecutive cycles with a failed read -> ERROR state, a torque-off
-  attempt, no more goals until re-activation or :meth:`reboot`;
+  attempt, no more goals until re-activation or :meth:`reboot`, which both reopen the port
+  first (a replugged USB adapter works again) and check every servo;
+* Fast Sync Read spoils every servo's data when one servo fails; the same cycle then reads
+  with Sync Read (one status packet per servo) to name the failing ID(s), and stays on Sync
+  Read while they fail (until re-activation), so the ERROR names the dead servo;
 * optional Bus Watchdog(98): the servos stop by themselves if the bridge stops talking.
 
 No rclpy here; the node (``hand_control/nodes/servo_bridge.py``) is a thin wrapper.
@@ -99,14 +103,18 @@ class BridgeConfig:
                                      lo=0.01, hi=60.0, read_only=True)
     timeout_action: str = param("hold", "on command timeout: hold the last goal, or "
                                 "torque_off", choices=("hold", "torque_off"), read_only=True)
-    max_comm_failures: int = param(5, "consecutive failed cycles before the ERROR state "
-                                   "and a torque-off attempt", lo=1, hi=1000, read_only=True)
+    max_comm_failures: int = param(5, "consecutive failed cycles before the ERROR state, "
+                                   "a torque-off attempt and the node going inactive (~/reboot "
+                                   "or activate reopens the port)", lo=1, hi=1000,
+                                   read_only=True)
     packet_timeout_ms: float = param(20.0, "extra wait for a status packet beyond its "
                                      "transmission time [ms] (at least 100 with port: "
                                      "emulator)", lo=0.2, hi=1000.0, read_only=True)
     read_mode: str = param("auto", "state read: sync (Sync Read, any firmware), fast_sync "
                            "(Fast Sync Read: X330 fw >= 46, X430 fw >= 45), or auto (fast_sync "
-                           "when every servo's firmware has it and a trial read works)",
+                           "when every servo's firmware has it and a trial read works); a "
+                           "failed Fast Sync Read is followed by a Sync Read naming the "
+                           "failing servo",
                            choices=("auto", "sync", "fast_sync"), read_only=True)
     hw_status_every: int = param(50, "cycles between polls of Hardware Error Status(70) "
                                  "(the Alert bit is checked every cycle)", lo=1, hi=100000,
@@ -208,6 +216,9 @@ class ServoBridge:
         self.error_reason = ""
         self.timed_out = False
         self.read_mode = config.read_mode if config.read_mode != "auto" else "sync"
+        self._chosen_read_mode = self.read_mode  # read_mode after configure (before fallback)
+        self._timeout_ms = config.packet_timeout_ms
+        self._needs_reopen = False  # the ERROR state: reopen the port before using it again
         self._lock = threading.RLock()
         self._target: np.ndarray | None = None  # servo angles [rad]
         self._torque = np.zeros(n, dtype=bool)
@@ -229,6 +240,9 @@ class ServoBridge:
         self._cycle_t: deque[float] = deque(maxlen=500)
         self._cycle_dur: deque[float] = deque(maxlen=500)
         self._rejects: dict[str, float] = {}
+        self.rejected: dict[str, int] = {}  # rejected inputs per kind (diagnostics)
+        self.skipped_writes = 0  # servos due a goal that had none finite (logged, counted)
+        self._skipped_last = 0  # ... in the last cycle
         self._atexit_registered = False
         self._cur_unit = np.array([s.model.current_unit_ma for s in self.map.servos]) / 1000.0
 
@@ -277,6 +291,7 @@ class ServoBridge:
             if self.latency_warning:
                 self.log.warning(self.latency_warning)
         self.port_name = port
+        self._timeout_ms = timeout_ms
         self.bus = DynamixelBus(port, cfg.baud, timeout_ms)
         self.bus.open()
         if not self._atexit_registered:
@@ -343,7 +358,25 @@ class ServoBridge:
             self.read_mode = "fast_sync"
         else:
             self.log.warning("Fast Sync Read trial failed; using Sync Read")
+        self._chosen_read_mode = self.read_mode
         self.log.info(f"read mode: {self.read_mode}")
+
+    def _reopen(self) -> None:
+        """Close the port and open it again by name (a replugged USB adapter gets a new file
+        descriptor under the same device path), then ping and check every servo and write the
+        settings again (torque stays off): servos that lost power forgot their RAM settings.
+
+        Raises:
+            ServoError: the port cannot be opened, or a servo is missing or wrong.
+        """
+        if self.bus is not None:
+            self.bus.close()
+        self.bus = DynamixelBus(self.port_name, self.config.baud, self._timeout_ms)
+        self.bus.open()
+        self._check_servos()
+        self._write_settings()
+        self._needs_reopen = False
+        self.log.info(f"servo port {self.port_name} reopened; every servo answered")
 
     def activate(self) -> None:
         """Read every servo, set goal := present position, then switch torque on.
@@ -356,6 +389,9 @@ class ServoBridge:
                 return
             if self.state is BridgeState.CLOSED:
                 raise ServoError("activate: the bridge is not configured")
+            if self._needs_reopen:  # after a bus ERROR: a fresh port, every servo checked
+                self._reopen()
+            self.read_mode = self._chosen_read_mode
             now = self.clock()
             res, _ = self._read_state()
             bad = [f"{i} ({res[i].comm})" for i in self.ids if res[i].data is None]
@@ -519,6 +555,7 @@ class ServoBridge:
         return True
 
     def _reject(self, key: str, msg: str) -> None:
+        self.rejected[key] = self.rejected.get(key, 0) + 1
         now = time.monotonic()
         if now - self._rejects.get(key, -math.inf) > 1.0:  # at most once a second per kind
             self._rejects[key] = now
@@ -530,6 +567,8 @@ class ServoBridge:
         bus = self._bus()
         if self.read_mode == "fast_sync":
             res = bus.fast_sync_read(ct.STATE_BLOCK_ADDR, ct.STATE_BLOCK_LEN, self.ids)
+            if not all(r.ok for r in res.values()):
+                res = self._fast_sync_fallback(res)
         else:
             res = bus.sync_read(ct.STATE_BLOCK_ADDR, ct.STATE_BLOCK_LEN, self.ids)
         fresh = np.zeros(len(self.ids), dtype=bool)
@@ -551,6 +590,24 @@ class ServoBridge:
             self.voltage_raw[fresh] = st["voltage"]
             self.temperature[fresh] = st["temperature"]
         return res, fresh
+
+    def _fast_sync_fallback(self, fast: dict[int, ReadResult]) -> dict[int, ReadResult]:
+        """A failed Fast Sync Read (one packet for all: any servo's fault spoils every ID):
+        read again with Sync Read, whose per-servo status packets show who failed. While
+        servos fail, stay on Sync Read (a Fast Sync Read would time out every cycle first)."""
+        why = next(r.comm for r in fast.values() if not r.ok)
+        res = self._bus().sync_read(ct.STATE_BLOCK_ADDR, ct.STATE_BLOCK_LEN, self.ids)
+        bad = [f"{i} ({self.names[self._index[i]]}: {res[i].comm})" for i in self.ids
+               if not res[i].ok]
+        if bad:
+            self.read_mode = "sync"
+            self.log.warning(f"Fast Sync Read failed ({why}); Sync Read: no clean answer from "
+                             f"servo(s) {', '.join(bad)}; reading with Sync Read until "
+                             f"re-activation")
+        else:
+            self._reject("fast_sync", f"Fast Sync Read failed ({why}); every servo answered "
+                                      f"the Sync Read that followed")
+        return res
 
     def _check_alerts(self, res: dict[int, ReadResult], now: float) -> None:
         """Alert bit in a status packet -> read Hardware Error Status(70) of that servo."""
@@ -658,6 +715,11 @@ class ServoBridge:
         writable = fresh & self._torque
         goal = self.limiter(angles_to_ticks(theta), dt, writable)
         idx = np.flatnonzero(writable & np.isfinite(goal))
+        self._skipped_last = int(np.count_nonzero(writable)) - idx.size
+        if self._skipped_last:  # never silent: a servo due a goal got none
+            self.skipped_writes += self._skipped_last
+            self._reject("skip", f"{self._skipped_last} servo(s) not written: no finite goal "
+                         f"({self.skipped_writes} skipped writes so far)")
         values = dict(zip(self._ids_arr[idx].tolist(), np.rint(goal[idx]).astype(int).tolist(),
                           strict=True))
         if self._current_mode:  # Goal Current, only when it changed
@@ -693,6 +755,7 @@ class ServoBridge:
         self.log.error(f"servo bus ERROR: {self.error_reason}; torque-off attempt")
         self._torque_off_all()
         self.state = BridgeState.ERROR
+        self._needs_reopen = True
 
     def _result(self, now: float, fresh: np.ndarray, written: int, t0: float) -> CycleResult:
         pos = ticks_to_angles(self.present)
@@ -713,12 +776,22 @@ class ServoBridge:
 
         Each rebooted servo is pinged until it answers, gets its RAM settings again, has its
         present position read, goal := that position, and only then torque on (when active).
-        From the ERROR state, a reboot (even of no servo) re-reads every servo and resumes.
-        Returns (success, message) for the caller (the node's std_srvs/Trigger service).
+        From the ERROR state, a reboot (even of no servo) reopens the port (a replugged adapter
+        works again), checks every servo, re-reads them and resumes; inactive after an ERROR
+        (the node's lifecycle went to inactive), it reopens and checks, and activation
+        resumes. Returns (success, message) for the caller (the node's std_srvs/Trigger
+        service).
         """
         with self._lock:
             if self.state is BridgeState.CLOSED:
                 return False, "not configured"
+            if self._needs_reopen:
+                try:
+                    self._reopen()
+                except ServoError as e:
+                    return False, f"bus still failing: {e}"
+                if self.state is BridgeState.INACTIVE:
+                    return True, "port reopened, every servo answered; activate to resume"
             targets = list(ids) if ids is not None else sorted(self.faults.faults)
             unknown = [i for i in targets if i not in self._index]
             if unknown:
@@ -792,12 +865,20 @@ class ServoBridge:
             msg = self.state.value
             if self.state is BridgeState.ERROR:
                 msg = f"error: {self.error_reason}"
+            elif self.state is BridgeState.INACTIVE and self._needs_reopen:
+                level = ERROR  # deactivated because of the bus ERROR: still not recovered
+                msg = (f"inactive after a bus error: {self.error_reason}; reboot or activate "
+                       f"reopens the port")
             elif self.timed_out:
                 level = max(level, WARN)
                 msg += f", command timeout ({self.config.timeout_action})"
             if self.faults:
                 level = max(level, WARN)
                 msg += f", {len(self.faults.faults)} servo(s) with hardware errors"
+            if self.state is BridgeState.ACTIVE and self._skipped_last:
+                level = max(level, ERROR)  # torque on, yet not commanding: never "active"
+                msg = msg.replace("active", f"torque on, {self._skipped_last} servo(s) not "
+                                  "written (no finite goal)", 1)
             if self.latency_warning:
                 level = max(level, WARN)
             age = self.watchdog.age(now)
@@ -817,6 +898,9 @@ class ServoBridge:
                     "total_comm_failures": str(self.failures.total),
                     "input_age_s": "never" if math.isinf(age) else f"{age:.3f}",
                     "latency_timer": self.latency_warning or "ok",
+                    "skipped_writes": str(self.skipped_writes),
+                    "rejected_inputs": str(sum(v for k, v in self.rejected.items()
+                                               if k != "skip")),
                 })]
             for k, s in enumerate(self.map.servos):
                 fault = self.faults.faults.get(s.id)

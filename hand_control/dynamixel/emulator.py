@@ -6,10 +6,15 @@ end as its serial port. It implements:
 
 * the packet layer: header search, CRC-16, byte stuffing, status packets with an error byte
   whose bit 7 (Alert) is set while Hardware Error Status(70) is non-zero;
-* instructions Ping (also broadcast), Read, Write, Reboot, Sync Read, Sync Write and Fast Sync
-  Read; anything else is answered with Instruction Error;
+* instructions Ping (also broadcast), Read, Write, Reboot, Sync Read, Sync Write, Fast Sync
+  Read, Bulk Read, Bulk Write and Fast Bulk Read (e-manual, Protocol 2.0: Bulk parameters are
+  ``ID ADDR_L ADDR_H LEN_L LEN_H`` per device, Bulk Write followed by the data; Bulk Read is
+  answered by one status packet per device, Fast Bulk Read by one packet with
+  ``ERR ID DATA CRC`` per device, as Fast Sync Read); anything else is answered with
+  Instruction Error;
 * a control table per model (addresses of the X-series e-manual tables, EEPROM locked while
-  torque is on, read-only items, range/limit checks, Status Return Level, Return Delay Time,
+  torque is on, read-only items, range checks (Data Range Error, e.g. LED = 2) and limit
+  checks (Data Limit Error), Status Return Level, Return Delay Time,
   Bus Watchdog);
 * a motor: first-order motion of Present Position toward Goal Position (time constant ``tau``),
   limited by Profile Velocity or Velocity Limit; Present Current follows the position error,
@@ -96,6 +101,21 @@ def _owners(addr: int, end: int) -> tuple[str, ...]:
 
 
 _GOALS = ("goal_pwm", "goal_current", "goal_velocity", "goal_position")
+#: Fixed value ranges of the X-series e-manual control tables; a write outside is answered with
+#: Data Range Error (model-dependent ranges and limits are checked in ``_check_value``).
+_RANGES = {
+    "id": (0, 252), "baud_rate": (0, 7), "return_delay_time": (0, 254),
+    "drive_mode": (0, 13), "secondary_id": (0, 255), "protocol_type": (1, 2),
+    "homing_offset": (-1_044_479, 1_044_479), "moving_threshold": (0, 1023),
+    "velocity_limit": (0, 2047),
+    "temperature_limit": (0, 100), "max_voltage_limit": (31, 160),
+    "min_voltage_limit": (31, 160), "pwm_limit": (0, 885), "startup_configuration": (0, 3),
+    "torque_enable": (0, 1), "led": (0, 1), "status_return_level": (0, 2),
+    "velocity_i_gain": (0, 16383), "velocity_p_gain": (0, 16383),
+    "position_d_gain": (0, 16383), "position_i_gain": (0, 16383),
+    "position_p_gain": (0, 16383), "bus_watchdog": (0, 127),
+    "profile_acceleration": (0, 32767), "profile_velocity": (0, 32767),
+}
 
 
 @dataclass
@@ -244,7 +264,8 @@ class EmulatedServo:
         m = self.model
         if name in _GOALS and self.get("bus_watchdog") == -1:
             return p2.ERR_DATA_RANGE
-        if name == "torque_enable" and v not in (0, 1):
+        lo_hi = _RANGES.get(name)
+        if lo_hi is not None and not lo_hi[0] <= v <= lo_hi[1]:
             return p2.ERR_DATA_RANGE
         if name == "operating_mode" and v not in OPERATING_MODES.values():
             return p2.ERR_DATA_RANGE
@@ -258,10 +279,10 @@ class EmulatedServo:
             return p2.ERR_DATA_LIMIT
         if name == "goal_current" and abs(v) > st("current_limit"):
             return p2.ERR_DATA_LIMIT
-        if name == "bus_watchdog" and not (0 <= v <= 127):
-            return p2.ERR_DATA_RANGE
-        if name == "profile_velocity" and not 0 <= v <= 32767:
-            return p2.ERR_DATA_RANGE
+        if name == "goal_pwm" and abs(v) > st("pwm_limit"):
+            return p2.ERR_DATA_LIMIT
+        if name == "goal_velocity" and abs(v) > st("velocity_limit"):
+            return p2.ERR_DATA_LIMIT
         return 0
 
     @property
@@ -509,27 +530,28 @@ class BusEmulator:
                     if s:
                         s.write(addr, body[k + 1:k + 1 + n])
                 return out
-            entries = []
-            for i in prm[4:]:
-                s = self._alive(i, now)
-                if s:
-                    err, data = s.read(addr, n)
-                    if inst == p2.INST_SYNC_READ:
-                        out.append(self._status(s, err, data))
-                    else:
-                        hw = 0x80 if s.get("hardware_error_status") else 0
-                        entries.append((i, err | hw, data))
-            if entries:
-                first = self.servos[entries[0][0]]
-                pkt = p2.fast_status_packet(entries)
-                corrupt = [self.servos[i] for i, _, _ in entries if self.servos[i].bad_crc]
-                for s in corrupt:  # a damaged part of the one packet spoils its CRC
-                    if s.bad_crc > 0:
-                        s.bad_crc -= 1
-                if corrupt:
-                    pkt = pkt[:-1] + bytes(((pkt[-1] + 1) & 0xFF,))
-                out.append((first.table[9] * 2e-6, pkt))
-            return out
+            return self._group_read([(i, addr, n) for i in prm[4:]],
+                                    inst == p2.INST_FAST_SYNC_READ, now)
+        if inst in (p2.INST_BULK_READ, p2.INST_FAST_BULK_READ, p2.INST_BULK_WRITE):
+            if not bcast:
+                return out
+            if inst == p2.INST_BULK_WRITE:  # per device: ID ADDR(2) LEN(2) DATA(LEN)
+                k = 0
+                while k + 5 <= len(prm):
+                    i, addr, n = prm[k], p2.from_le(prm[k + 1:k + 3]), p2.from_le(prm[k + 3:k + 5])
+                    data = prm[k + 5:k + 5 + n]
+                    if len(data) != n or n == 0:
+                        break  # a malformed tail: the rest of the packet is ignored
+                    s = self._alive(i, now)
+                    if s:
+                        s.write(addr, data)
+                    k += 5 + n
+                return out
+            if len(prm) % 5:  # per device: ID ADDR(2) LEN(2)
+                return out
+            reads = [(prm[k], p2.from_le(prm[k + 1:k + 3]), p2.from_le(prm[k + 3:k + 5]))
+                     for k in range(0, len(prm), 5)]
+            return self._group_read(reads, inst == p2.INST_FAST_BULK_READ, now)
         if bcast:
             ids = [i for i in sorted(self.servos) if self._alive(i, now)]
             if inst == p2.INST_WRITE and len(prm) >= 3:
@@ -559,6 +581,33 @@ class BusEmulator:
                 s._reset_ram()
             return reply
         return [self._status(s, p2.ERR_INSTRUCTION)]
+
+    def _group_read(self, reads: list[tuple[int, int, int]], fast: bool,
+                    now: float) -> list[tuple[float, bytes]]:
+        """Answer a Sync/Bulk Read (one status packet per device, in parameter order) or a
+        Fast Sync/Bulk Read (one packet with every device's part) for ``(id, addr, len)``."""
+        out: list[tuple[float, bytes]] = []
+        entries = []
+        for i, addr, n in reads:
+            s = self._alive(i, now)
+            if s:
+                err, data = s.read(addr, n)
+                if not fast:
+                    out.append(self._status(s, err, data))
+                else:
+                    hw = 0x80 if s.get("hardware_error_status") else 0
+                    entries.append((i, err | hw, data))
+        if entries:
+            first = self.servos[entries[0][0]]
+            pkt = p2.fast_status_packet(entries)
+            corrupt = [self.servos[i] for i, _, _ in entries if self.servos[i].bad_crc]
+            for s in corrupt:  # a damaged part of the one packet spoils its CRC
+                if s.bad_crc > 0:
+                    s.bad_crc -= 1
+            if corrupt:
+                pkt = pkt[:-1] + bytes(((pkt[-1] + 1) & 0xFF,))
+            out.append((first.table[9] * 2e-6, pkt))
+        return out
 
     # -- pty thread ------------------------------------------------------------------------
     def _serve(self) -> None:

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from hand_capture.model.joints import ARTICULATED_JOINTS
+from hand_capture.validate import DEFAULT_LIMITS, InputLimits, joint_bounds
 from hand_control.dynamixel.control_table import POSITION_CENTER, TICKS_PER_RAD
 from hand_control.dynamixel.servo_map import ServoMap
 from hand_control.errors import InputError
@@ -24,7 +25,7 @@ _JOINT_INDEX = {name: i for i, name in enumerate(ARTICULATED_JOINTS)}
 class Retargeter:
     """Linear retargeting of named hand-model joint angles to servo angles and ticks."""
 
-    def __init__(self, servo_map: ServoMap) -> None:
+    def __init__(self, servo_map: ServoMap, limits: InputLimits = DEFAULT_LIMITS) -> None:
         self.servo_map = servo_map
         n, m = len(servo_map.servos), len(ARTICULATED_JOINTS)
         self.A = np.zeros((n, m))
@@ -35,6 +36,12 @@ class Retargeter:
             self.b[i] = s.offset
         self.required = tuple(servo_map.joints_used())
         self._required_idx = np.array([_JOINT_INDEX[j] for j in self.required], dtype=int)
+        # only the joints the map uses enter A q: a NaN in any other joint of a message can
+        # never reach a servo (0 * NaN = NaN in a full product)
+        self._A_used = np.ascontiguousarray(self.A[:, self._required_idx])
+        # valid angle of each used joint: the hand model's limits widened by the validation
+        # layer's margin [rad]; anything outside is refused, never clamped at the servo limits
+        self._lo, self._hi = joint_bounds(self.required, limits)
         self._cache: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray]] = {}
 
     def _lookup(self, names: tuple[str, ...], strict: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -69,7 +76,8 @@ class Retargeter:
                 ignored (JointState from a simulation that also carries other joints).
 
         Raises:
-            InputError: length mismatch, unknown/duplicate/missing names, NaN or Inf.
+            InputError: length mismatch, unknown/duplicate/missing names, NaN or Inf, or an
+                angle of a used joint outside its valid range (refused, not clamped).
         """
         names = tuple(names)
         if len(names) != len(positions):
@@ -82,11 +90,18 @@ class Retargeter:
             bad = [self.required[k] for k in np.flatnonzero(
                 ~np.isfinite(q[self._required_idx]))]
             raise InputError(f"non-finite angle for joint(s) {bad}")
+        used = q[self._required_idx]
+        out = (used < self._lo) | (used > self._hi)
+        if out.any():
+            k = int(np.flatnonzero(out)[0])
+            raise InputError(f"angle of {self.required[k]!r} = {used[k]:.6g} rad is outside "
+                             f"its valid range [{self._lo[k]:.3f}, {self._hi[k]:.3f}] rad")
         return q
 
     def servo_angles(self, q: np.ndarray) -> np.ndarray:
-        """Servo angles theta = A q + b [rad], one per servo in map order."""
-        return self.A @ q + self.b
+        """Servo angles theta = A q + b [rad], one per servo in map order (only the joints
+        the map uses are read from ``q``)."""
+        return self._A_used @ q[self._required_idx] + self.b
 
     def from_named(self, names: Sequence[str], positions: Sequence[float],
                    strict: bool = True) -> np.ndarray:

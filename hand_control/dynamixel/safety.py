@@ -47,10 +47,14 @@ class GoalLimiter:
 
         Only servos in ``mask`` (default all) take the new goal as their last goal: a servo
         that is not written this cycle keeps its last written goal as the reference. Servos
-        with no last goal (NaN) come out NaN.
+        with no last goal (NaN) come out NaN. A non-finite target holds that servo's last goal:
+        it never enters ``last`` (one NaN would otherwise stop the servo for good).
         """
         lo, hi = self.lo, self.hi
-        target = np.minimum(np.maximum(target_ticks, lo), hi)
+        target = np.asarray(target_ticks, dtype=float)
+        if not np.isfinite(target).all():
+            target = np.where(np.isfinite(target), target, self.last)
+        target = np.minimum(np.maximum(target, lo), hi)
         vdt = self.vmax * dt
         step = np.minimum(np.maximum(target - self.last, -vdt), vdt)
         goal = np.minimum(np.maximum(self.last + step, lo), hi)

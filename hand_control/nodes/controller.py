@@ -1,6 +1,11 @@
 """controller: composite motion control of the simulated hand (seed 000 eq. 8-13).
 
-Thin wrapper around :class:`hand_control.sim.control_loop.ControllerCore`.
+Thin wrapper around :class:`hand_control.control.loop.ControllerCore`. Parameters: the node's
+own (:class:`ControllerNodeConfig`) and every gain and QP setting
+(:class:`CompositeControlConfig`: ``joint_kp``/``joint_kd`` per row of Table 1 = Table III.1,
+``object_kp_translate`` ..., ``method``, ``alpha1`` .. ``alpha4``, ...), from
+``config/controller.yaml`` or ``-p name:=value``. The hand's kinematics come from the
+scenario's MJCF (:class:`hand_control.sim.kinematics.MujocoKinematics`).
 
 Topics:
     in   sim/joint_states (sensor_msgs/JointState): each message triggers one control step
@@ -45,13 +50,21 @@ from sensor_msgs.msg import JointState
 from visualization_msgs.msg import Marker, MarkerArray
 
 from hand_capture.model.joints import JOINT_NAMES
+from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
-from hand_capture.posemsg import pose_from_msg
+from hand_capture.validate import (
+    validate_contacts,
+    validate_grasp_phase,
+    validate_hand_pose_msg,
+    validate_joint_state,
+    validate_pose,
+    validate_twist,
+)
+from hand_control.control import CompositeControlConfig, ControllerNodeConfig
 from hand_control.errors import InputError
-from hand_control.nodes.sim import contacts_from_msg
-from hand_control.sim.control_loop import ControllerCore, ControllerNodeConfig
-from hand_control.sim.lockstep import LockstepRunner
+from hand_control.nodes.convert import contacts_from_msg
+from hand_control.sim.lockstep import controller_setup
 from hand_control.sim.scenario import load_scenario
 
 
@@ -74,14 +87,13 @@ class ControllerNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("controller", **kwargs)
         self.cfg: ControllerNodeConfig = declare_config(self, ControllerNodeConfig)
+        self.gains: CompositeControlConfig = declare_config(self, CompositeControlConfig)
         spec = load_scenario(self.cfg.scenario)
-        runner = LockstepRunner(spec, controller_config=self.cfg)  # world, grasp, reference
-        world = runner.world
-        body = world.objects[runner.obj.name]["body"]
-        self.core = ControllerCore(world, runner.reference, spec.object_mass, self.cfg,
-                                   object_inertia=float(world.model.body_inertia[body].min()),
-                                   control_period=self.cfg.control_period)
-        self.object_name = runner.obj.name
+        # the scenario's model (kinematics, grasp plan, reference); nothing is stepped here
+        setup = controller_setup(spec, controller_config=self.cfg, gains=self.gains,
+                                 control_period=self.cfg.control_period)
+        self.core = setup.core
+        self.object_name = setup.obj.name
         self._obj = None
         self._twist = (np.zeros(3), np.zeros(3))
         self._contacts = None
@@ -90,6 +102,9 @@ class ControllerNode(Node):
         self._cmd_names = list(self.core.joint_names)
         self._warned = 0.0
         self.commands = 0
+        # every input passes the validation layer: rejections counted per topic, logged
+        self.gate = InputGate(self, on_reject=self._count_rejection)
+        self._known = frozenset(self.core.joint_names)
         self.create_subscription(JointState, "sim/joint_states", self._on_joint_state,
                                  qos_profile_sensor_data)
         self.create_subscription(PoseStamped, "sim/object_pose", self._on_pose,
@@ -120,30 +135,38 @@ class ControllerNode(Node):
             self._warned = now
             self.get_logger().warning(text)
 
+    def _count_rejection(self, topic: str) -> None:
+        self.core.counters["rejected_inputs"] += 1
+
     # ----------------------------------------------------------------------------- inputs
     def _on_pose(self, msg: PoseStamped) -> None:
         p, o = msg.pose.position, msg.pose.orientation
-        self._obj = (np.array([p.x, p.y, p.z]), np.array([o.w, o.x, o.y, o.z]))
+        obj = self.gate.check("sim/object_pose", validate_pose, (p.x, p.y, p.z),
+                              (o.x, o.y, o.z, o.w), what="object pose")
+        if obj is not None:
+            self._obj = obj  # position, quaternion wxyz (unit)
 
     def _on_twist(self, msg: TwistStamped) -> None:
         lin, ang = msg.twist.linear, msg.twist.angular
-        self._twist = (np.array([lin.x, lin.y, lin.z]), np.array([ang.x, ang.y, ang.z]))
+        tw = self.gate.check("sim/object_twist", validate_twist, (lin.x, lin.y, lin.z),
+                             (ang.x, ang.y, ang.z))
+        if tw is not None:
+            self._twist = tw
 
     def _on_contacts(self, msg: ContactArray) -> None:
         self._contacts = msg
 
     def _on_object_target(self, msg: PoseStamped) -> None:
         p, o = msg.pose.position, msg.pose.orientation
-        pos = np.array([p.x, p.y, p.z])
-        quat = np.array([o.w, o.x, o.y, o.z])
-        if not (np.isfinite(pos).all() and np.isfinite(quat).all()) or np.linalg.norm(quat) < 1e-9:
-            self.core.counters["rejected_inputs"] += 1
-            self._log_throttled("control/object_target rejected: NaN or zero quaternion")
-            return
-        self.core.object_target_override = (pos, quat / np.linalg.norm(quat))
+        target = self.gate.check("control/object_target", validate_pose, (p.x, p.y, p.z),
+                                 (o.x, o.y, o.z, o.w), what="object target")
+        if target is not None:
+            self.core.object_target_override = target
 
     def _on_phase(self, msg: GraspPhase) -> None:
-        self.core.grasp_override = msg.phase == GraspPhase.MANIPULATION
+        phase = self.gate.check("control/grasp_phase", validate_grasp_phase, msg.phase)
+        if phase is not None:
+            self.core.grasp_override = phase == GraspPhase.MANIPULATION
 
     def _on_hand_pose(self, msg: HandPose) -> None:
         if msg.status in (HandPose.STATUS_UNKNOWN, HandPose.STATUS_LOST):
@@ -154,12 +177,14 @@ class ControllerNode(Node):
                                 f"controller needs {self.cfg.world_frame!r} (map a camera-frame "
                                 f"pose through grasp_phase's control/hand_target)")
             return
+        # (27,) JOINT_NAMES order, root from wrist_pose
+        pose = self.gate.check("hand/pose", validate_hand_pose_msg, msg)
+        if pose is None:
+            return
         try:
-            pose = pose_from_msg(msg)  # (27,) JOINT_NAMES order, root from wrist_pose
             q = self.core.hand_pose_from_names(JOINT_NAMES, pose)
         except InputError as e:
-            self.core.counters["rejected_inputs"] += 1
-            self._log_throttled(f"hand/pose rejected: {e}")
+            self.gate.reject("hand/pose", e)
             return
         self.core.hand_target_override = q
         new = self._hand_stamp != msg.header.stamp
@@ -170,18 +195,24 @@ class ControllerNode(Node):
     def _on_joint_state(self, msg: JointState) -> None:
         if self._obj is None:
             return
+        if self.gate.check("sim/joint_states", validate_joint_state, msg.name, msg.position,
+                           msg.velocity, msg.effort, known=self._known) is None:
+            return
         try:
             q = self.core.hand_pose_from_names(msg.name, msg.position)
             qd = self.core.hand_pose_from_names(msg.name, msg.velocity)
         except InputError as e:
-            self.core.counters["rejected_inputs"] += 1
-            self._log_throttled(f"sim/joint_states rejected: {e}")
+            self.gate.reject("sim/joint_states", e)
             return
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         bodies, pts, nrm, frc, mu = [], np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), \
             np.zeros(0)
-        if self._contacts is not None:
-            b1, b2, p_, n_, f_, m_ = contacts_from_msg(self._contacts)
+        contacts = self._contacts
+        if contacts is not None:
+            b1, b2, p_, n_, f_, m_ = contacts_from_msg(contacts)
+            if self.gate.check("sim/contacts", validate_contacts, p_, n_, f_, m_) is None:
+                self._contacts = None  # counted once; the step runs without contacts
+                b1 = b2 = []
             hand = self.core.kin.is_hand_body
             sel = [i for i, (a, b) in enumerate(zip(b1, b2, strict=True))
                    if b == self.object_name and hand(a)]
@@ -268,7 +299,8 @@ class ControllerNode(Node):
         bad = c["qp_fallbacks"] or c["rejected_inputs"] or c["non_finite_outputs"]
         arr.status = [DiagnosticStatus(
             level=DiagnosticStatus.WARN if bad else DiagnosticStatus.OK, name="controller",
-            message="running", values=[KeyValue(key=k, value=str(v)) for k, v in c.items()])]
+            message="running", values=[KeyValue(key=k, value=str(v))
+                                       for k, v in {**c, **self.gate.values()}.items()])]
         self.pub_diag.publish(arr)
 
 

@@ -12,7 +12,10 @@ Topics:
          target, rigidly following the operator's (smoothed) wrist
     out  control/hand_target (hand_msgs/HandPose, world): the hand's PD target, the tracked
          hand retargeted onto the scenario's planned grasp while closing and manipulating
-    out  diagnostics (1 Hz: phase, rejected inputs)
+    out  diagnostics (1 Hz: phase, rejected inputs per topic)
+Inputs pass :mod:`hand_capture.validate` (bad ones are counted and logged); a hand pose stamped
+more than ``future_stamp_tolerance`` (1 s) ahead of the node clock is rejected, and the phase
+detector restarts its timers when time goes back, so one bad stamp cannot freeze a phase.
 Every output keeps the hand pose's stamp (the source image stamp), for per-stage latency.
 The camera pose (``camera_position``, ``camera_rotation``: the camera optical frame in the
 world, as the synthetic camera takes it) is the mapping from the operator's space to the world.
@@ -34,9 +37,11 @@ from hand_capture.cameras.transforms import pose_in_world, rotvec_to_matrix
 from hand_capture.config import param, validate
 from hand_capture.errors import ConfigError, HandSuiteError
 from hand_capture.model import matrix_to_quat
+from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
-from hand_capture.posemsg import STATUS, fill_pose_msg, pose_from_msg
+from hand_capture.posemsg import STATUS, fill_pose_msg
+from hand_capture.validate import validate_hand_pose_msg, validate_pose
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import load_scenario
 from hand_control.teleop.phases import PhaseConfig
@@ -83,7 +88,7 @@ class GraspPhaseNode(Node):
         self.t_wc = np.array(self.cfg.camera_position, dtype=float)
         self.object_T: np.ndarray | None = None
         self._object_msg: PoseStamped | None = None
-        self.rejected = 0
+        self.gate = InputGate(self)
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.pub_phase = self.create_publisher(GraspPhase, "control/grasp_phase", reliable)
         self.pub_target = self.create_publisher(PoseStamped, "control/object_target", reliable)
@@ -106,24 +111,30 @@ class GraspPhaseNode(Node):
         msg, self._object_msg = self._object_msg, None
         if msg is not None:
             p, o = msg.pose.position, msg.pose.orientation
-            pos, quat = np.array([p.x, p.y, p.z]), np.array([o.w, o.x, o.y, o.z])
-            if np.isfinite(pos).all() and np.isfinite(quat).all() and \
-                    np.linalg.norm(quat) > 0.5:
-                self.object_T = object_matrix(pos, quat / np.linalg.norm(quat))
+            pose = self.gate.check("sim/object_pose", validate_pose, (p.x, p.y, p.z),
+                                   (o.x, o.y, o.z, o.w), what="object pose")
+            if pose is not None:
+                self.object_T = object_matrix(*pose)
         return self.object_T
 
+    @property
+    def rejected(self) -> int:
+        """Inputs rejected so far (every topic)."""
+        return self.gate.total
+
     def _on_hand(self, msg: HandPose) -> None:
-        if self._object_pose() is None or msg.status not in _STATUS:
+        q = self.gate.check("hand/pose", validate_hand_pose_msg, msg)
+        if q is None or msg.status not in _STATUS or \
+                not self.gate.stamp_ok("hand/pose", msg.header.stamp) or \
+                self._object_pose() is None:
             return
         try:
-            q = pose_from_msg(msg)
             if msg.header.frame_id != self.cfg.world_frame:
                 q = pose_in_world(q, self.R_wc, self.t_wc)
             t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
             step = self.ui.update(t, q, self.object_T)
         except HandSuiteError as e:
-            self.rejected += 1
-            self.get_logger().warning(f"rejected hand pose: {e}", throttle_duration_sec=1.0)
+            self.gate.reject("hand/pose", e)
             return
         up = step.phase
         out = GraspPhase(phase=int(up.phase), object_name=self.object_name)
@@ -151,7 +162,9 @@ class GraspPhaseNode(Node):
     def _diagnostics(self) -> None:
         st = DiagnosticStatus(level=DiagnosticStatus.OK, name="grasp_phase",
                               message=self.ui.detector.phase.name.lower())
-        st.values = [KeyValue(key="rejected", value=str(self.rejected))]
+        values = {"rejected": str(self.rejected), **self.gate.values(),
+                  "time_jumps": str(self.ui.detector.time_jumps)}
+        st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         arr = DiagnosticArray(status=[st])
         arr.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(arr)

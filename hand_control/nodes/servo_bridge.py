@@ -19,11 +19,16 @@ Cycles (sync read, then sync write of the goals) run when a new input arrives (a
 Parameters: those of :class:`BridgeConfig`; ``goal_current_scale`` (grip strength in
     current-based position mode) may change while running, the others are read-only.
 Service:
-    ~/reboot (std_srvs/Trigger): reboot servos with a hardware error (or recover from the
-         bus ERROR state); positions are re-read before torque comes back on.
+    ~/reboot (std_srvs/Trigger): reboot servos with a hardware error, or recover from a bus
+         ERROR: the port is closed and opened again (a replugged USB adapter works), every
+         servo pinged and set up, positions re-read before torque comes back on, and the node
+         activated again.
 Lifecycle: configure = open the port, ping and check every servo, write modes and limits;
-    activate = torque on (after a good read, goal := present position); deactivate = torque
-    off; cleanup/shutdown/error = torque off and close. With ``autostart: true`` (default) the
+    activate = torque on (after a good read, goal := present position; after a bus ERROR the
+    port is reopened first); deactivate = torque off; cleanup/shutdown/error = torque off and
+    close. A bus ERROR (``max_comm_failures`` failed cycles: adapter pulled, servo dead) takes
+    the node from active to inactive with torque off, logs why, and diagnostics keep saying
+    it until ``~/reboot`` or an activate recovers. With ``autostart: true`` (default) the
     node configures and activates itself. ``on_shutdown()``, which ``run_node`` calls on every
     exit path (Ctrl-C, SIGTERM, exception), switches torque off.
 """
@@ -44,9 +49,15 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
-from hand_control.dynamixel.bridge import BridgeConfig, ServoBridge
+from hand_capture.validate import (
+    validate_hand_pose_msg,
+    validate_joint_command,
+    validate_joint_state,
+)
+from hand_control.dynamixel.bridge import BridgeConfig, BridgeState, ServoBridge
 from hand_control.errors import HandSuiteError
 
 _SUCCESS = TransitionCallbackReturn.SUCCESS
@@ -61,6 +72,7 @@ class ServoBridgeNode(LifecycleNode):
         self.config: BridgeConfig = declare_config(self, BridgeConfig)
         self.core: ServoBridge | None = None
         self._last_error = ""
+        self.gate = InputGate(self)  # rejected inputs, counted per topic (diagnostics)
         self._state_pub = None
         self._goal_pub = None
         self._input_stamp = None  # header stamp of the last accepted input
@@ -184,7 +196,8 @@ class ServoBridgeNode(LifecycleNode):
         return SetParametersResult(successful=True)
 
     def _on_pose(self, msg: HandPose) -> None:
-        if self.core is None:
+        if self.core is None or self.gate.check("hand/pose", validate_hand_pose_msg,
+                                                msg) is None:
             return
         valid = msg.status not in (HandPose.STATUS_UNKNOWN, HandPose.STATUS_LOST)
         hand = "left" if msg.handedness == HandPose.HAND_LEFT else "right"
@@ -193,12 +206,21 @@ class ServoBridgeNode(LifecycleNode):
             self._accepted(msg.header.stamp)
 
     def _on_joint_state(self, msg: JointState) -> None:
-        if self.core is not None and self.core.handle_joint_state(msg.name, msg.position):
+        if self.core is None or self.gate.check(
+                "sim/joint_states", validate_joint_state, msg.name, msg.position,
+                msg.velocity, msg.effort) is None:
+            return
+        if self.core.handle_joint_state(msg.name, msg.position):
             self._accepted(msg.header.stamp)
 
     def _on_command(self, msg: JointCommand) -> None:
-        if self.core is not None and self.core.handle_joint_state(msg.joint_names,
-                                                                  msg.positions):
+        if self.core is None or self.gate.check(
+                "control/joint_command", validate_joint_command, msg.joint_names,
+                msg.positions, msg.velocities, msg.efforts) is None:
+            return
+        if not len(msg.positions):  # efforts only: no position targets for the servos
+            return
+        if self.core.handle_joint_state(msg.joint_names, msg.positions):
             self._accepted(msg.header.stamp)
 
     def _accepted(self, stamp) -> None:
@@ -253,6 +275,9 @@ class ServoBridgeNode(LifecycleNode):
         self._last_cycle = time.monotonic()
         self._pending = False  # this cycle writes the newest input
         r = self.core.step() if self.core is not None else None
+        if self.core is not None and self.core.state is BridgeState.ERROR:
+            self._on_bus_error()
+            return
         if r is None or self._state_pub is None:
             return
         if r.written and self._input_stamp is not None:
@@ -279,11 +304,33 @@ class ServoBridgeNode(LifecycleNode):
         msg.effort = _doubles(cur)
         self._state_pub.publish(msg)
 
+    def _lifecycle_state(self) -> str:
+        return self._state_machine.current_state[1]
+
+    def _on_bus_error(self) -> None:
+        """The bridge entered its ERROR state (torque-off attempted): the lifecycle follows
+        (active -> inactive), so managers and ``get_state`` see it, and the log says why."""
+        self._last_error = self.core.error_reason
+        self.get_logger().error(
+            f"servo bus ERROR: {self.core.error_reason}; lifecycle: active -> inactive, torque "
+            f"off. Fix the bus (replug the adapter, power the servos), then call ~/reboot or "
+            f"activate: the port is reopened and every servo checked")
+        if self._lifecycle_state() == "active":
+            self.trigger_deactivate()
+
     def _on_reboot(self, request: Trigger.Request, response: Trigger.Response):
         if self.core is None:
             response.success, response.message = False, "not configured"
-        else:
-            response.success, response.message = self.core.reboot()
+            return response
+        ok, msg = self.core.reboot()
+        if ok and self._lifecycle_state() == "inactive" and self._last_error:
+            # deactivated by a bus ERROR, now recovered: back to active
+            if self.trigger_activate() == _SUCCESS:
+                self._last_error = ""
+                msg += "; node active again"
+            else:
+                ok, msg = False, f"{msg}; activate failed: {self._last_error}"
+        response.success, response.message = ok, msg
         return response
 
     def _publish_diagnostics(self) -> None:
@@ -295,11 +342,12 @@ class ServoBridgeNode(LifecycleNode):
                 message=f"not configured{': ' + self._last_error if self._last_error else ''}",
                 hardware_id=self.config.port)]
         else:
-            for r in self.core.diagnostics():
+            for i, r in enumerate(self.core.diagnostics()):
+                values = {**r.values, **self.gate.values()} if i == 0 else r.values
                 arr.status.append(DiagnosticStatus(
                     level=bytes((r.level,)), name=r.name, message=r.message,
                     hardware_id=r.hardware_id,
-                    values=[KeyValue(key=k, value=v) for k, v in r.values.items()]))
+                    values=[KeyValue(key=k, value=v) for k, v in values.items()]))
         self._diag_pub.publish(arr)
 
 

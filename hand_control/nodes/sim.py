@@ -12,9 +12,10 @@ Topics:
     out  /clock (rosgraph_msgs/Clock) with the simulation time when ``publish_clock``
     out  diagnostics (diagnostic_msgs/DiagnosticArray, 1 Hz: counters)
     in   control/joint_command (hand_msgs/JointCommand: position targets of the servos and
-         feed-forward efforts, by joint name; unknown names, length mismatches and NaN are
-         rejected and counted). Without a command for ``command_timeout`` the servos hold the
-         last targets.
+         feed-forward efforts, by joint name; unknown or duplicate names, length mismatches,
+         NaN/Inf, positions outside the joint ranges and efforts outside the actuators' force
+         limits are rejected, logged and counted, :mod:`hand_capture.validate`). Without a
+         command for ``command_timeout`` the servos hold the last targets.
 Stamps are simulation time. A divergence of the simulation is logged with its DoF and, by
 ``on_instability``, stops the node (raise) or resets the episode.
 """
@@ -24,31 +25,25 @@ from __future__ import annotations
 import sys
 import time
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped
-from hand_msgs.msg import Contact, ContactArray, JointCommand
+from hand_msgs.msg import ContactArray, JointCommand
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
+from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
+from hand_capture.validate import validate_joint_command
+from hand_control.control import CompositeControlConfig
 from hand_control.errors import InputError
+from hand_control.nodes.convert import contact_array, set_time
+from hand_control.nodes.convert import stamp as _stamp
 from hand_control.sim.config import SimConfig, SimNodeConfig
 from hand_control.sim.lockstep import LockstepRunner
 from hand_control.sim.scenario import load_scenario
-
-
-def set_time(time_msg, t: float) -> None:
-    """Fill a builtin_interfaces/Time from seconds."""
-    ns = int(round(t * 1e9))
-    time_msg.sec, time_msg.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
-
-
-def _stamp(header, t: float) -> None:
-    set_time(header.stamp, t)
 
 
 class SimNode(Node):
@@ -58,16 +53,19 @@ class SimNode(Node):
         super().__init__("sim", **kwargs)
         self.cfg: SimNodeConfig = declare_config(self, SimNodeConfig)
         self.sim_cfg: SimConfig = declare_config(self, SimConfig)
+        # the servos' PD gains (joint_kp, joint_kd: Table 1 = Table III.1 by default) go into
+        # the world's MJCF; the controller node declares the same config
+        self.gains: CompositeControlConfig = declare_config(self, CompositeControlConfig)
         spec = load_scenario(self.cfg.scenario)
         # the scenario's world, with the hand at the start of its reference motion
-        self.runner = LockstepRunner(spec, self.sim_cfg)
+        self.runner = LockstepRunner(spec, self.sim_cfg, gains=self.gains)
         self.world = self.runner.world
         self.world.count_saturation = True
         self.object_name = self.runner.obj.name
-        self.rejected = 0
+        self.gate = InputGate(self)
+        self._index = {n: i for i, n in enumerate(self.world.joint_names)}
         self.accepted = 0
         self.ticks = 0
-        self._warned = 0.0
         self.pub_js = self.create_publisher(JointState, "sim/joint_states",
                                             qos_profile_sensor_data)
         self.pub_pose = self.create_publisher(PoseStamped, "sim/object_pose",
@@ -94,16 +92,25 @@ class SimNode(Node):
             f"{'real time' if self.sim_cfg.real_time else 'as fast as possible'}")
 
     # ----------------------------------------------------------------------------- inputs
+    @property
+    def rejected(self) -> int:
+        """Joint commands rejected so far."""
+        return self.gate.total
+
     def _on_command(self, msg: JointCommand) -> None:
-        try:
-            self.world.command_by_name(msg.joint_names, msg.positions, msg.efforts)
-            self.accepted += 1
+        topic = "control/joint_command"
+        w = self.world
+        ok = self.gate.check(topic, validate_joint_command, msg.joint_names, msg.positions,
+                             msg.velocities, msg.efforts, known=self._index)
+        if ok is None:
+            return
+        names, pos, eff = ok
+        try:  # the world refuses efforts outside its actuators' force limits
+            w.command_by_name(names, pos, eff)
         except InputError as e:
-            self.rejected += 1
-            now = time.monotonic()
-            if now - self._warned > 1.0:
-                self._warned = now
-                self.get_logger().warning(f"joint command rejected ({self.rejected} so far): {e}")
+            self.gate.reject(topic, e)
+            return
+        self.accepted += 1
 
     # ------------------------------------------------------------------------------- tick
     def _tick(self) -> None:
@@ -155,6 +162,7 @@ class SimNode(Node):
         rtf = (w.time - self._sim0) / max(wall, 1e-9)
         values = {"sim_time": f"{w.time:.3f}", "real_time_factor": f"{rtf:.3f}",
                   "commands_accepted": str(self.accepted), "commands_rejected": str(self.rejected),
+                  **self.gate.values(),
                   "command_timed_out": str(w.timed_out), "resets": str(w.resets),
                   "servo_saturated_steps": str(w.saturated_steps)}
         values.update({f"warning_{k}": str(v) for k, v in w.soft_warnings.items()})
@@ -165,40 +173,6 @@ class SimNode(Node):
                                        values=[KeyValue(key=k, value=v)
                                                for k, v in values.items()])]
         self.pub_diag.publish(arr)
-
-
-def contact_array(cf, t: float, frame_id: str) -> ContactArray:
-    """A :class:`~hand_control.sim.contacts.ContactFrame` as ``hand_msgs/ContactArray``."""
-    msg = ContactArray()
-    _stamp(msg.header, t)
-    msg.header.frame_id = frame_id
-    pts, nrm, frc = cf.points.tolist(), cf.normals.tolist(), cf.forces.tolist()
-    out = []
-    for k in range(len(cf)):
-        c = Contact()
-        c.body1, c.body2 = cf.body1[k], cf.body2[k]
-        c.point.x, c.point.y, c.point.z = pts[k]
-        c.normal.x, c.normal.y, c.normal.z = nrm[k]
-        c.penetration = float(cf.penetration[k])
-        c.force.x, c.force.y, c.force.z = frc[k]
-        c.torsional_torque = float(cf.torsional[k])
-        c.friction = float(cf.friction[k])
-        out.append(c)
-    msg.contacts = out
-    return msg
-
-
-def contacts_from_msg(msg: ContactArray) -> tuple[list[str], list[str], np.ndarray, np.ndarray,
-                                                   np.ndarray, np.ndarray]:
-    """``(body1, body2, points, normals, forces, friction)`` arrays of a ContactArray."""
-    cs = msg.contacts
-    b1 = [c.body1 for c in cs]
-    b2 = [c.body2 for c in cs]
-    pts = np.array([(c.point.x, c.point.y, c.point.z) for c in cs]).reshape(-1, 3)
-    nrm = np.array([(c.normal.x, c.normal.y, c.normal.z) for c in cs]).reshape(-1, 3)
-    frc = np.array([(c.force.x, c.force.y, c.force.z) for c in cs]).reshape(-1, 3)
-    mu = np.array([c.friction for c in cs], dtype=float)
-    return b1, b2, pts, nrm, frc, mu
 
 
 def main(args: list[str] | None = None) -> int:

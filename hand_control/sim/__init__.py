@@ -2,6 +2,7 @@
 
     world = SimWorld(build_scene(...), SimConfig())      # servos, guard, contacts (world.py)
     runner = LockstepRunner(load_scenario("lift_box"))   # sim + composite controller, no DDS
+                                                         # (hand_control.control.loop)
     result = runner.run()                                # success, tracking error, RTF
 
 Command line: ``python -m hand_control.sim [SCENARIO ...] [--mode composite|pd_only|both]``.
@@ -9,14 +10,16 @@ Command line: ``python -m hand_control.sim [SCENARIO ...] [--mode composite|pd_o
 
 from hand_control.sim.config import SimConfig, SimNodeConfig
 from hand_control.sim.contacts import ContactFrame, SimContact
-from hand_control.sim.control_loop import (
-    Command,
-    ControllerCore,
-    ControllerNodeConfig,
-    HandKinematics,
-)
 from hand_control.sim.grasp import GraspPlan, fingertip_ik, plan_grasp, surface_contacts
-from hand_control.sim.lockstep import EpisodeResult, LockstepRunner, build_world, run_episode
+from hand_control.sim.kinematics import MujocoKinematics, hand_limits
+from hand_control.sim.lockstep import (
+    ControllerSetup,
+    EpisodeResult,
+    LockstepRunner,
+    build_world,
+    controller_setup,
+    run_episode,
+)
 from hand_control.sim.scenario import (
     Reference,
     RefSample,
@@ -27,9 +30,9 @@ from hand_control.sim.scenario import (
 from hand_control.sim.world import Divergence, ObjectPose, SimWorld
 
 __all__ = [
-    "Command", "ContactFrame", "ControllerCore", "ControllerNodeConfig", "Divergence",
-    "EpisodeResult", "GraspPlan", "HandKinematics", "LockstepRunner", "ObjectPose", "RefSample",
-    "Reference", "ScenarioSpec", "SimConfig", "SimContact", "SimNodeConfig", "SimWorld",
-    "build_world", "fingertip_ik", "load_scenario", "plan_grasp", "run_episode",
-    "scenario_names", "surface_contacts",
+    "ContactFrame", "ControllerSetup", "Divergence", "EpisodeResult", "GraspPlan",
+    "LockstepRunner", "MujocoKinematics", "ObjectPose", "RefSample", "Reference",
+    "ScenarioSpec", "SimConfig", "SimContact", "SimNodeConfig", "SimWorld", "build_world",
+    "controller_setup", "fingertip_ik", "hand_limits", "load_scenario", "plan_grasp",
+    "run_episode", "scenario_names", "surface_contacts",
 ]

@@ -9,33 +9,44 @@ step (every ``control_every`` physics steps; 1 = the 1 kHz of the dissertation):
    realising the virtual object wrench (eq. 9) through the contact-force QP (III.23) and the
    Jacobian transpose (eq. 12, computed by MuJoCo at the contacts of the live state:
    :meth:`ControllerCore.step_world`; seed 000's eq. 10, which needs the simulator's contact
-   forces, goes through a :class:`ContactFrame` and :meth:`ControllerCore.step`);
+   forces, goes through a :class:`ContactFrame` and :meth:`ControllerCore.step`; select it
+   with ``CompositeControlConfig(method="seed000")``);
 3. the sim's servos get the reference pose as PD targets (eq. 8, applied at every physics
    step) and ``tau_grasp`` as feed-forward effort. Gravity on the hand is cancelled inside
    MuJoCo (``hand_gravcomp``), which is ``tau_gravity`` of eq. (III.19).
 
 PD-only trajectory tracking (the papers' baseline, dissertation sec. III.8.2) is the same run
-with ``CompositeControlConfig(mode="pd_only")``: no grasp torques.
+with ``CompositeControlConfig(mode="pd_only")``: no grasp torques. The controller
+(:mod:`hand_control.control.loop`) sees the world through the kinematics interface
+(:class:`MujocoKinematics`, and :class:`SimWorld` as ``LiveContacts``).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from hand_capture.model.joints import JOINT_NAMES
 from hand_capture.model.mjcf import ObjectSpec, build_scene
 from hand_control.contact.feasibility import dynamic_feasibility
+from hand_control.control import (
+    CompositeControlConfig,
+    ControllerCore,
+    ControllerNodeConfig,
+    joint_gains,
+)
 from hand_control.sim.config import SimConfig
 from hand_control.sim.contacts import ContactFrame
-from hand_control.sim.control_loop import ControllerCore, ControllerNodeConfig
 from hand_control.sim.grasp import GraspPlan, plan_grasp
+from hand_control.sim.kinematics import MujocoKinematics
 from hand_control.sim.scenario import Reference, ScenarioSpec
 from hand_control.sim.world import SimWorld
 
-__all__ = ["EpisodeResult", "LockstepRunner", "build_world", "object_spec", "run_episode"]
+__all__ = ["ControllerSetup", "EpisodeResult", "LockstepRunner", "build_world",
+           "controller_setup", "object_spec", "run_episode"]
 
 IMPACT_BALL = "impact_ball"
 _DEFAULT_SIZES = {"box": (0.0285, 0.0285, 0.0285), "ball": (0.035,), "cylinder": (0.03, 0.06)}
@@ -57,9 +68,9 @@ def object_spec(spec: ScenarioSpec) -> tuple[ObjectSpec, tuple[float, ...]]:
     return o, size
 
 
-def build_world(spec: ScenarioSpec, config: SimConfig | None = None
-                ) -> tuple[SimWorld, ObjectSpec, tuple[float, ...]]:
-    """The MuJoCo world of a scenario (hand, table, object, optional falling ball)."""
+def scene_objects(spec: ScenarioSpec) -> tuple[list[ObjectSpec], tuple[float, ...]]:
+    """The scenario's free objects in scene order (its object, then the optional falling
+    ball) and the object's size."""
     obj, size = object_spec(spec)
     objects = [obj]
     if spec.perturb_mass > 0:
@@ -67,9 +78,54 @@ def build_world(spec: ScenarioSpec, config: SimConfig | None = None
         objects.append(ObjectSpec("ball", name=IMPACT_BALL, size=(r,), mass=spec.perturb_mass,
                                   friction=0.5, pos=(0.45, 0.30, r + 1e-4),
                                   rgba=(0.8, 0.2, 0.2, 1.0)))
+    return objects, size
+
+
+def build_world(spec: ScenarioSpec, config: SimConfig | None = None,
+                gains: CompositeControlConfig | None = None
+                ) -> tuple[SimWorld, ObjectSpec, tuple[float, ...]]:
+    """The MuJoCo world of a scenario (hand, table, object, optional falling ball); its
+    servos get the PD gains of ``gains`` (default: Table 1 = Table III.1) in the MJCF."""
+    objects, size = scene_objects(spec)
+    obj = objects[0]
     config = config or SimConfig()
-    xml = build_scene(objects, hand_gravcomp=config.hand_gravcomp)
+    kp, kd = joint_gains(gains or CompositeControlConfig(), JOINT_NAMES)
+    xml = build_scene(objects, hand_gravcomp=config.hand_gravcomp, servo_kp=kp, servo_kd=kd)
     return SimWorld(xml, config), obj, size
+
+
+@dataclass
+class ControllerSetup:
+    """What a controller of a scenario needs, built from the scenario's world (not stepped):
+    the world, its object, the grasp plan, the reference motion and the controller core."""
+
+    world: SimWorld
+    obj: ObjectSpec
+    size: tuple[float, ...]
+    plan: GraspPlan
+    reference: Reference
+    core: ControllerCore
+
+
+def controller_setup(spec: ScenarioSpec, sim_config: SimConfig | None = None,
+                     controller_config: ControllerNodeConfig | None = None,
+                     gains: CompositeControlConfig | None = None, control_period: float = 0.001,
+                     plan: GraspPlan | None = None) -> ControllerSetup:
+    """The scenario's world, grasp plan (fingertip IK), reference and a
+    :class:`ControllerCore` on the world's kinematics (:class:`MujocoKinematics`)."""
+    world, obj, size = build_world(spec, sim_config, gains)
+    pose = world.object_pose(obj.name)
+    plan = plan or plan_grasp(
+        world.model, obj.name, obj.kind, size, pose.position, pose.quaternion,
+        depth=spec.grasp_depth, upright_cylinder=spec.object_kind == "cylinder")
+    reference = Reference(spec, plan, pose.position, pose.quaternion)
+    body = world.objects[obj.name]["body"]
+    core = ControllerCore(
+        MujocoKinematics(world), reference, spec.object_mass,
+        controller_config or ControllerNodeConfig(scenario=spec.name), gains,
+        object_inertia=float(world.model.body_inertia[body].min()),
+        control_period=control_period)
+    return ControllerSetup(world, obj, size, plan, reference, core)
 
 
 @dataclass
@@ -110,29 +166,26 @@ class LockstepRunner:
     Args:
         spec: the scenario.
         sim_config: the world's settings (1 ms step, guard).
-        control_config: the controller (``mode="pd_only"`` for the baseline).
+        controller_config: the controller's own settings (reference source, filters).
         control_every: physics steps per control step (1 = 1 kHz).
+        plan: a grasp plan (default: fingertip IK on the scenario's object).
+        gains: every gain and QP setting (``mode="pd_only"`` for the baseline,
+            ``method="seed000"`` for seed 000's eq. 10-11); the sim's servos get its PD gains.
     """
 
     def __init__(self, spec: ScenarioSpec, sim_config: SimConfig | None = None,
                  controller_config: ControllerNodeConfig | None = None,
-                 control_every: int = 1, plan: GraspPlan | None = None) -> None:
+                 control_every: int = 1, plan: GraspPlan | None = None,
+                 gains: CompositeControlConfig | None = None) -> None:
         self.spec = spec
-        self.world, self.obj, self.size = build_world(spec, sim_config)
-        self.controller_config = controller_config or ControllerNodeConfig(
-            scenario=spec.name)
         self.control_every = max(1, int(control_every))
-        pose = self.world.object_pose(self.obj.name)
-        self.plan = plan or plan_grasp(
-            self.world.model, self.obj.name, self.obj.kind, self.size, pose.position,
-            pose.quaternion, depth=spec.grasp_depth,
-            upright_cylinder=spec.object_kind == "cylinder")
-        self.reference = Reference(spec, self.plan, pose.position, pose.quaternion)
-        body = self.world.objects[self.obj.name]["body"]
-        self.core = ControllerCore(
-            self.world, self.reference, spec.object_mass, self.controller_config,
-            object_inertia=float(self.world.model.body_inertia[body].min()),
-            control_period=self.control_every * self.world.model.opt.timestep)
+        timestep = (sim_config or SimConfig()).timestep
+        setup = controller_setup(spec, sim_config, controller_config, gains,
+                                 control_period=self.control_every * timestep, plan=plan)
+        self.world, self.obj, self.size = setup.world, setup.obj, setup.size
+        self.plan, self.reference, self.core = setup.plan, setup.reference, setup.core
+        self.controller_config = self.core.config
+        self.gains = self.core.gains
         self.controller = self.core.controller
         self._no_contacts = ContactFrame.empty(0.0)
         # the simulator's contact forces: only seed 000's eq. (10) uses them; the other
@@ -238,7 +291,7 @@ class LockstepRunner:
         schedule = sorted(zip(fs[0::2], fs[1::2], strict=True))
         dropped = [spec.perturb_mass <= 0]
         p_init = w.object_pose(self.obj.name).position.copy()
-        tr = {"t": [], "pos": [], "target": [], "phase": []}
+        tr = {"t": [], "pos": [], "target": [], "phase": [], "qpos": []}
         t_ctrl = 0.0
         control_steps = 0
         t_lift0 = self.reference.t_lift0
@@ -271,6 +324,7 @@ class LockstepRunner:
                 tr["pos"].append(op.position)
                 tr["target"].append(ref.object_position)
                 tr["phase"].append(ref.phase)
+                tr["qpos"].append(d.qpos.copy())
         wall = time.perf_counter() - t0
         op = w.object_pose(self.obj.name)
         target, _ = self.reference.object_target(w.time)
@@ -280,7 +334,7 @@ class LockstepRunner:
             spec.lift_height == 0 or lifted > 0.5 * spec.lift_height)
         e, re = self._tracking_errors(times, np.array(poses).reshape(len(times), 7))
         return EpisodeResult(
-            scenario=spec.name, mode=self.controller_config.mode, success=bool(success),
+            scenario=spec.name, mode=self.gains.mode, success=bool(success),
             feasible=self.feasibility(), final_error_mm=final * 1e3,
             pos_err_mean_mm=float(e.mean() * 1e3), pos_err_max_mm=float(e.max() * 1e3),
             rot_err_mean_deg=float(re.mean()), object_lift_mm=lifted * 1e3, steps=n,
@@ -290,12 +344,32 @@ class LockstepRunner:
             trace={k: np.asarray(v) for k, v in tr.items()} if trace else {})
 
 
+def record_motion(spec: ScenarioSpec, fps: float, seconds: float | None = None
+                  ) -> tuple[list[ObjectSpec], np.ndarray]:
+    """The scenario's episode under the composite controller, sampled at ``fps``: the scene's
+    objects (the order of their free joints) and the full ``qpos`` (n, nq) of every frame, so
+    that a renderer of the same scene shows physically consistent hand and object motion
+    (seed 000's capture data are such motions).
+
+    Raises:
+        SimulationError: the simulation diverged.
+    """
+    runner = LockstepRunner(spec)
+    duration = runner.reference.t_end if seconds is None else float(seconds)
+    tr = runner.run(duration=duration, trace=True).trace
+    n = max(1, int(duration * fps))
+    idx = np.searchsorted(tr["t"], np.arange(n) / fps).clip(0, len(tr["t"]) - 1)
+    return scene_objects(spec)[0], tr["qpos"][idx]
+
+
 def run_episode(spec: ScenarioSpec, mode: str = "composite", control_every: int = 1,
-                sim_config: SimConfig | None = None) -> EpisodeResult:
-    """One episode of ``spec`` with the composite controller or PD only.
+                sim_config: SimConfig | None = None,
+                gains: CompositeControlConfig | None = None) -> EpisodeResult:
+    """One episode of ``spec`` with the composite controller or PD only (``mode`` overrides
+    ``gains.mode``).
 
     Raises:
         SimulationError: the simulation diverged (``on_instability: raise``).
     """
-    cfg = ControllerNodeConfig(scenario=spec.name, mode=mode)
-    return LockstepRunner(spec, sim_config, cfg, control_every).run()
+    gains = replace(gains or CompositeControlConfig(), mode=mode)
+    return LockstepRunner(spec, sim_config, None, control_every, gains=gains).run()

@@ -216,6 +216,12 @@ class Reference:
         self._table: tuple[np.ndarray, ...] = ()
         self._rows: tuple[list, ...] = ()  # the table's rows (see precompute)
 
+    def is_finite(self) -> bool:
+        """Every sample is finite: true when the start pose, the grasp plan and the object's
+        initial pose are (a validated spec; the samples interpolate between them)."""
+        return all(bool(np.isfinite(np.asarray(a, dtype=np.float64)).all()) for a in (
+            self.q_start, self.plan.q_pregrasp, self.plan.q_grasp, self.p0, self.quat0))
+
     def precompute(self, dt: float, t0: float = 0.0, steps: int | None = None) -> None:
         """Tabulate the references at the times a simulation stepping by ``dt`` from ``t0``
         reaches, to the end of the scenario (+ 2 steps).

@@ -1,19 +1,20 @@
 """The simulated world: a MuJoCo model of the hand and objects, stepped with servo commands.
 
-The hand is driven like hardware: every DoF has a PD servo (eq. 8 of seed 000 / eq. III.20,
-gains of Table 1 = Table III.1) toward the last commanded position target, plus a commanded
-feed-forward effort (the composite controller's grasp torques, eq. 12). The servo runs at
-every physics step, whatever rate the commands arrive at:
+The hand is driven like hardware: every DoF has a PD servo (eq. 8 of seed 000 / eq. III.20)
+toward the last commanded position target, plus a commanded feed-forward effort (the
+composite controller's grasp torques, eq. 12). The servos are the MJCF's own ``position``
+actuators (hand_capture.model.mjcf: gains of the controller config, Table 1 = Table III.1 by
+default, finger torque limits as force ranges); the world never rewrites them, so the
+exported model is the simulated one. The servo runs at every physics step, whatever rate the
+commands arrive at:
 
-* root DoFs with a MuJoCo ``position`` actuator (the exported hand, hand_capture.model.mjcf):
-  ``ctrl`` = target (MuJoCo applies ``kp (target - q) - kv qd`` with the damping integrated
-  implicitly by ``implicitfast``), the effort goes to ``qfrc_applied``;
-* finger DoFs with a ``motor`` actuator: the motor is turned into a position servo with the
-  same gains when the world is built (``gain = kp``, ``bias = -kp q - kd qd``), its torque
-  limit moved to the force range, and the effort folded into the set point
-  (``ctrl = target + effort / kp``): the same torque ``kp (target - q) - kd qd + effort``,
-  clipped to the motor's range, computed inside MuJoCo at every step with implicit damping;
-* DoFs without an actuator: the same torque through ``qfrc_applied``, every step.
+* finger DoFs (servos without a control range): the effort is folded into the set point,
+  ``ctrl = target + effort / kp``: MuJoCo applies ``kp (target - q) - kv qd + effort``,
+  clipped to the force range, with the damping integrated implicitly by ``implicitfast``;
+* root DoFs (servos with a control range): ``ctrl`` = target, the effort goes to
+  ``qfrc_applied``;
+* DoFs without an actuator: the PD torque (``kp``, ``kd`` given to the world, the table's
+  by default) plus the effort through ``qfrc_applied``, every step.
 
 Instability guard: after every step the MuJoCo warning counters (``data.warning[mjWARN_*]``)
 and the hand's joint speeds are checked; a divergence is reported with the DoF
@@ -107,12 +108,13 @@ class SimWorld:
     Args:
         xml: MJCF text (e.g. ``hand_capture.model.mjcf.build_scene(...)``).
         config: stepping, servo-hold and guard settings.
-        kp, kd: (n_hand,) servo gains per hand DoF present in the model (JOINT_NAMES order);
-            by default the papers' Table 1 (``hand_capture.model.mjcf.PDGains``).
+        kp, kd: (n_hand,) PD gains of hand DoFs the model gives no actuator (JOINT_NAMES
+            order; by default Table 1); DoFs with a servo use the servo's gains.
         keyframe: keyframe to start from (``None``: the model's qpos0).
 
     Raises:
-        ConfigError: the model has no hand joint, or the gains have the wrong length.
+        ConfigError: the model has no hand joint, a hand actuator is not a position servo,
+            or the gains have the wrong length.
     """
 
     def __init__(self, xml: str, config: SimConfig | None = None,
@@ -169,20 +171,18 @@ class SimWorld:
                 geoms = np.nonzero(m.geom_bodyid == b)[0]
                 self.objects[name] = {"body": b, "qpos": int(m.jnt_qposadr[j]),
                                       "dof": int(m.jnt_dofadr[j]), "geoms": geoms}
-        # --- servo gains and actuators
+        # --- servo gains and actuators: the model's position servos, as they are
         if kp is None or kd is None:
-            from hand_capture.model.mjcf import PDGains
+            from hand_capture.model.mjcf import dof_gains
 
-            g = PDGains()
-            idx = [JOINT_NAMES.index(n) for n in self.joint_names]
-            kp = np.asarray(g.kp)[idx] if kp is None else kp
-            kd = np.asarray(g.kd)[idx] if kd is None else kd
+            kp0, kd0 = dof_gains(joint_names=self.joint_names)
+            kp = kp0 if kp is None else kp
+            kd = kd0 if kd is None else kd
         self.kp = np.asarray(kp, dtype=np.float64).copy()
         self.kd = np.asarray(kd, dtype=np.float64).copy()
         if self.kp.shape != (self.n_hand,) or self.kd.shape != (self.n_hand,):
             raise ConfigError(f"kp/kd need {self.n_hand} values (hand DoFs {self.joint_names})")
         self._servo_act = -np.ones(self.n_hand, dtype=np.int64)  # position servos (ctrl=target)
-        self._motor_act = -np.ones(self.n_hand, dtype=np.int64)  # torque motors
         for a in range(m.nu):
             if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT:
                 continue
@@ -191,34 +191,16 @@ class SimWorld:
                 continue
             k = jids.index(j)
             is_servo = m.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_AFFINE and \
-                m.actuator_biasprm[a, 1] != 0.0
-            if is_servo:
-                self._servo_act[k] = a
-                # the servo gains of the model win: they are what MuJoCo applies
-                self.kp[k] = m.actuator_gainprm[a, 0]
-                self.kd[k] = -m.actuator_biasprm[a, 2]
-            else:
-                self._motor_act[k] = a
-        # Finger motors become MuJoCo position servos with the same gains (eq. 8 computed in C
-        # at every step, the damping integrated implicitly by implicitfast); their torque
-        # limit moves from the control range to the force range. The feed-forward effort is
-        # folded into the servo's set point: ctrl = target + effort / kp.
-        for k in np.nonzero(self._motor_act >= 0)[0]:
-            a = self._motor_act[k]
-            if self.kp[k] <= 0.0:
-                self._motor_act[k] = -1  # no stiffness: driven through qfrc_applied
-                continue
-            lo, hi = m.actuator_ctrlrange[a]
-            if m.actuator_ctrllimited[a]:
-                m.actuator_forcerange[a] = (lo, hi)
-                m.actuator_forcelimited[a] = 1
-            m.actuator_ctrllimited[a] = 0
-            m.actuator_gaintype[a] = mujoco.mjtGain.mjGAIN_FIXED
-            m.actuator_gainprm[a, :3] = (self.kp[k], 0.0, 0.0)
-            m.actuator_biastype[a] = mujoco.mjtBias.mjBIAS_AFFINE
-            m.actuator_biasprm[a, :3] = (0.0, -self.kp[k], -self.kd[k])
+                m.actuator_biasprm[a, 1] != 0.0 and m.actuator_gainprm[a, 0] > 0.0
+            if not is_servo:
+                raise ConfigError(
+                    f"actuator {a} of joint {self.joint_names[k]!r} is not a position servo "
+                    "(the hand's DoFs need MuJoCo <position> actuators, see "
+                    "hand_capture.model.mjcf)")
             self._servo_act[k] = a
-            self._motor_act[k] = -1
+            # the servo gains of the model: they are what MuJoCo applies
+            self.kp[k] = m.actuator_gainprm[a, 0]
+            self.kd[k] = -m.actuator_biasprm[a, 2]
         self._servo_k = np.nonzero(self._servo_act >= 0)[0]
         self._servo_a = self._servo_act[self._servo_k]
         self._servo_dof = self.dof_adr[self._servo_k]
@@ -234,6 +216,12 @@ class SimWorld:
                                   m.actuator_forcerange[self._servo_a, 0], -np.inf)
         self._force_hi = np.where(m.actuator_forcelimited[self._servo_a].astype(bool),
                                   m.actuator_forcerange[self._servo_a, 1], np.inf)
+        # (n_hand,) feed-forward effort limits of each DoF's actuator [N m or N] (+-inf for
+        # a DoF without a force-limited actuator): set_command refuses efforts outside them
+        self.effort_lo = np.full(self.n_hand, -np.inf)
+        self.effort_hi = np.full(self.n_hand, np.inf)
+        self.effort_lo[self._servo_k] = self._force_lo
+        self.effort_hi[self._servo_k] = self._force_hi
         # _write_command's terms, once: set point = target + effort / kp_fold with
         # kp_fold = inf where the effort goes to qfrc_applied (effort / inf = 0 exactly)
         kp_servo = self.kp[self._servo_k]
@@ -383,7 +371,8 @@ class SimWorld:
         vouches for (n_hand,) finite float64 arrays, which the world then owns (not copied).
 
         Raises:
-            InputError: wrong length or a NaN/Inf entry (nothing is applied then).
+            InputError: wrong length, a NaN/Inf entry, or an effort outside its actuator's
+                force limits (:attr:`effort_lo`, :attr:`effort_hi`); nothing is applied then.
         """
         if not check:
             if target is not None:
@@ -402,6 +391,13 @@ class SimWorld:
             e = np.asarray(effort, dtype=np.float64)
             if e.shape != (self.n_hand,) or not np.isfinite(e).all():
                 raise InputError(f"effort must be {self.n_hand} finite values, got {e.shape}")
+            out = (e < self.effort_lo) | (e > self.effort_hi)
+            if out.any():
+                k = int(np.flatnonzero(out)[0])
+                raise InputError(
+                    f"effort of {self.joint_names[k]!r} = {e[k]:.6g} N m is outside its "
+                    f"actuator's limits [{self.effort_lo[k]:.4g}, {self.effort_hi[k]:.4g}] N m"
+                    f" ({int(out.sum())} efforts out of range); command refused")
         if target is not None:
             self.target = t.copy()
         if effort is not None:
@@ -581,6 +577,11 @@ class SimWorld:
                     _time.sleep(ahead)
 
     # --------------------------------------------------------------------------- contacts
+    def hand_body_names(self, bodies: Sequence[int]) -> tuple[str, ...]:
+        """The names of body ids (e.g. the hand bodies of :meth:`object_contacts`)."""
+        names = self._body_names
+        return tuple(names[b] for b in bodies)
+
     def body_name(self, b: int, geom: int) -> str:
         """A body's name; for the world body, the geom's (e.g. "table")."""
         return self._geom_names[geom] if b == 0 else self._body_names[b]

@@ -112,10 +112,14 @@ class GraspPhaseDetector:
         self._open_grip = 0.0  # grip size when closing began [m]
         self._grasp_grip = 0.0  # grip size when manipulation began [m]
         self._raw: deque[float] = deque(maxlen=self.cfg.grip_filter)  # unfiltered grip sizes
+        self._t_last: float | None = None  # time of the last update [s]
+        self.time_jumps = 0  # updates whose time went back (counted; timers restarted)
 
     def reset(self) -> None:
         """Back to reaching, forgetting any grasp."""
+        jumps = self.time_jumps
         self.__init__(self.cfg)
+        self.time_jumps = jumps
 
     def _enter(self, phase: Phase, t: float) -> None:
         self.phase, self._since = phase, t
@@ -131,7 +135,10 @@ class GraspPhaseDetector:
         """Advance the detector.
 
         Args:
-            t: time of the hand pose [s] (monotonic within an episode).
+            t: time of the hand pose [s] (monotonic within an episode). When it goes back
+                (a stamp from the future came before, a restarted source, a looped bag) the
+                phase stays and its timers and grip windows start again at ``t``: a single
+                bad stamp must not hold a phase for ever.
             keypoints: (21, 3) hand keypoints [m] in the object's frame of reference.
             wrist: (4, 4) wrist pose in the same frame.
             object_pose: (4, 4) current object pose in the same frame.
@@ -147,6 +154,11 @@ class GraspPhaseDetector:
         if not (np.isfinite(kp).all() and np.isfinite(wrist).all()
                 and np.isfinite(object_pose).all() and np.isfinite(t)):
             raise InputError("non-finite hand or object pose")
+        if self._t_last is not None and t < self._t_last:
+            self.time_jumps += 1
+            self._since = t
+            self._grips.clear()
+        self._t_last = t
         palm = palm_center(kp)
         self._raw.append(float(grip_size(kp, palm)) if raw_grip is None else raw_grip)
         grip = _median(self._raw)

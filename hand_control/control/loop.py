@@ -1,67 +1,66 @@
 """The controller side of the sim <-> controller loop, as arrays (what the controller node wraps).
 
-:class:`ControllerCore` holds the composite controller, the reference of a scenario and a
-kinematic copy of the simulated hand (:class:`HandKinematics`: the same MJCF, never stepped)
-that turns the contacts received from the simulation (hand bone name, point, normal, force)
-into the contact Jacobians of eq. (12) with ``mj_jac``. Each :meth:`ControllerCore.step` maps
+:class:`ControllerCore` holds the composite controller (one :class:`CompositeControlConfig`:
+every gain and QP setting), a reference motion and the hand's kinematics behind a small
+interface (:class:`~hand_control.control.kinematics.HandKinematics`: contact Jacobians from
+joint positions, the hand's limits). Each :meth:`ControllerCore.step` maps
 
     joint state + object state + contacts + time  ->  servo targets + feed-forward efforts
 
 :meth:`ControllerCore.step_world` is the same step for a controller in the simulator's process
-(the lockstep loop): it reads the contacts from the live :class:`SimWorld` and lets MuJoCo apply
-the Jacobian transpose (``mj_applyFT``), with the same equations and results up to rounding.
+(the lockstep loop): it reads the contacts from a
+:class:`~hand_control.control.kinematics.LiveContacts` world and lets it apply the Jacobian
+transpose, with the same equations (:meth:`CompositeController.object_wrench` and
+:meth:`CompositeController.realise`) and results up to rounding. Nothing here imports the
+simulator.
 
 Failures never reach a joint: a QP without solution, bad input or a non-finite result gives a
-PD-only command (zero efforts), counted in :attr:`ControllerCore.counters`.
+PD-only command (zero efforts), counted in :attr:`ControllerCore.counters`; efforts are
+clipped to the actuators' limits and position targets to the joints' (counted as
+``saturated``).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-import mujoco
 import numpy as np
 
 from hand_capture.config import param, validate
-from hand_control.contact import ContactQPConfig, ContactSet
+from hand_control.contact import ContactSet
 from hand_control.contact.qp import ContactForceResult
-from hand_control.control import (
-    CompositeControlConfig,
+from hand_control.control.composite import (
     CompositeController,
     ControlOutput,
     ObjectState,
     ObjectTarget,
+    pd_torques,
 )
-from hand_control.control.composite import _wrench_floats, pd_torques
+from hand_control.control.gains import CompositeControlConfig
+from hand_control.control.kinematics import (
+    ControlReference,
+    HandKinematics,
+    LiveContacts,
+    ReferenceSample,
+)
 from hand_control.errors import HandSuiteError, InputError
-from hand_control.sim.scenario import Reference, RefSample
-from hand_control.sim.world import SimWorld
 
-__all__ = ["Command", "ControllerCore", "ControllerNodeConfig", "HandKinematics"]
+__all__ = ["Command", "ControllerCore", "ControllerNodeConfig"]
 
 
 @dataclass(frozen=True)
 class ControllerNodeConfig:
-    """The controller node (composite control of a scenario's object)."""
+    """The controller node's own settings (scenario, reference, rates); the gains and QP
+    settings are :class:`CompositeControlConfig`'s (the node declares both)."""
 
     scenario: str = param("lift_box", "scenario file (config/scenarios/<name>.yaml): object, "
                           "grasp and reference motion")
-    mode: str = param("composite", "'composite' (PD + grasp torques) or 'pd_only'",
-                      choices=("composite", "pd_only"))
     reference: str = param(
         "scripted", "hand target: 'scripted' (the scenario's reference at the current time) or "
         "'hand_pose' (hand/pose from a tracker; the object target then comes from "
         "control/object_target)", choices=("scripted", "hand_pose"))
-    alpha3: float = param(1e-3, "contact-QP weight of sum |f|^2 (eq. III.23; the "
-                          "dissertation's 0.1 under-delivers heavy loads, see README)", lo=1e-9)
-    alpha4: float = param(1e-3, "contact-QP weight of sum l^2 (eq. III.23)", lo=1e-9)
-    torsion_bound: bool = param(
-        True, "bound the torsional torques by the contacts' torsional friction "
-        "(|l| <= torsional_friction x normal force); the papers leave them free")
-    torsional_friction: float = param(
-        0.005, "torsional friction coefficient [m]; 0.005 = the exported MJCF's", lo=0.0)
     state_timeout: float = param(0.2, "inputs older than this [s] are ignored", lo=0.0)
     forces_rate: float = param(
         50.0, "rate of control/contact_forces and control/contact_markers [Hz] (they are for "
@@ -88,48 +87,6 @@ class ControllerNodeConfig:
         validate(self)
 
 
-class HandKinematics:
-    """Kinematics of the simulated hand (the sim's own MJCF) for Jacobians from joint states."""
-
-    def __init__(self, world: SimWorld) -> None:
-        self.model = world.model
-        self.data = mujoco.MjData(self.model)
-        self.data.qpos[:] = world.data.qpos
-        self.joint_names = world.joint_names
-        self.qpos_adr = world.qpos_adr
-        self.dof_adr = world.dof_adr
-        self._body = {world._body_names[b]: b for b in world.hand_body_ids}
-        self._jacp = np.zeros((3, self.model.nv))
-        self._jacr = np.zeros((3, self.model.nv))
-
-    def is_hand_body(self, name: str) -> bool:
-        return name in self._body
-
-    def body_id(self, name: str) -> int:
-        try:
-            return self._body[name]
-        except KeyError:
-            raise InputError(f"{name!r} is not a hand body ({sorted(self._body)})") from None
-
-    def update(self, q: np.ndarray) -> None:
-        self.data.qpos[self.qpos_adr] = q
-        mujoco.mj_kinematics(self.model, self.data)
-        mujoco.mj_comPos(self.model, self.data)
-
-    def jacobians(self, bodies: Sequence[str], points: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-        """(K, 3, n_hand) translational and rotational Jacobians at ``points`` on ``bodies``
-        (call :meth:`update` first)."""
-        k = len(bodies)
-        jp = np.empty((k, 3, len(self.qpos_adr)))
-        jr = np.empty_like(jp)
-        for i, (b, p) in enumerate(zip(bodies, points, strict=True)):
-            mujoco.mj_jac(self.model, self.data, self._jacp, self._jacr, p, self.body_id(b))
-            jp[i] = self._jacp[:, self.dof_adr]
-            jr[i] = self._jacr[:, self.dof_adr]
-        return jp, jr
-
-
 @dataclass(frozen=True, eq=False)
 class Command:
     """One controller output: servo targets and feed-forward efforts by joint name."""
@@ -149,11 +106,26 @@ class Command:
 class ControllerCore:
     """Composite controller + scenario reference + hand kinematics (see module docstring)."""
 
-    def __init__(self, world: SimWorld, reference: Reference, object_mass: float,
-                 config: ControllerNodeConfig | None = None, object_inertia: float = 0.0,
+    def __init__(self, kinematics: HandKinematics, reference: ControlReference,
+                 object_mass: float, config: ControllerNodeConfig | None = None,
+                 gains: CompositeControlConfig | None = None, object_inertia: float = 0.0,
                  control_period: float = 0.001) -> None:
+        """
+        Args:
+            kinematics: the hand's kinematics and limits (e.g. the sim's
+                :class:`~hand_control.sim.kinematics.MujocoKinematics`).
+            reference: the reference motion (hand targets, object target, phases).
+            object_mass: the grasped object's mass [kg].
+            config: the node's settings (reference source, target filter).
+            gains: every gain and QP setting (defaults: the papers' tables; the simulation
+                cancels gravity on the hand, so ``gravity_compensation`` is not used here).
+            object_inertia: the object's smallest principal inertia [kg m^2] (caps the
+                rotational object gains, see below); 0 = no cap.
+            control_period: time between control steps [s].
+        """
         self.config = config or ControllerNodeConfig()
-        self.kin = HandKinematics(world)
+        self.gains = gains or CompositeControlConfig()
+        self.kin = kinematics
         self.reference = reference
         self.object_mass = float(object_mass)
         # Virtual object servo (eq. III.22, gains of Table III.1). Its damping is explicit at
@@ -161,31 +133,34 @@ class ControllerCore:
         # limit (a 50 g ball: 0.5 * 1e-3 / 2.5e-5 = 20) and the virtual torque oscillates and
         # throws the object. The rotational gains are therefore capped at
         # kd <= 0.5 I / dt and kp <= 0.25 I / dt^2 (no change for the tables' 1 kg objects).
-        base = CompositeControlConfig()
-        kd_rot, kp_rot = base.object_kd_rotate, base.object_kp_rotate
+        kd_rot, kp_rot = self.gains.object_kd_rotate, self.gains.object_kp_rotate
         if object_inertia > 0:
             kd_rot = min(kd_rot, 0.5 * object_inertia / control_period)
             kp_rot = min(kp_rot, 0.25 * object_inertia / control_period**2)
         self.object_rot_gains = (kp_rot, kd_rot)
         self.controller = CompositeController(
-            CompositeControlConfig(mode=self.config.mode, gravity_compensation=False,
-                                   object_kp_rotate=kp_rot, object_kd_rotate=kd_rot),
-            ContactQPConfig(alpha3=self.config.alpha3, alpha4=self.config.alpha4,
-                            torsion_bound=self.config.torsion_bound,
-                            torsional_friction=self.config.torsional_friction),
-            joint_names=world.joint_names)
-        self.joint_names = world.joint_names
+            replace(self.gains, gravity_compensation=False, object_kp_rotate=kp_rot,
+                    object_kd_rotate=kd_rot),
+            joint_names=kinematics.joint_names)
+        self.joint_names = tuple(kinematics.joint_names)
+        n = len(self.joint_names)
+        lim = np.asarray(kinematics.effort_limits, dtype=np.float64)
+        plim = np.asarray(kinematics.position_limits, dtype=np.float64)
+        if lim.shape != (n,) or plim.shape != (n, 2) or np.isnan(lim).any() \
+                or np.isnan(plim).any() or (lim < 0).any():
+            raise InputError(f"kinematics limits need shapes ({n},) and ({n}, 2), no NaN")
+        self._effort_hi = lim
+        self._effort_lo = -lim
+        self._ones = np.ones(n)
+        self._pos_lo, self._pos_hi = plim[:, 0].copy(), plim[:, 1].copy()
         self._no_gravity = not self.controller.config.gravity_compensation
         self._composite = self.controller.config.mode == "composite"
-        r = reference
-        self._reference_finite = all(
-            bool(np.isfinite(np.asarray(a, dtype=np.float64)).all()) for a in (
-                r.q_start, r.plan.q_pregrasp, r.plan.q_grasp, r.p0, r.quat0))
+        self._reference_finite = bool(reference.is_finite())
         self._zeros = np.zeros(len(self.joint_names))  # read-only use: finiteness checks
         self._zeros.setflags(write=False)
         self._index = {n: i for i, n in enumerate(self.joint_names)}
         self.counters = {"steps": 0, "qp_fallbacks": 0, "rejected_inputs": 0,
-                         "non_finite_outputs": 0}
+                         "non_finite_outputs": 0, "saturated": 0}
         self._live: tuple | None = None  # see last_output
         self._last_output: ControlOutput | None = None
         self.object_target_override: tuple[np.ndarray, np.ndarray] | None = None
@@ -199,7 +174,7 @@ class ControllerCore:
         """Whether the step at ``t`` uses contacts (composite mode, grasp torques on)."""
         return self.controller.config.mode == "composite" and self._grasp_on(self.reference(t))
 
-    def _grasp_on(self, ref: RefSample) -> bool:
+    def _grasp_on(self, ref: ReferenceSample) -> bool:
         """Grasp torques on: ``grasp_override`` when set, else the reference's phase."""
         return ref.grasp if self.grasp_override is None else self.grasp_override
 
@@ -280,8 +255,9 @@ class ControllerCore:
                 self.last_output = out
                 if out.fallback:
                     self.counters["qp_fallbacks"] += 1
-                else:  # tau_gravity is zero here (gravity compensated inside MuJoCo)
-                    effort = out.tau_grasp if self._no_gravity else \
+                else:  # tau_gravity is zero here (gravity compensated inside MuJoCo);
+                    # the command's own array (clipped in place by _command)
+                    effort = out.tau_grasp.copy() if self._no_gravity else \
                         out.tau_grasp + out.tau_gravity
                     forces, torsion = out.qp.forces, out.qp.torsion
             except HandSuiteError:
@@ -294,7 +270,7 @@ class ControllerCore:
         return self._command(q, q_target, effort, ref.phase, forces, torsion, contact_points,
                              contact_normals, contact_bodies)
 
-    def step_world(self, t: float, world: SimWorld, object_body: int, q: np.ndarray,
+    def step_world(self, t: float, world: LiveContacts, object_body: int, q: np.ndarray,
                    qd: np.ndarray, object_views: tuple[np.ndarray, ...]) -> Command:
         """One control step on the live state of a :class:`SimWorld` in this process (the
         lockstep loop): what :meth:`step` computes with ``trusted=True`` and the world's
@@ -344,51 +320,48 @@ class ControllerCore:
             return self._command(q, q_target, None, ref.phase, forces, torsion, None, None, (),
                                  trusted)
         return self._command(q, q_target, effort, ref.phase, forces, torsion, points, normals,
-                             tuple(map(world._body_names.__getitem__, hand)), trusted)
+                             world.hand_body_names(hand), trusted)
 
-    def _grasp_world(self, world: SimWorld, q: np.ndarray, qd: np.ndarray,
+    def _grasp_world(self, world: LiveContacts, q: np.ndarray, qd: np.ndarray,
                      q_target: np.ndarray, obj_pos: np.ndarray, obj_quat: np.ndarray,
                      object_views: tuple[np.ndarray, ...], points: np.ndarray,
                      normals: np.ndarray, mu: np.ndarray, hand: list[int]
                      ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-        """The grasp part of :meth:`step_world` (steps 2-4 of
-        :meth:`CompositeController.compute`): ``(tau_grasp, forces, torsion)``, all ``None``
-        when the QP finds no solution (counted as a fallback)."""
+        """The grasp part of :meth:`step_world`: the controller's own steps 2-4
+        (:meth:`CompositeController.object_wrench`, :meth:`CompositeController.realise`) on
+        the world's contact arrays, eq. (12) evaluated by the world. ``(tau_grasp, forces,
+        torsion)``, all ``None`` when the QP finds no solution (counted as a fallback)."""
         ctrl = self.controller
         pos, quat, vel, omega_body, rot = object_views
         omega = rot.dot(omega_body)  # angular velocity, world frame
-        mass = self.object_mass
-        gx, gy, gz = ctrl._g
-        weight = (mass * gx, mass * gy, mass * gz)
         if self.object_target_override is None:
             # the simulator's state and the reference (as step(trusted=True)): floats as they
-            # are; f_v - m g (weight compensated, eq. 9) and tau_v (eq. III.22)
-            w6 = _wrench_floats(ctrl.config, pos.tolist(), quat.tolist(), vel.tolist(),
-                                omega.tolist(), obj_pos.tolist(), obj_quat.tolist(), weight)
+            # are
+            w6 = ctrl.object_wrench(pos.tolist(), quat.tolist(), vel.tolist(), omega.tolist(),
+                                    obj_pos.tolist(), obj_quat.tolist(), self.object_mass)
         else:  # a target from outside: checked and normalised, as step() does
             obj = ObjectState(pos, quat, vel, omega, self.object_mass)
             target = ObjectTarget(obj_pos, obj_quat)
-            w6 = _wrench_floats(ctrl.config, obj.position.tolist(), obj.quaternion.tolist(),
-                                obj.linear_velocity.tolist(), obj.angular_velocity.tolist(),
-                                target.position.tolist(), target.quaternion.tolist(), weight)
-        res = ctrl.qp.solve_arrays(points, normals, mu, pos, w6)
-        ctrl.steps += 1
-        if not res.found:
-            ctrl.fallbacks += 1
-            self.counters["qp_fallbacks"] += 1
-            self._live = (q.copy(), qd.copy(), q_target, w6, res, None)
-            return None, None, None
-        ctrl.grasp_steps += 1
-        # eq. (12) / (III.21): tau_grasp = sum_k Jp_k^T f_k + Jr_k^T (l_k n_k); tau_gravity is
-        # zero here (gravity compensated inside MuJoCo)
-        forces, torsion = res.forces, res.torsion
-        if res.contact_wrench is not None:  # each contact's wrench about the object's com
-            tau = world.wrench_torques(hand, pos, res.contact_wrench)
-        else:
-            tau = world.contact_torques(hand, points, forces, torsion, normals)
+            w6 = ctrl.object_wrench(obj.position.tolist(), obj.quaternion.tolist(),
+                                    obj.linear_velocity.tolist(), obj.angular_velocity.tolist(),
+                                    target.position.tolist(), target.quaternion.tolist(),
+                                    self.object_mass)
+
+        def transpose(res: ContactForceResult) -> np.ndarray:
+            # eq. (12) / (III.21): tau_grasp = sum_k Jp_k^T f_k + Jr_k^T (l_k n_k); tau_gravity
+            # is zero here (gravity compensated inside the simulator)
+            if res.contact_wrench is not None:  # each contact's wrench about the object's com
+                return world.wrench_torques(hand, pos, res.contact_wrench)
+            return world.contact_torques(hand, points, res.forces, res.torsion, normals)
+
+        tau, res = ctrl.realise(lambda: ctrl.qp.solve_arrays(points, normals, mu, pos, w6),
+                                transpose)
         # the ingredients of last_output (built when asked for; q, qd may be live views)
         self._live = (q.copy(), qd.copy(), q_target, w6, res, tau)
-        return tau, forces, torsion
+        if tau is None:
+            self.counters["qp_fallbacks"] += 1
+            return None, None, None
+        return tau, res.forces, res.torsion
 
     @property
     def last_output(self) -> ControlOutput | None:
@@ -419,7 +392,7 @@ class ControllerCore:
                              torque_target=np.array(wrench[3:6]), qp=res, grasp_active=found,
                              fallback=not found)
 
-    def _targets(self, t: float, ref: RefSample
+    def _targets(self, t: float, ref: ReferenceSample
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The hand target and the object's target pose at ``t``: the reference's, or the
         overrides (low-passed, ``target_cutoff``)."""
@@ -439,7 +412,9 @@ class ControllerCore:
                  bodies: tuple[str, ...], trusted_target: bool = False) -> Command:
         """The step's :class:`Command`: PD only (zero efforts) without grasp torques or when
         an output is not finite (counted), else the grasp torques with their contacts.
-        ``trusted_target``: ``q_target`` is known to be finite (not checked again)."""
+        Efforts beyond the actuators' limits and targets beyond the joints' are clipped
+        (counted as ``saturated``): whatever the inputs, the command is finite and within
+        the hand's limits. ``trusted_target``: ``q_target`` is known to be finite."""
         pd_only = effort is None
         # the command's own copy (of a float64 array: its copy method, the quicker call)
         q_target = q_target.copy() if type(q_target) is np.ndarray and \
@@ -448,8 +423,28 @@ class ControllerCore:
         if not ((pd_only or effort.dot(zeros) == 0.0)
                 and (trusted_target or q_target.dot(zeros) == 0.0)):
             self.counters["non_finite_outputs"] += 1
-            q_target = np.where(np.isfinite(q_target), q_target, q)
+            q = np.asarray(q, dtype=np.float64)
+            hold = np.where(np.isfinite(q), q, 0.0) if q.shape == q_target.shape else 0.0
+            q_target = np.where(np.isfinite(q_target), q_target, hold)
             pd_only = True
+        # q_target is the command's own copy: clipped in place
+        if trusted_target:  # a scenario reference: within the limits up to round-off (not counted)
+            _clip(q_target, self._pos_lo, self._pos_hi, out=q_target)
+            saturated = False
+        else:
+            clipped = _clip(q_target, self._pos_lo, self._pos_hi)
+            # counted beyond round-off (IK grasp poses sit on the joint limits)
+            saturated = bool(np.abs(clipped - q_target).max() > _POS_TOL)
+            q_target = clipped
+        if not pd_only:  # the efforts (this step's own array) clipped in place; a clipped
+            # entry changes their sum (two BLAS dots: cheaper than a comparison per entry)
+            ones = self._ones
+            before = effort.dot(ones)
+            _clip(effort, self._effort_lo, self._effort_hi, out=effort)
+            if effort.dot(ones) != before:
+                saturated = True
+        if saturated:
+            self.counters["saturated"] += 1
         cmd = object.__new__(Command)  # the frozen dataclass without its __init__
         if pd_only:
             cmd.__dict__.update(
@@ -468,6 +463,13 @@ class ControllerCore:
 
 
 _F64 = np.dtype(np.float64)
+_POS_TOL = 1e-6  # [rad or m] a clipped target further off than this counts as saturated
+try:  # numpy's clip ufunc (one call); min(max(x, lo), hi) elementwise
+    from numpy._core.umath import clip as _clip
+except ImportError:  # pragma: no cover - numpy < 2
+    def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+              out: np.ndarray | None = None) -> np.ndarray:
+        return np.minimum(np.maximum(x, lo), hi, out=out)
 # the empty arrays of a PD-only command (read-only: shared by every such command)
 _EMPTY3 = np.zeros((0, 3))
 _EMPTY = np.zeros(0)

@@ -13,7 +13,7 @@ the subscriber acknowledges one on a reliable topic (both ends matched), then th
 measured frames (``frame_id`` ``m<i>``), then a reliable "done"; the subscriber waits for
 "done" (and a short drain) and prints one JSON line.
 
-Run as ``python -m hand_capture.bench.delivery {pub,sub} ...`` (the children); use
+Run as ``python -m hand_capture.bench._delivery {pub,sub} ...`` (the children); use
 :func:`measure_delivery` from code.
 """
 
@@ -58,7 +58,7 @@ def measure_delivery(n: int = 90, rate_hz: float = 30.0, width: int = 640, heigh
     tag = f"delivery_{os.getpid()}_{time.monotonic_ns() % 10 ** 9}"
     common = ["--tag", tag, "--n", str(n), "--rate", str(rate_hz), "--width", str(width),
               "--height", str(height), "--timeout", str(timeout_s)]
-    cmd = [sys.executable, "-m", "hand_capture.bench.delivery"]
+    cmd = [sys.executable, "-m", "hand_capture.bench._delivery"]
     sub = subprocess.Popen(cmd + ["sub"] + common, env=env, stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
     pub = subprocess.Popen(cmd + ["pub"] + common, env=env, stdout=subprocess.PIPE,

@@ -92,13 +92,25 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                          _bone_err_pct(model, seq.model), len(seq.frames), s["mean"],
                          s["median"], s["s20"], float(np.mean(s["flags"])),
                          1e3 * float(np.mean(s["cpu"])), 1e3 * t_render])
+            if not arm and k == 0:   # what the first sequence's error is made of
+                exact = make_sequence(seed, n, cam, clutter=clutter, step=step, noise=False)
+                diag = {"same": s,
+                        "exact depth": _score(HybridTracker(model, config, reg), exact.frames,
+                                              exact.keypoints),
+                        "uncalibrated": _score(HybridTracker(base, config, reg), seq.frames,
+                                               seq.keypoints)}
+    print_table("held-out diagnostics, first sequence: the same with exact depth (no noise), "
+                "and with the uncalibrated template", ["variant", "mean mm", "succ@20"],
+                [[k, v["mean"], v["s20"]] for k, v in diag.items()])
     print_table("held-out family (hand_capture.evaldata: capsule/ellipsoid hands, ray casting, "
                 "stereo-like noise, other cameras and motions), calibrated per subject, "
                 "product settings",
                 ["set", "camera", "clutter", "arm", "s_g true", "s_g fit", "bone err %",
                  "frames", "mean mm", "median mm", "succ@20", "flag rate", "cpu ms",
                  "render ms"], rows)
-    out = {}
+    out = {"heldout_first_mean_mm": diag["same"]["mean"],
+           "heldout_first_exact_depth_mean_mm": diag["exact depth"]["mean"],
+           "heldout_first_uncalibrated_mean_mm": diag["uncalibrated"]["mean"]}
     for key in ("heldout", "forearm"):
         e = np.concatenate(agg[key])
         s = _summary(e)
@@ -253,7 +265,7 @@ def resolution_section(reg, config, quick: bool) -> dict:
 
 def transport_section(quick: bool) -> dict:
     """640x480 frames at 30 Hz to the tracker's QoS: graphs' profile vs Fast DDS defaults."""
-    from hand_capture.bench.delivery import measure_delivery
+    from hand_capture.bench._delivery import measure_delivery
 
     n = 30 if quick else 150
     rows, out = [], {}

@@ -1,0 +1,76 @@
+"""Every ``hand-suite bench NAME`` runs: its smallest mode (``--smoke``, or ``--quick`` where a
+bench has none) through the CLI, in a subprocess as a user runs it, and its last line is one
+JSON object with the figures the README quotes.
+
+Table-driven: a new benchmark adds a row to ``BENCHES`` (``test_every_bench_has_a_row`` fails
+until it does). Rows marked ``slow`` take most of a minute on a loaded 2-core machine even in
+their smallest mode; they run in CI like the others (``-m "not slow"`` skips them locally).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: bench name -> (keys its last JSON line must carry, pytest marks)
+BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
+    "bag": (("msgs_per_s", "replay_msgs_per_s", "baseline_msgs_per_s", "record_vs_baseline",
+             "replay_vs_baseline"), ()),
+    "contact": (("composite_success", "pd_only_success", "success_ratio", "grid_split",
+                 "alpha_chosen", "val_composite_success_by_alpha", "grid_cells",
+                 "feasible_cells", "qp_grid_problems", "qp_p50_us", "osqp_p50_us",
+                 "speedup_vs_osqp", "max_abs_diff_vs_osqp", "cvxpy_p50_us", "speedup_vs_cvxpy",
+                 "max_abs_diff_vs_cvxpy", "qp_grid_unreachable", "seed000_qp_p50_us",
+                 "feasibility_lp_p50_us", "control_step_p50_us"), ()),
+    "executor": (("lean_vs_rclpy_0_subs", "lean_vs_rclpy_25_subs"), ()),
+    "fuzz": (("cases", "failures", "msgs_per_s"), ()),
+    "model": (("fk_lbs_ms", "baseline_fk_lbs_ms", "fk_lbs_speedup", "fk_lbs_batch_speedup",
+               "fk_lbs_speedup_vs_naive", "vectorised_max_diff_m", "jacobian_speedup",
+               "render_fps", "raycast_fps", "render_speedup_vs_raycast"), ()),
+    "pipeline": (("latency_p50_ms", "latency_p99_ms", "fps", "truth_latency_p50_ms",
+                  "latency_vs_truth", "lift_mm"), (pytest.mark.slow,)),  # 3 graph runs
+    "rig": (("views_per_s", "groups_per_s", "baseline_views_per_s", "speedup",
+             "sync_frames_per_s", "sync_max_skew_ms", "calib_reproj_px", "calib_extrinsic_mm",
+             "calib_extrinsic_deg"), ()),
+    "servo": (("loop_hz", "cycle_p50_ms", "baseline_loop_hz", "loop_ratio",
+               "pose_to_bus_ms_p50"), ()),
+    "sim": (("baseline_rtf", "lockstep_rtf", "lockstep_vs_baseline", "lockstep_success",
+             "topics_rtf", "topics2_rtf"), ()),
+    "touch": (("quadratic_wrist_cm", "quadratic_angle_deg", "pcaik_wrist_cm", "label_acc_5",
+               "eval_us", "eval_speedup_vs_pcaik"), (pytest.mark.slow,)),  # new data sets
+    "tracking": (("fps", "mean_joint_err_mm", "success_20mm", "icp_only_mean_joint_err_mm",
+                  "fps_ratio_vs_icp_only", "heldout_mean_mm", "heldout_success_20mm",
+                  "forearm_mean_mm", "forearm_success_20mm", "calib_bone_err_pct",
+                  "large_frame_delivery", "temporal_weight_chosen"), ()),
+}
+
+
+def test_every_bench_has_a_row():
+    from hand_control.cli import available_benches
+
+    assert sorted(available_benches()) == sorted(BENCHES), \
+        "add a row to BENCHES for every `hand-suite bench --list` name"
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=m) for n, (_, m) in BENCHES.items()])
+def test_bench_smoke(name, tmp_path):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    out = subprocess.run(
+        [sys.executable, "-c", "import sys; from hand_control.cli import main; "
+         "sys.exit(main(sys.argv[1:]))", "bench", name, "--smoke"],
+        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    lines = out.stdout.strip().splitlines()
+    assert lines, out.stderr[-3000:]
+    figures = json.loads(lines[-1])  # the last line: one JSON object
+    assert figures["bench"] == name and figures["smoke"] is True
+    missing = [k for k in BENCHES[name][0] if k not in figures]
+    assert not missing, f"bench {name}: keys missing from the JSON line: {missing}"
