@@ -80,7 +80,9 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                                                list(CALIBRATION_POSES.values()), cam,
                                                np.random.default_rng(seed)), model=base)
             model = base.with_shape(cal.shape)
-            s = _score(HybridTracker(model, config, reg), seq.frames, seq.keypoints)
+            tracker = HybridTracker(base, config, reg)
+            tracker.set_calibration(cal)   # as the node: the shape, and tau from the fit
+            s = _score(tracker, seq.frames, seq.keypoints)
             agg[key].append(s["errs"])
             cpu[key].append(s["cpu"])
             rows.append([key, cam, "yes" if clutter else "no",

@@ -297,7 +297,12 @@ class TrackerNode(Node):
         sid = self.node_cfg.subject_id or "subject"
         res = calibrate(frames, [flat] * len(frames), HandModel(side=self.cfg.side), self.cfg,
                         subject_id=sid)
+        if not res.ok:  # an untrusted fit is neither used nor saved
+            self.get_logger().warning(f"calibration of {sid!r} {res.status}; keeping the "
+                                      f"current shape")
+            return
         self._use_shape(res.shape, res.residual_mm)
+        self.tracker.set_calibration(res)   # tau of eq. II.19 follows the fit
         if self.node_cfg.subject_id:
             p = save_shape(res.shape, self.node_cfg.shape_folder, sid, self.cfg.side,
                            res.residual_mm)

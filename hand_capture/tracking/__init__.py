@@ -10,7 +10,7 @@ Pure numpy/scipy/OpenCV (no rclpy). Typical use::
                             HandRegressor.load("data/tracker/regressor.npz"))
     result = tracker.process(depth_mm, intrinsics)   # TrackResult: pose, success, status...
 
-Modules: ``config`` (every weight/threshold), ``preprocess`` (segmentation), ``icp``
+Modules: ``config`` (every weight/threshold), ``preprocess`` (segmentation, forearm cut), ``icp``
 (model-based tracking, eq. II.21-II.27), ``forest`` (numpy random regression forest),
 ``regressor`` (shape-indexed features and hierarchical cascades, eq. II.12-II.18), ``train``
 (:func:`train_tracker`), ``hybrid`` (steps 1-6 of II.5.1, eq. II.19-II.20), ``calibration``
@@ -27,10 +27,11 @@ from hand_capture.tracking.calibration import (
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.hybrid import HybridTracker, TrackResult, default_model_path
 from hand_capture.tracking.icp import ModelTracker
-from hand_capture.tracking.preprocess import HandObservation, segment_hand
+from hand_capture.tracking.preprocess import HandObservation, cut_forearm, segment_hand
 from hand_capture.tracking.regressor import HandRegressor
 from hand_capture.tracking.train import train_tracker
 
 __all__ = ["CALIBRATION_POSES", "CalibrationResult", "HandObservation", "HandRegressor",
            "HybridTracker", "ModelTracker", "TrackResult", "TrackerConfig", "calibrate",
-           "default_model_path", "load_shape", "save_shape", "segment_hand", "train_tracker"]
+           "cut_forearm", "default_model_path", "load_shape", "save_shape", "segment_hand",
+           "train_tracker"]

@@ -10,6 +10,14 @@ is wherever the hand is). Eq. II.11 is solved by alternation, as in the disserta
    on the parameters (the shape model's own spread) to keep the fit well posed;
 3. every frame's pose is refined with the new shape; repeat 2-3 ``rounds`` times.
 
+Departures, for hands whose surface is not the model's and that come with a forearm: the
+forearm is cut off every frame first (``preprocess.cut_forearm``), the residuals are
+Huber-weighted as in the tracker (``robust_mm``), the global scale starts from the best of
+a grid (0.9, 1.0, 1.1; each tried with its own cut at its fitted wrists), the cut is
+redone half-way through the rounds, and a fit that cannot be trusted (few
+hand points, a high residual, much of the model off the observed hand) is refused: ``ok``
+False, a ``status`` naming why, and the starting shape returned unchanged.
+
 Shapes are saved per subject as YAML (``<folder>/<subject_id>.yaml``).
 """
 
@@ -30,8 +38,8 @@ from hand_capture.model import N_ALPHA, N_BETA, N_DOF, HandModel, HandShape
 from hand_capture.model.joints import pose_from_dict
 from hand_capture.model.shape import BETA_SD, GLOBAL_SCALE_SD
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.icp import ModelTracker
-from hand_capture.tracking.preprocess import segment_hand
+from hand_capture.tracking.icp import ModelTracker, huber_sqrt_weights
+from hand_capture.tracking.preprocess import cut_forearm, segment_hand
 from hand_capture.tracking.regressor import ModelFrames, palm_init_pca
 
 __all__ = ["CALIBRATION_POSES", "CalibrationResult", "calibrate", "load_shape", "save_shape",
@@ -54,20 +62,38 @@ CALIBRATION_POSES: dict[str, np.ndarray] = {
 
 @dataclass
 class CalibrationResult:
-    """The fitted shape, the fitted pose of every frame and the mean residual [mm]."""
+    """The fitted shape, the fitted pose of every frame and the mean residual [mm].
+
+    Attributes:
+        shape: the fitted shape; when refused (``ok`` False), the starting model's shape.
+        poses: fitted pose (27,) of every frame.
+        residual_mm: mean point-to-model distance of the fit [mm].
+        rounds: shape/pose alternations run.
+        ok: whether the fit can be trusted (else the shape must not be used).
+        status: ``ok`` or ``refused: <reasons>``.
+        depth_residual_mm: mean E_d (eq. II.19) of the fitted poses [mm]: what E_d is on
+            this subject at a good pose (:attr:`HybridTracker.tau_mm` follows it).
+        n_points: hand points per frame (after the forearm cut).
+    """
 
     shape: HandShape
     poses: list[np.ndarray]
     residual_mm: float
     rounds: int
+    ok: bool = True
+    status: str = "ok"
+    depth_residual_mm: float = float("nan")
+    n_points: tuple[int, ...] = ()
 
 
 def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
               finger_poses: Sequence[np.ndarray] | None = None,
               model: HandModel | None = None, config: TrackerConfig | None = None, *,
               rounds: int = 10, pose_iterations: int = 3, prior_weight: float = 300.0,
-              scale_grid: Sequence[float] = (1.0,),
-              subject_id: str = "") -> CalibrationResult:
+              scale_grid: Sequence[float] = (0.9, 1.0, 1.1),
+              subject_id: str = "", min_points: int = 400,
+              max_residual_mm: float = 6.0, max_off_share: float = 0.2
+              ) -> CalibrationResult:
     """Fit the subject's shape (eq. II.11) from depth frames of predefined poses.
 
     Args:
@@ -82,6 +108,15 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
         scale_grid: factors of the starting global scale tried before the joint fit (the
             best one starts it; a single 1.0 = start from the given model).
         subject_id: stored in the result's shape.
+        min_points: fewer hand points than this in a frame (after the forearm cut) =
+            refused.
+        max_residual_mm: a mean fit residual above this = refused.
+        max_off_share: a frame whose fitted model has more than this share of its facing
+            vertices off the observed hand (occluded or cut hand) = refused.
+
+    Returns:
+        The fit; ``ok`` False (with ``status`` naming the reasons and the starting shape)
+        when it cannot be trusted: few points, a high residual, or an occluded hand.
 
     Raises:
         InputError: no frame, or a frame without a hand.
@@ -95,12 +130,20 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
         finger_poses = [presets[i % len(presets)] for i in range(len(frames))]
     if len(finger_poses) != len(frames):
         raise InputError(f"{len(frames)} frames but {len(finger_poses)} predefined poses")
-    obs_list = []
+    obs_list, whole = [], []
     for depth, intr in frames:
         obs = segment_hand(depth, intr, cfg)
         if len(obs.points) < 100:
             raise InputError("a calibration frame shows no hand")
+        whole.append(obs)
+        # the forearm is not the hand: a surface fitted to it inflates the hand (40-60 %)
+        if cfg.forearm_cut:
+            obs, _ = cut_forearm(obs, cfg, model.shape.global_scale)
         obs_list.append(obs)
+    reasons = []
+    n_points = tuple(int(o.n_points) for o in obs_list)
+    if min(n_points) < min_points:
+        reasons.append(f"{min(n_points)} hand points in a frame (< {min_points})")
     # coarse search of the global scale first: the joint Gauss-Newton below converges slowly
     # along the scale (sliding correspondences), so it starts from the best scale of a grid
     best = None
@@ -108,10 +151,17 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
         gs = float(np.clip(sg * model.shape.global_scale, 0.6, 1.6))
         shape_try = model.shape.with_params(global_scale=gs)
         tracker = ModelTracker(model.with_shape(shape_try), cfg)
-        poses_try, score = _fit_poses(tracker, obs_list, finger_poses, pose_iterations)
+        obs_try = list(obs_list)
+        poses_try, score = _fit_poses(tracker, obs_try, finger_poses, pose_iterations)
+        if cfg.forearm_cut:
+            # cut again at the fitted wrists (the cloud-only cut may leave some forearm,
+            # and where the wrist ends depends on the scale tried), refit and score
+            _recut(tracker, whole, obs_try, poses_try, cfg)
+            poses_try, score = _fit_poses(tracker, obs_try, finger_poses, pose_iterations,
+                                          poses_try)
         if best is None or score < best[0]:
-            best = (score, shape_try, tracker, poses_try)
-    _, shape, tracker, poses = best
+            best = (score, shape_try, tracker, poses_try, obs_try)
+    _, shape, tracker, poses, obs_list = best
     p0 = HandShape().params
     sd = np.r_[GLOBAL_SCALE_SD, np.ones(N_ALPHA), np.full(N_BETA, BETA_SD)]
     lo = np.r_[0.6, np.full(N_ALPHA, -3.0), np.full(N_BETA, -0.004)]
@@ -120,7 +170,9 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
     T = len(poses)
     n = len(p0)
     q_pre = [q.copy() for q in poses]
-    for _ in range(rounds):
+    for k in range(rounds):
+        if k == rounds // 2:   # and again with the half-fitted shape's wrists
+            _recut(tracker, whole, obs_list, poses, cfg)
         p = shape.params
         m = tracker.model
         N = T * N_DOF + n
@@ -140,6 +192,10 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
             r = np.r_[corr.residual_mm.reshape(-1), rev.residual_mm.reshape(-1)]
             wr = np.r_[np.ones(3 * len(corr.vertex)),
                        np.full(3 * len(rev.vertex), max(cfg.reverse_weight, 0.5))]
+            if cfg.robust_mm > 0:  # Huber IRLS, as the tracker's data term (icp.py), on
+                # the data-to-model pairs only: the model-to-data pairs carry the size
+                nd = 3 * len(corr.vertex)
+                wr[:nd] *= huber_sqrt_weights(r[:nd], cfg.robust_mm) ** 2
             J = J * np.sqrt(wr)[:, None]
             r = r * np.sqrt(wr)
             H = J.T @ J
@@ -175,18 +231,66 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
     for _ in range(1):
         poses = [tracker.refine(q, obs, pose_iterations, q_ref=q)
                  for q, obs in zip(poses, obs_list, strict=True)]
-    return CalibrationResult(shape, poses, residual, rounds)
+    e_d, off = [], []
+    for q, obs in zip(poses, obs_list, strict=True):
+        e_d.append(tracker.depth_cost(q, obs))
+        off.append(_off_share(tracker, q, obs))
+    if not np.isfinite(residual) or residual > max_residual_mm:
+        reasons.append(f"residual {residual:.1f} mm (> {max_residual_mm})")
+    if max(off) > max_off_share:
+        reasons.append(f"{max(off):.0%} of the model off the observed hand in a frame "
+                       f"(> {max_off_share:.0%}): occluded or not the predefined pose")
+    ok = not reasons
+    status = "ok" if ok else "refused: " + "; ".join(reasons)
+    return CalibrationResult(shape if ok else model.shape, poses, residual, rounds, ok,
+                             status, float(np.mean(e_d)), n_points)
+
+
+def _recut(tracker: ModelTracker, whole: list, obs_list: list, poses: list,
+           cfg: TrackerConfig) -> None:
+    """Replace ``obs_list[t]`` by ``whole[t]`` cut at the wrist of ``poses[t]``
+    (:func:`~hand_capture.tracking.preprocess.cut_forearm`)."""
+    if not cfg.forearm_cut:
+        return
+    sg = tracker.model.shape.global_scale
+    for t, (obs, q) in enumerate(zip(whole, poses, strict=True)):
+        kp = tracker.model.joint_positions(q)
+        d = kp[0] - kp[9]
+        obs_list[t], _ = cut_forearm(obs, cfg, sg,
+                                     (kp[0], d / max(float(np.linalg.norm(d)), 1e-9)))
+
+
+def _off_share(tracker: ModelTracker, q: np.ndarray, obs: object) -> float:
+    """Share of the facing model vertices at pose ``q`` that project more than 3 px off the
+    observed hand (or off the image)."""
+    V, facing = tracker.posed(q)
+    if not len(facing):
+        return 1.0
+    intr = obs.intrinsics
+    Vf = V[facing]
+    z = np.maximum(Vf[:, 2], 1e-3)
+    u = np.rint(intr.fx * Vf[:, 0] / z + intr.cx).astype(np.int64)
+    v = np.rint(intr.fy * Vf[:, 1] / z + intr.cy).astype(np.int64)
+    inside = (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
+    off = np.ones(len(Vf), bool)
+    off[inside] = obs.off_hand(v[inside], u[inside], 3.0)
+    return float(np.mean(off))
 
 
 def _fit_poses(tracker: ModelTracker, obs_list: list, finger_poses: Sequence[np.ndarray],
-               iterations: int) -> tuple[list[np.ndarray], float]:
+               iterations: int, start: list[np.ndarray] | None = None
+               ) -> tuple[list[np.ndarray], float]:
     """Poses of the calibration frames for the tracker's shape, and the symmetric mean
-    distance [mm] between model and points (data-to-model and model-to-data pairs)."""
+    distance [mm] between model and points (data-to-model and model-to-data pairs).
+    ``start``: poses to refine (default: PCA palm, predefined fingers, palm-only ICP)."""
     poses, dists = [], []
-    for obs, qd in zip(obs_list, finger_poses, strict=True):
-        q = palm_init_pca(obs.points, ModelFrames(tracker.model))
-        q[6:] = np.asarray(qd, float)[6:]
-        q = tracker.refine(q, obs, 6, palm_only=True)
+    for t, (obs, qd) in enumerate(zip(obs_list, finger_poses, strict=True)):
+        if start is None:
+            q = palm_init_pca(obs.points, ModelFrames(tracker.model))
+            q[6:] = np.asarray(qd, float)[6:]
+            q = tracker.refine(q, obs, 6, palm_only=True)
+        else:
+            q = start[t]
         q = tracker.refine(q, obs, iterations, q_ref=q)
         pts, pix = obs.subsample(tracker.cfg.max_points)
         V, facing = tracker.posed(q)

@@ -21,9 +21,32 @@ class TrackerConfig:
     far_m: float = param(1.2, "farthest depth considered [m]", lo=0.01, hi=20.0)
     band_m: float = param(0.16, "depth band kept behind the nearest hand pixel [m]", lo=0.01,
                           hi=2.0)
+    grow_m: float = param(0.4, "when the band's component runs out of the image (an arm "
+                          "reaching in), grow it over depth-continuous pixels up to this "
+                          "far behind the band (preprocess); 0 = off [m]", lo=0.0, hi=2.0)
+    jump_m: float = param(0.02, "depth step between neighbouring pixels that separates "
+                          "surfaces when growing [m]", lo=0.001, hi=0.5)
     min_hand_pixels: int = param(60, "fewer hand pixels than this = no hand in view", lo=1)
     wrist_cut_m: float = param(0.0, "drop points farther than this from the cloud centroid; "
                                "0 = no wrist cut [m]", lo=0.0, hi=1.0)
+    forearm_cut: bool = param(True, "remove the forearm from the segmented hand "
+                              "(preprocess.cut_forearm): beyond the previous pose's wrist "
+                              "while tracking, else by the cloud's shape")
+    forearm_margin_m: float = param(0.036, "while tracking: points farther than this beyond "
+                                    "the previous wrist (along the forearm) are cut; the "
+                                    "template mesh's wrist reaches 36 mm beyond the wrist "
+                                    "keypoint (a shorter cut leaves model without data, "
+                                    "which shrinks the fit) [m, at template size]", lo=0.0,
+                                    hi=0.2)
+    forearm_reach_m: float = param(0.25, "a cloud longer than this along its axis holds a "
+                                   "forearm (a hand alone cannot be) [m, at template size]",
+                                   lo=0.05, hi=0.6)
+    forearm_border_m: float = param(0.2, "a cloud longer than this whose one end runs out "
+                                    "of the image holds a forearm there [m, at template "
+                                    "size]", lo=0.05, hi=0.6)
+    forearm_wrist_m: float = param(0.05, "palm centre to the cut along the arm axis when "
+                                   "cutting from the cloud's shape (the mesh's wrist end) "
+                                   "[m, at template size]", lo=0.02, hi=0.2)
     max_points: int = param(160, "observed points used per ICP iteration (subsampled)",
                             lo=16, hi=20000)
     # -- model-based tracking (II.5.2) ---------------------------------------------------
@@ -46,6 +69,9 @@ class TrackerConfig:
                                    lo=1, hi=64)
     window_fallback: bool = param(True, "a point with no vertex in its window takes the "
                                   "nearest facing vertex in 3D")
+    robust_mm: float = param(8.0, "Huber scale of the ICP data residuals (eq. II.23 "
+                             "made robust by iteratively reweighted least squares); 0 = "
+                             "plain least squares [mm]", lo=0.0, hi=100.0)
     outlier_mm: float = param(40.0, "correspondences farther than this are dropped [mm]",
                               lo=1.0)
     model_stride: int = param(2, "use every n-th model vertex as correspondence candidate",
@@ -59,6 +85,10 @@ class TrackerConfig:
     # -- success test and candidate selection (II.5.1) -----------------------------------
     success_tau_mm: float = param(25.0, "tau of eq. II.19: mean depth error of success [mm]",
                                   lo=0.1)
+    tau_fit_ratio: float = param(1.6, "after calibration tau is at least this times the "
+                                 "E_d of the calibration fit (HybridTracker.tau_mm)", lo=1.0,
+                                 hi=10.0)
+    tau_max_mm: float = param(40.0, "largest tau the calibration may set [mm]", lo=0.1)
     depth_cap_mm: float = param(60.0, "per-pixel cap of |I_r - I| in E_d [mm]", lo=1.0)
     cost_downsample: int = param(2, "image downsampling of the E_d evaluation", lo=1, hi=8)
     cost_data_weight: float = param(1.0, "lambda_1 of the candidate cost (eq. II.20)", lo=0.0)

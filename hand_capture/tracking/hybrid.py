@@ -32,6 +32,12 @@ the frame is tracked from the previous pose and published first, then
 :meth:`HybridTracker.run_deferred` runs steps 1-2 on the same frame and keeps its best
 candidate for the next frame's pool when it fits that frame better than the tracked pose.
 
+Departures for real hands (issue 13): the forearm is cut off the segment first
+(``preprocess.cut_forearm``: at the previous pose's wrist while tracking, else from the
+cloud's shape; after a cloud-only cut the selected pose's wrist cuts again and the pose is
+refined on those points); the ICP data term is Huber-weighted (``robust_mm``); tau of eq.
+II.19 follows the calibration fit (:attr:`HybridTracker.tau_mm`, :meth:`set_calibration`).
+
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
 """
@@ -49,7 +55,7 @@ from hand_capture.model import N_DOF, HandModel, HandShape
 from hand_capture.model.joints import root_rotation_matrix
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.icp import ModelTracker
-from hand_capture.tracking.preprocess import HandObservation, segment_hand
+from hand_capture.tracking.preprocess import HandObservation, cut_forearm, segment_hand
 from hand_capture.tracking.regressor import DepthLookup, HandRegressor, ModelFrames, palm_init_pca
 
 __all__ = ["HybridTracker", "TrackResult", "default_model_path", "STAGES"]
@@ -81,6 +87,9 @@ class TrackResult:
         observation: the segmented hand.
         regressed: whether the regression (steps 1-2) ran on this frame (see
             ``TrackerConfig.regress_every``).
+        forearm_cut: whether a forearm was cut off the segmented hand
+            (:func:`~hand_capture.tracking.preprocess.cut_forearm`).
+        tau_mm: the success threshold of eq. II.19 used [mm] (:attr:`HybridTracker.tau_mm`).
     """
 
     pose: np.ndarray
@@ -93,6 +102,8 @@ class TrackResult:
     timing: dict[str, float] = field(default_factory=dict)
     observation: HandObservation | None = None
     regressed: bool = False
+    forearm_cut: bool = False
+    tau_mm: float = 0.0
 
 
 def pose_distance_sq(q: np.ndarray, p: np.ndarray) -> float:
@@ -121,11 +132,52 @@ class HybridTracker:
         self.regressor = regressor
         self.icp = ModelTracker(model, self.cfg)
         self.frames = ModelFrames(model)
+        self.fit_residual_mm: float | None = None
         self.reset()
 
     @property
     def model(self) -> HandModel:
         return self.icp.model
+
+    @property
+    def tau_mm(self) -> float:
+        """tau of eq. II.19 [mm]. A departure from the dissertation's fixed threshold: on a
+        hand whose surface differs from the model's (every real hand), E_d stays high even
+        at the true pose (silhouette rims, thicker or thinner fingers), so a fixed tau flags
+        good poses as failures. After :meth:`set_calibration` tau follows the calibrated
+        fit: ``max(success_tau_mm, tau_fit_ratio * E_d of the calibration fit)``, at most
+        ``tau_max_mm``."""
+        cfg = self.cfg
+        if self.fit_residual_mm is None:
+            return cfg.success_tau_mm
+        return float(min(max(cfg.success_tau_mm, cfg.tau_fit_ratio * self.fit_residual_mm),
+                         max(cfg.tau_max_mm, cfg.success_tau_mm)))
+
+    def set_calibration(self, result: object) -> None:
+        """Track with a calibration's shape and let tau follow its fit (:attr:`tau_mm`).
+
+        ``result`` is a :class:`~hand_capture.tracking.calibration.CalibrationResult`; a
+        refused one (``ok`` False) changes nothing."""
+        if not getattr(result, "ok", True):
+            return
+        self.set_shape(result.shape)
+        e_d = getattr(result, "depth_residual_mm", float("nan"))
+        self.fit_residual_mm = float(e_d) if np.isfinite(e_d) else None
+
+    def _wrist_plane(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The previous pose's wrist [m] and its forearm direction (unit, middle MCP to
+        wrist), while the previous frame tracked (eq. II.19); else None."""
+        if not (self.delta and self.prev is not None):
+            return None
+        return self._wrist_of(self.prev)
+
+    def _wrist_of(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Pose ``q``'s wrist keypoint [m] and forearm direction (unit, middle MCP to
+        wrist); None for a degenerate pose."""
+        kp = self.model.joint_positions(q)
+        d = kp[0] - kp[9]
+        n = float(np.linalg.norm(d))
+        return None if n < 1e-6 else (kp[0], d / n)
 
     def set_shape(self, shape: HandShape) -> None:
         """Track with another subject shape (e.g. from calibration)."""
@@ -153,13 +205,20 @@ class HybridTracker:
         timing = dict.fromkeys(STAGES, 0.0)
         t0 = time.perf_counter()
         obs = segment_hand(depth, intr, cfg)
+        cut = False
+        whole = None   # the uncut segment, when the cut had no tracked wrist to go by
+        if cfg.forearm_cut and obs.found:
+            plane = self._wrist_plane()
+            if plane is None:
+                whole = obs
+            obs, cut = cut_forearm(obs, cfg, self.model.shape.global_scale, plane)
         timing["preprocess"] = time.perf_counter() - t0
         self.frame_count += 1
         if not obs.found:
             self.delta = False
             pose = self.prev if self.prev is not None else np.zeros(N_DOF)
             return TrackResult(pose.copy(), False, "no_hand", cfg.depth_cap_mm, 0.0,
-                               self.last_good, 0, timing, obs)
+                               self.last_good, 0, timing, obs, tau_mm=self.tau_mm)
         pts = obs.subsample(cfg.max_points)
         ds = cfg.cost_downsample
         obs_ds = obs.depth_m[::ds, ::ds]
@@ -233,7 +292,24 @@ class HybridTracker:
         best = int(np.argmin([c[0] for c in costs]))
         q = pool[best][0]
         e_d = costs[best][1]
-        success = e_d < cfg.success_tau_mm
+        if whole is not None and refine:
+            # the cut came from the cloud's shape alone: cut again at the selected pose's
+            # wrist and refine it on those points (the regressor's and the fit's wrist
+            # estimate; an addition to step 4)
+            t = time.perf_counter()
+            obs2, cut2 = cut_forearm(whole, cfg, self.model.shape.global_scale,
+                                     self._wrist_of(q))
+            if cut2 and obs2.n_points != obs.n_points:
+                obs, cut = obs2, True
+                pts = obs.subsample(cfg.max_points)
+                obs_ds = obs.depth_m[::ds, ::ds]
+                q = self.icp.refine_batch([q], obs, cfg.icp_iterations,
+                                          q_refs=[pool[best][1]], points=pts)[0]
+                c2 = self._costs([q], obs, obs_ds)[0]
+                costs[best] = c2
+                e_d = c2[1]
+            timing["icp"] += time.perf_counter() - t
+        success = e_d < self.tau_mm   # eq. (II.19), tau following the calibration
         if success:
             status = "tracking" if self.delta else "recovering"
             self.last_good = q.copy()
@@ -246,7 +322,7 @@ class HybridTracker:
             self._deferred = (obs, intr, pts, obs_ds, q.copy(), costs[best][0])
         conf = float(np.clip(1.0 - e_d / cfg.depth_cap_mm, 0.0, 1.0))
         return TrackResult(q.copy(), success, status, e_d, conf, self.last_good, len(costs),
-                           timing, obs, regress)
+                           timing, obs, regress, cut, self.tau_mm)
 
     def _palm_modes(self, obs: HandObservation, intr: Intrinsics
                     ) -> tuple[DepthLookup, list[np.ndarray]]:

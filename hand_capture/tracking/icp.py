@@ -13,6 +13,13 @@ candidates are the facing vertices whose projection lies in a square window arou
 point's pixel, and the one nearest in 3D wins. Correspondences are rebuilt every iteration.
 The Jacobian of the data term is the model's analytic ``d vertex / d pose``.
 
+Robust data term (a departure from eq. II.23, ``robust_mm`` > 0): each pair's squared
+distance is replaced by the Huber loss of its distance (scale ``robust_mm``), minimised by
+iteratively reweighted least squares, the weight ``min(1, k / ||r||)`` recomputed with the
+correspondences at every Gauss-Newton iteration. Points the model cannot explain (a forearm
+stub, a sleeve, a surface thicker than the model's) then pull with a bounded force instead
+of a force growing with their distance.
+
 Units: the data residuals are in millimetres (so l1 = 1, l2 = 0.2 and l3 = 1000 of the
 dissertation weigh a millimetre against a radian); root translations in E_smooth are in
 millimetres too. A small Levenberg damping keeps the normal equations regular when a finger
@@ -33,7 +40,7 @@ from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.preprocess import HandObservation
 
-__all__ = ["Correspondences", "ModelTracker", "render_depth", "depth_error"]
+__all__ = ["Correspondences", "ModelTracker", "depth_error", "huber_sqrt_weights", "render_depth"]
 
 _MM = 1000.0
 #: per-DoF unit scale of E_smooth: root translation in mm, angles in rad
@@ -148,6 +155,14 @@ def _root_jacobian(q: np.ndarray, points: np.ndarray) -> np.ndarray:
     J[:, 1, 3:] = a[2] * dx - a[0] * dz
     J[:, 2, 3:] = a[0] * dy - a[1] * dx
     return J
+
+
+def huber_sqrt_weights(r: np.ndarray, k: float) -> np.ndarray:
+    """Square roots of the Huber IRLS weights (3N,) of residuals ``r`` (3N,) [mm] taken
+    per pair: ``w = min(1, k / ||r_i||)`` repeated over the pair's three rows."""
+    n = np.sqrt(np.einsum("ij,ij->i", r.reshape(-1, 3), r.reshape(-1, 3)))
+    w = np.minimum(1.0, k / np.maximum(n, 1e-9))
+    return np.repeat(np.sqrt(w), 3)
 
 
 def _empty_corr() -> Correspondences:
@@ -319,7 +334,10 @@ class ModelTracker:
                 J = _root_jacobian(q, c.model).reshape(-1, 6) * _MM
             else:
                 J = self.model.jacobian(q, c.vertex)[:, :, dofs].reshape(-1, n) * _MM
-            blocks.append((J, c.residual_mm.reshape(-1), w))
+            r = c.residual_mm.reshape(-1)
+            if cfg.robust_mm > 0:   # Huber IRLS weights per pair (module docstring)
+                w = w * huber_sqrt_weights(r, cfg.robust_mm) ** 2
+            blocks.append((J, r, w))
         return self._assemble(q, blocks, q_ref, dofs)
 
     def _assemble(self, q: np.ndarray, blocks: list, q_ref: np.ndarray | None,
@@ -438,6 +456,9 @@ class ModelTracker:
                                    [3 * len(x[0]) for x in sets])
                 M = Vc[rows]
                 r = ((M - P) * _MM).reshape(-1)
+                if cfg.robust_mm > 0:   # Huber IRLS weights per pair (module docstring)
+                    hw = huber_sqrt_weights(r, cfg.robust_mm)
+                    sw = sw * hw
                 if root:
                     J = _root_jacobian(q, M).reshape(-1, 6)
                 else:

@@ -17,7 +17,7 @@ from hand_capture.cameras.base import Intrinsics
 from hand_capture.errors import InputError
 from hand_capture.tracking.config import TrackerConfig
 
-__all__ = ["HandObservation", "segment_hand"]
+__all__ = ["HandObservation", "cut_forearm", "segment_hand"]
 
 
 class HandObservation:
@@ -171,6 +171,7 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
         depth: (H, W) uint16 depth [mm] (0 = none) or float32 [m].
         intr: pinhole of the image.
         cfg: thresholds (near_m, far_m, band_m, min_hand_pixels, wrist_cut_m).
+            The forearm is removed separately (:func:`cut_forearm`).
 
     Returns:
         A :class:`HandObservation`; ``found`` is False when no hand is in view.
@@ -211,6 +212,12 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     mask_b = lab == best
     mask = np.zeros(d.shape, bool)
     mask[r0:r1, c0:c1] = mask_b
+    if cfg.grow_m > 0 and _touches_border(mask_b, r0, c0, d.shape):
+        mask = _grow_continuous(d, valid, mask, z0 + cfg.band_m + cfg.grow_m, cfg)
+        rows = np.flatnonzero(mask.any(axis=1))
+        cols = np.flatnonzero(mask.any(axis=0))
+        r0, c0 = int(rows[0]), int(cols[0])
+        mask_b = mask[r0:int(rows[-1]) + 1, c0:int(cols[-1]) + 1]
     v, u = np.nonzero(mask_b)
     v += r0
     u += c0
@@ -227,6 +234,47 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     depth_hand[v, u] = d[v, u]
     box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
     return HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
+
+
+def _touches_border(mask_b: np.ndarray, r0: int, c0: int, shape: tuple[int, int]) -> bool:
+    """Whether a mask (its bounding-box crop at row ``r0``, column ``c0``) reaches within
+    2 px of the image border."""
+    H, W = shape
+    r1, c1 = r0 + mask_b.shape[0], c0 + mask_b.shape[1]
+    return bool((r0 <= 1 and mask_b[:2 - r0].any()) or (c0 <= 1 and mask_b[:, :2 - c0].any())
+                or (r1 >= H - 1 and mask_b[H - 2 - r0:].any())
+                or (c1 >= W - 1 and mask_b[:, W - 2 - c0:].any()))
+
+
+def _grow_continuous(d: np.ndarray, valid: np.ndarray, mask: np.ndarray, z_max: float,
+                     cfg: TrackerConfig) -> np.ndarray:
+    """The segment grown over depth-continuous pixels up to ``z_max`` [m].
+
+    An addition to the depth band (ch. II.2 assumes the hand is the nearest object): a
+    forearm reaching towards the camera from outside the image is nearer than the hand, so
+    the band behind its nearest pixel can hold the arm alone. When the band's component runs
+    out of the image, it is extended along the surface: pixels up to ``z_max`` connected to
+    it without a depth step larger than ``jump_m`` between 4-neighbours. The forearm is then
+    removed by :func:`cut_forearm`."""
+    ok = valid & (d <= z_max)
+    # a pixel with a larger step to a neighbour is a surface edge: not a bridge
+    edge = np.zeros_like(ok)
+    dv = np.abs(np.diff(d, axis=0)) > cfg.jump_m
+    dh = np.abs(np.diff(d, axis=1)) > cfg.jump_m
+    edge[:-1] |= dv
+    edge[1:] |= dv
+    edge[:, :-1] |= dh
+    edge[:, 1:] |= dh
+    inner = ok & ~edge
+    n, lab = cv2.connectedComponents(inner.astype(np.uint8), connectivity=4)
+    if n <= 1:
+        return mask
+    hit = np.unique(lab[mask & inner])
+    hit = hit[hit > 0]
+    grown = np.isin(lab, hit) | mask
+    # the surface-edge pixels next to the grown region belong to it (its outline)
+    rim = ok & edge & (cv2.dilate(grown.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    return grown | rim
 
 
 def depth_normals(obs: HandObservation) -> np.ndarray:
@@ -251,3 +299,113 @@ def depth_normals(obs: HandObservation) -> np.ndarray:
     flip = np.einsum("ij,ij->i", n, obs.points) > 0
     n[flip] *= -1
     return n
+
+
+def _keep(obs: HandObservation, keep: np.ndarray, min_pixels: int) -> HandObservation | None:
+    """The observation restricted to the points ``keep`` (bool over its points); None when
+    fewer than ``min_pixels`` remain."""
+    v, u, z = obs._vuz if obs._vuz is not None else (
+        obs.pixels[:, 1].astype(np.int64), obs.pixels[:, 0].astype(np.int64),
+        obs.points[:, 2])
+    v, u, z = v[keep], u[keep], z[keep]
+    if len(z) < min_pixels:
+        return None
+    mask = np.zeros_like(obs.mask)
+    mask[v, u] = True
+    depth = np.zeros_like(obs.depth_m)
+    depth[v, u] = obs.depth_m[v, u]
+    box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
+    return HandObservation.from_pixels(depth, mask, v, u, z, obs.intrinsics, box)
+
+
+def cut_forearm(obs: HandObservation, cfg: TrackerConfig, hand_scale: float = 1.0,
+                wrist: tuple[np.ndarray, np.ndarray] | None = None
+                ) -> tuple[HandObservation, bool]:
+    """Remove the forearm from a segmented hand (an addition to ch. II: the dissertation's
+    segmentation assumes a wrist band or a hand alone; every real hand has a forearm, and
+    its points drag the ICP data term (eq. II.23) and the PCA initialisation (II.4.2)).
+
+    Two estimates of the wrist plane, no training needed:
+
+    * ``wrist`` given (the previous frame tracked, eq. II.19): ``(w, d)``, the previous
+      pose's wrist keypoint [m] and the unit direction from the middle MCP to the wrist;
+      points farther than ``forearm_margin_m`` beyond the plane through ``w`` normal to
+      ``d`` are dropped.
+    * otherwise, from the cloud: the arm axis is the principal axis of the cloud. Its arm
+      end is the end that runs out of the image while the other does not (and the cloud
+      is longer than ``forearm_border_m``), or, for a cloud longer than a hand can be
+      (``forearm_reach_m``), the end farther from the widest place (largest inscribed
+      circle in metres: the palm). Nothing is cut otherwise. The palm centre is then the
+      widest place near the hand's end, and points farther than ``forearm_wrist_m`` from
+      it along the axis towards the arm are dropped. Lengths scale with ``hand_scale``.
+
+    Args:
+        obs: segmented hand (:func:`segment_hand`).
+        cfg: thresholds (``forearm_*``, ``min_hand_pixels``).
+        hand_scale: the tracked model's size relative to the template (global scale).
+        wrist: the previous pose's wrist and forearm direction, or None.
+
+    Returns:
+        ``(observation, cut)``: the hand without the forearm (the input when nothing was
+        cut or the cut would leave fewer than ``min_hand_pixels``), and whether a cut
+        was made.
+    """
+    if not obs.found or obs.n_points < 3 * cfg.min_hand_pixels // 2:
+        return obs, False
+    pts = obs.points
+    if wrist is not None:
+        w, d = wrist
+        keep = (pts - w) @ d <= cfg.forearm_margin_m * hand_scale
+    else:
+        keep = _geometric_cut(obs, cfg, hand_scale)
+        if keep is None:
+            return obs, False
+    if keep.all():
+        return obs, False
+    out = _keep(obs, keep, cfg.min_hand_pixels)
+    return (obs, False) if out is None else (out, True)
+
+
+def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float
+                   ) -> np.ndarray | None:
+    """Points to keep by the cloud-only rule of :func:`cut_forearm` (None: no forearm)."""
+    intr = obs.intrinsics
+    pts = obs.points
+    X = pts - pts.mean(axis=0)
+    _, vec = np.linalg.eigh(X.T @ X)
+    axis = vec[:, 2]
+    s = pts @ axis
+    lo, hi = float(np.percentile(s, 0.5)), float(np.percentile(s, 99.5))
+    extent = hi - lo
+    if extent < cfg.forearm_border_m * hand_scale:
+        return None
+    px = obs.pixels
+    edge = ((px[:, 0] <= 1) | (px[:, 0] >= intr.width - 2) | (px[:, 1] <= 1)
+            | (px[:, 1] >= intr.height - 2))
+    at_hi = bool(np.any(edge & (s > hi - 0.25 * extent)))
+    at_lo = bool(np.any(edge & (s < lo + 0.25 * extent)))
+    radius = _inscribed_radius(obs)
+    if at_hi != at_lo:            # the arm runs out of the image, the hand does not
+        arm_hi = at_hi
+    elif extent > cfg.forearm_reach_m * hand_scale:   # longer than a hand can be
+        c = float(s[int(np.argmax(radius))])         # the widest place: the palm
+        arm_hi = hi - c > c - lo
+    else:
+        return None
+    if not arm_hi:
+        axis, s, lo, hi = -axis, -s, -hi, -lo
+    # the palm: the widest place within a hand's length of the hand's end
+    near = s <= lo + cfg.forearm_reach_m * 0.7 * hand_scale
+    c = float(s[near][int(np.argmax(radius[near]))])
+    return s <= c + cfg.forearm_wrist_m * hand_scale
+
+
+def _inscribed_radius(obs: HandObservation) -> np.ndarray:
+    """(N,) radius [m] of the largest circle inside the hand mask around each point
+    (distance transform [px] x depth / focal length)."""
+    r0, r1, c0, c1 = obs.box
+    sub = np.zeros((r1 - r0 + 2, c1 - c0 + 2), np.uint8)   # 1-px frame: border = off hand
+    sub[1:-1, 1:-1] = obs.mask[r0:r1, c0:c1]
+    dt = cv2.distanceTransform(sub, cv2.DIST_L2, 3)[1:-1, 1:-1]
+    px = obs.pixels.astype(np.int64)
+    return dt[px[:, 1] - r0, px[:, 0] - c0] * obs.points[:, 2] / obs.intrinsics.fx

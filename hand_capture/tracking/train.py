@@ -39,8 +39,8 @@ from hand_capture.tracking.regressor import (
     palm_init_pca,
 )
 
-__all__ = ["TrainingSample", "default_intrinsics", "random_pose", "render_samples",
-           "train_tracker"]
+__all__ = ["TrainingSample", "default_intrinsics", "forearm_mesh", "random_pose",
+           "render_samples", "train_tracker"]
 
 
 def default_intrinsics() -> Intrinsics:
@@ -95,6 +95,40 @@ def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: flo
     return q
 
 
+def forearm_mesh(model: HandModel, q: np.ndarray, radius: float = 0.03,
+                 length: float = 0.4, bend: tuple[float, float] = (0.0, 0.0)) -> Mesh:
+    """A forearm for the training renders: a closed cylinder from 15 mm inside the wrist
+    along the wrist-from-middle-MCP direction, turned by ``bend`` (flexion, deviation)
+    [rad] at the wrist.
+
+    Args:
+        model: the rendered hand model.
+        q: its pose (27,).
+        radius, length: cylinder size [m].
+        bend: rotation of the forearm axis about the palm's across axis and its normal.
+    """
+    from hand_capture.cameras.primitives import cylinder
+
+    kp = model.joint_positions(q)
+    d = kp[0] - kp[9]
+    d /= np.linalg.norm(d)
+    x = kp[5] - kp[17]
+    x -= d * (x @ d)
+    x /= np.linalg.norm(x)
+    d = rotvec_to_matrix(x * bend[0] + np.cross(d, x) * bend[1]) @ d
+    V, F = cylinder(radius, length, 20)
+    # rotation taking the cylinder's z axis onto d (Rodrigues)
+    z = np.array([0.0, 0.0, 1.0])
+    v = np.cross(z, d)
+    sn, c = float(np.linalg.norm(v)), float(z @ d)
+    if sn < 1e-9:
+        R = np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    else:
+        K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+        R = np.eye(3) + K + K @ K * ((1 - c) / sn ** 2)
+    return Mesh(V @ R.T + kp[0] + d * (0.5 * length - 0.015), F, 1, closed=True)
+
+
 @dataclass
 class TrainingSample:
     """One rendered, segmented training frame (hand crop only, to save memory)."""
@@ -109,8 +143,19 @@ class TrainingSample:
 
 def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
                    intr: Intrinsics, noise: DepthNoiseConfig | None = None,
-                   cfg: TrackerConfig | None = None) -> list[TrainingSample]:
-    """Render ``n`` noisy, segmented samples (shapes cycled through ``models``)."""
+                   cfg: TrackerConfig | None = None, *, forearm_prob: float = 0.0,
+                   surface_mm: tuple[float, float] = (0.0, 0.0)) -> list[TrainingSample]:
+    """Render ``n`` noisy, segmented samples (shapes cycled through ``models``).
+
+    Widened generator (issue 13): with probability ``forearm_prob`` a forearm
+    (:func:`forearm_mesh`, random radius 24-40 mm, length 0.25-0.5 m, bend +-0.4 rad) is
+    rendered with the hand and cut as at run time (``cut_forearm``: at a wrist estimate
+    perturbed by a few mm, or from the cloud's shape alone, half each); every sample's
+    surface is moved along the normals by a uniform offset in ``surface_mm`` [mm] plus as
+    much again on the palm, so the forests see hands thicker and thinner than the model's.
+    """
+    from hand_capture.tracking.preprocess import cut_forearm
+
     cfg = cfg or TrackerConfig()
     renderer = make_renderer("zbuffer")
     nm = DepthNoiseModel(noise or DepthNoiseConfig())
@@ -119,11 +164,30 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
         k = len(out) % len(models)
         m = models[k]
         q = random_pose(rng, m)
-        res = renderer.render([Mesh(m.vertices(q), m.faces, 1, closed=True)], intr)
+        V = m.vertices(q)
+        if surface_mm != (0.0, 0.0):
+            off = rng.uniform(*surface_mm) * 1e-3
+            palm = rng.uniform(0.0, max(surface_mm[1], 0.0)) * 1e-3 * (m.vertex_labels == 0)
+            V = V + m.normals(V) * (off + palm)[:, None]
+        meshes = [Mesh(V, m.faces, 1, closed=True)]
+        arm = rng.random() < forearm_prob
+        if arm:
+            meshes.append(forearm_mesh(m, q, rng.uniform(0.024, 0.04), rng.uniform(0.25, 0.5),
+                                       tuple(rng.uniform(-0.4, 0.4, 2))))
+        res = renderer.render(meshes, intr)
         depth = nm.apply_mm(res.depth, res.cos_incidence, intr, rng)
         obs = segment_hand(depth, intr, cfg)
         if len(obs.points) < 200:
             continue
+        if arm:
+            kp = m.joint_positions(q)
+            d = kp[0] - kp[9]
+            d = d / np.linalg.norm(d) + rng.normal(0, 0.05, 3)
+            wrist = (kp[0] + rng.normal(0, 0.005, 3), d / np.linalg.norm(d)) \
+                if rng.random() < 0.5 else None
+            obs, _ = cut_forearm(obs, cfg, m.shape.global_scale, wrist)
+            if obs.n_points < 200:
+                continue
         v, u = np.nonzero(obs.mask)
         v0, v1, u0, u1 = v.min(), v.max() + 1, u.min(), u.max() + 1
         pts, _ = obs.subsample(400)
@@ -151,7 +215,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2
                   n_shapes: int = 40, palm_stages: int = 3, finger_stages: int = 2,
                   n_trees: int = 6, max_depth: int = 12, min_leaf: int = 5,
                   n_features: int = 300, leaf_modes: int = 2, augment: int = 2,
-                  intrinsics: Intrinsics | None = None, log: Callable[[str], None] | None = None
+                  intrinsics: Intrinsics | None = None, log: Callable[[str], None] | None = None,
+                  forearm_prob: float = 0.5, surface_mm: tuple[float, float] = (-1.0, 2.5)
                   ) -> HandRegressor:
     """Train the cascaded regressor from scratch, reproducibly from ``seed``.
 
@@ -167,6 +232,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2
         augment: initialisations per sample for palm training (PCA + perturbed copies).
         intrinsics: camera of the training images (default 320x240, 70 deg).
         log: progress callback (e.g. print).
+        forearm_prob: share of samples rendered with a forearm (:func:`render_samples`).
+        surface_mm: range of the per-sample surface offset [mm] (:func:`render_samples`).
 
     Returns:
         The trained :class:`HandRegressor`.
@@ -179,7 +246,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2
     shapes = [default_shape()] + [sample_shape(rng, f"train{k}") for k in range(1, n_shapes)]
     models = [base.with_shape(s) for s in shapes]
     frames = [ModelFrames(m) for m in models]
-    samples = render_samples(n_samples, rng, models, intr)
+    samples = render_samples(n_samples, rng, models, intr, forearm_prob=forearm_prob,
+                             surface_mm=surface_mm)
     say(f"rendered {len(samples)} samples in {time.perf_counter() - t_start:.1f} s")
     lookups = [DepthLookup(s.crop, s.u0, s.v0, intr) for s in samples]
     rest = ModelFrames(base).rest_vertices
@@ -276,7 +344,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2
     reg = HandRegressor(palm_feats, palm_forests, finger_feats, finger_forests, 2,
                         {"seed": str(seed), "n_samples": str(n_samples),
                          "n_shapes": str(n_shapes), "n_trees": str(n_trees),
-                         "max_depth": str(max_depth),
+                         "max_depth": str(max_depth), "forearm_prob": str(forearm_prob),
+                         "surface_mm": f"{surface_mm[0]},{surface_mm[1]}",
                          "train_s": f"{time.perf_counter() - t_start:.0f}"})
     if out_path is not None:
         reg.save(out_path)
