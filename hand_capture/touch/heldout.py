@@ -128,9 +128,12 @@ class HeldoutConfig:
                              f"small ones), got {self.seed}")
 
 
-def _subject_shapes(rng: np.random.Generator, cfg: HeldoutConfig) -> list[object]:
+def subject_shapes(cfg: HeldoutConfig) -> list[object]:
+    """The held-out subjects' :class:`~hand_capture.model.shape.HandShape` (one per
+    ``cfg.subjects``; scales evenly over ``cfg.scale``, bone proportions random)."""
     from hand_capture.model.shape import N_ALPHA, HandShape
 
+    rng = np.random.default_rng([cfg.seed, 1])
     scales = np.linspace(cfg.scale[0], cfg.scale[1], cfg.subjects)
     rng.shuffle(scales)
     return [HandShape(float(s), tuple(np.clip(rng.normal(0.0, 0.8, N_ALPHA), -2.0, 2.0)),
@@ -297,13 +300,13 @@ def generate_heldout(cfg: HeldoutConfig | None = None) -> tuple[TouchDataset, np
         (dataset, reported): the dataset's ``pads`` are the true pad positions (surface
         coordinates [m]); ``reported`` (N, 5, 2) is what the panel reports (offset, jitter,
         quantisation), the encoder's input. ``sequence`` numbers the frames, ``frame`` is 0,
-        ``motion`` the subject index.
+        ``motion`` the subject index (into :func:`subject_shapes`).
     """
     from hand_capture.model.hand import HandModel
 
     cfg = cfg or HeldoutConfig()
     rng = np.random.default_rng(cfg.seed)
-    shapes = _subject_shapes(rng, cfg)
+    shapes = subject_shapes(cfg)
     share = np.asarray(COUNT_SHARE) * cfg.frames / cfg.subjects
     poses, pads, contact, subject = [], [], [], []
     for k, shape in enumerate(shapes):
