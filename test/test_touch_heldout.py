@@ -208,3 +208,30 @@ def test_layout_labelling_is_stored_and_beats_nearest_alone_on_two_and_three(
         for name, lab in (("near", near), ("lay", lay)):
             hits[name] += np.array_equal(lab.search(test.pads[i, f[perm]]).labels, f[perm])
     assert hits["lay"] > hits["near"]
+
+
+# --- the benchmark's held-out section (smoke) -----------------------------------------------
+
+def test_bench_sections_compare_the_four_methods_on_heldout_frames(heldout, train_data, model,
+                                                                  capsys):
+    from hand_capture.bench.touch import _labelling_table, _methods_table
+    from hand_capture.touch.datagen import TouchDataset
+    from hand_capture.touch.labelling import LabellerConfig
+    from hand_capture.touch.pcaik import PcaIk, PcaIkConfig
+
+    ds, reported = heldout
+    test = TouchDataset(ds.poses, reported, ds.contact, ds.sequence, ds.frame, ds.motion)
+    _, rel = train_data.inputs()
+    pk = PcaIk(build_model(-1), rel, PcaIkConfig(iterations=5))
+    results, ms = _methods_table("H1", model, pk, test, 6, 0)
+    assert set(results) == {"linear", "quadratic", "pcaik"} and ms > 0
+    assert all(np.isfinite(w).all() and np.isfinite(a).all() for w, a in results.values())
+    labellers = {"quadratic": FingerLabeller(model.encoder("quadratic"), model.reference_poses,
+                                             LabellerConfig(criterion="nearest")),
+                 "layout": FingerLabeller(model.encoder("quadratic"), model.reference_poses,
+                                          layout=model.layout)}
+    accs, counts, rows, poses = _labelling_table("H2", labellers, test, 30, 0)
+    assert sum(counts.values()) == 30 and len(rows) == 30 and np.isfinite(poses).all()
+    assert all(0.0 <= accs["layout"][n] <= 1.0 for n in counts if counts[n])
+    out = capsys.readouterr().out
+    assert "H1" in out and "PCA IK" in out and "Quadratic + layout" in out and "paper" in out

@@ -139,8 +139,9 @@ def _methods_table(title: str, model: Any, pk: PcaIk, test: TouchDataset, n_ik: 
     results["pcaik"] = errors(test.poses[ik_rows], est)
     rows = []
     for name in ("linear", "quadratic", "cubic", "pcaik"):
-        w, a = results[name]
-        rows.append([_label(name), w.mean(), _sem(w), a.mean(), _sem(a), len(w)])
+        if name in results:
+            w, a = results[name]
+            rows.append([_label(name), w.mean(), _sem(w), a.mean(), _sem(a), len(w)])
     print_table(title, ["method", "wrist cm", "SEM", "angle deg", "SEM", "frames"], rows)
     return results, pcaik_ms
 
