@@ -170,9 +170,13 @@ def test_pose_search_matches_exhaustive_query(data, model):
 # --- TouchEncoder core -------------------------------------------------------------------
 
 def _frame(ids, pos, contact=None, stamp=0.0):
+    """A frame on a 0.3 x 0.25 m surface; finite contacts are moved onto it (the encoding
+    is translation invariant)."""
     pos = np.asarray(pos, float)
+    if len(pos) and np.isfinite(pos).all():
+        pos = pos - pos.mean(axis=0) + (0.15, 0.125)
     contact = np.ones(len(pos), bool) if contact is None else contact
-    return TouchFrame(ids, pos, contact, 0.2, 0.15, stamp)
+    return TouchFrame(ids, pos, contact, 0.3, 0.25, stamp)
 
 
 def test_touch_encoder_frames_to_poses(data, model):

@@ -71,10 +71,19 @@ class GenConfig:
     penetration_tol: float = 0.003  # capsules may dip this much under the surface [m]
     first_iterations: int = 30
     iterations: int = 6
+    yaw_deg: float = 35.0         # wrist yaw uniform in +-yaw_deg
+    pitch_deg: tuple[float, float] = (-8.0, 5.0)  # wrist pitch: mean, sd (negative: fingers down)
+    roll_sd_deg: float = 5.0      # wrist roll sd
+    curl: tuple[float, float] = (0.1, 0.6)  # shared finger curl, uniform range (0..1)
+    curl_sd: float = 0.08         # per-finger curl deviation from the shared level
 
     def __post_init__(self) -> None:
         if self.sequences < 1 or self.frames < 1:
             raise InputError("sequences and frames must be >= 1")
+        if not (0.0 <= self.yaw_deg <= 90.0 and 0.0 <= self.roll_sd_deg <= 45.0
+                and len(self.pitch_deg) == 2 and 0.0 <= self.pitch_deg[1] <= 45.0):
+            raise InputError("wrist ranges: yaw_deg in [0, 90], roll_sd_deg in [0, 45], "
+                             "pitch_deg = (mean, sd) with sd in [0, 45]")
 
 
 @dataclass
@@ -129,20 +138,24 @@ _FIELDS = ("poses", "pads", "contact", "sequence", "frame", "motion")
 
 # --- natural postures ------------------------------------------------------------------------
 
-def sample_natural(rng: np.random.Generator, n: int) -> np.ndarray:
+def sample_natural(rng: np.random.Generator, n: int, yaw_deg: float = 35.0,
+                   pitch_deg: tuple[float, float] = (-8.0, 5.0), roll_sd_deg: float = 5.0,
+                   curl: tuple[float, float] = (0.1, 0.6), curl_sd: float = 0.08
+                   ) -> np.ndarray:
     """Natural relaxed postures (n, 27) of a right hand held palm-down over a table.
 
     Finger curl is correlated across fingers (one shared level plus a per-finger deviation)
     with DIP flexion about 2/3 of PIP flexion; the spread is shared; the thumb is abducted
-    towards opposition. The wrist is yawed by up to +-35 deg and tilted by a few degrees; its
-    position is left at the origin.
+    towards opposition. The wrist is yawed uniformly within +-``yaw_deg``, pitched by
+    N(``pitch_deg``) and rolled by N(0, ``roll_sd_deg``) [deg]; its position is left at the
+    origin.
     """
     q = np.zeros((n, N_DOF))
-    curl = rng.uniform(0.1, 0.6, n)
+    shared = rng.uniform(curl[0], curl[1], n)
     spread = rng.uniform(-0.3, 1.0, n)
     spread_dir = {"index": 1.0, "middle": 0.1, "ring": -0.6, "little": -1.2}
     for f in FINGERS[1:]:
-        c = np.clip(curl + rng.normal(0.0, 0.08, n), 0.0, 0.9)
+        c = np.clip(shared + rng.normal(0.0, curl_sd, n), 0.0, 0.9)
         j = {k: JOINT_INDEX[f"{f}_{k}"] for k in ("mcp_abd", "mcp_flex", "pip_flex", "dip_flex")}
         q[:, j["mcp_flex"]] = np.radians(-5.0 + 70.0 * c + rng.normal(0.0, 5.0, n))
         q[:, j["pip_flex"]] = np.radians(90.0 * c + rng.normal(0.0, 6.0, n))
@@ -158,9 +171,9 @@ def sample_natural(rng: np.random.Generator, n: int) -> np.ndarray:
     # palm down, fingers away from the user (+y_T), thumb to the left: R = Rx Ry Rz(pi/2 + yaw)
     # (read right to left about the fixed table axes: yaw, then roll about the forearm (y_T),
     # then pitch about x_T, negative = fingers pointing down)
-    q[:, 3] = np.radians(rng.normal(-8.0, 5.0, n))  # pitch
-    q[:, 4] = np.radians(rng.normal(0.0, 5.0, n))   # roll
-    q[:, 5] = np.pi / 2 + np.radians(rng.uniform(-35.0, 35.0, n))
+    q[:, 3] = np.radians(rng.normal(pitch_deg[0], pitch_deg[1], n))  # pitch
+    q[:, 4] = np.radians(rng.normal(0.0, roll_sd_deg, n))   # roll
+    q[:, 5] = np.pi / 2 + np.radians(rng.uniform(-yaw_deg, yaw_deg, n))
     return np.clip(q, _LO, _HI)
 
 
@@ -326,8 +339,10 @@ def generate(model: object, cfg: GenConfig) -> TouchDataset:
     ik = ContactIK(model, cfg.clearance)
     motion = rng.integers(0, len(MOTIONS), b)
     mask = np.stack([_choose_fingers(rng, MOTIONS[m]) for m in motion])
-    prior_a = sample_natural(rng, b)
-    prior_b = sample_natural(rng, b)
+    natural = {"yaw_deg": cfg.yaw_deg, "pitch_deg": cfg.pitch_deg, "roll_sd_deg": cfg.roll_sd_deg,
+             "curl": cfg.curl, "curl_sd": cfg.curl_sd}
+    prior_a = sample_natural(rng, b, **natural)
+    prior_b = sample_natural(rng, b, **natural)
     prior_b[:, 3:6] = prior_a[:, 3:6] + np.radians(rng.normal(0.0, 4.0, (b, 3)))
     # start: natural posture with the wrist lowered so the contacting pads reach the surface
     q = prior_a.copy()

@@ -4,8 +4,10 @@
 it takes the touches in contact, keeps or searches their finger labels
 (:class:`~hand_capture.touch.labelling.FingerLabeller`), and evaluates the encoder (eq. 1 for
 the quadratic encoding) on the labelled input. Frames with no contact keep the last pose and
-report the status ``"lost"``. Bad frames (non-finite positions, more than five contacts) raise
+report the status ``"lost"``. Bad frames (non-finite positions, more than five contacts,
+contacts outside the surface or farther apart than a hand spans) raise
 :class:`~hand_capture.errors.InputError` and leave the state unchanged; the node counts them.
+Encoded finger joints are clipped into the limits of :mod:`hand_capture.model.joints`.
 """
 
 from __future__ import annotations
@@ -17,7 +19,11 @@ import numpy as np
 from hand_capture.cameras.threads import blas_threads
 from hand_capture.config import param, validate
 from hand_capture.errors import InputError
-from hand_capture.model.joints import root_angles_from_matrix, root_rotation_matrix
+from hand_capture.model.joints import (
+    clamp_to_limits,
+    root_angles_from_matrix,
+    root_rotation_matrix,
+)
 from hand_capture.touch.encoding import (
     DEGREES,
     N_FINGERS,
@@ -41,8 +47,17 @@ class TouchEncoderConfig:
     position_weight: float = param(
         10.0, "labelling: weight of the wrist position in the pose distance [rad/m]",
         lo=0.0, hi=1e4)
+    labelling: str = param(
+        "layout", "finger labelling: 'nearest' training neighbour (the paper) or 'layout' "
+        "(plus the model's layout prior)", choices=("nearest", "layout"))
     relabel: str = param("all", "labelling when a contact appears: 'all' contacts or only "
                          "the 'new' ones", choices=("all", "new"))
+    surface_margin: float = param(
+        0.005, "contacts farther than this outside the surface are rejected [m]", lo=0.0,
+        hi=0.1)
+    max_span: float = param(
+        0.26, "contacts farther apart than this cannot be one hand: rejected [m]", lo=0.05,
+        hi=1.0)
     confidence_scale: float = param(
         0.5, "nearest-neighbour pose distance at which the confidence is 1/e [rad]",
         lo=1e-6, hi=100.0)
@@ -74,7 +89,9 @@ class TouchEncoder:
         self.encoder = self.model.encoder(cfg.encoding)
         self.labeller = FingerLabeller(
             self.encoder, self.model.reference_poses,
-            LabellerConfig(position_weight=cfg.position_weight, relabel=cfg.relabel))
+            LabellerConfig(position_weight=cfg.position_weight, relabel=cfg.relabel,
+                           criterion=cfg.labelling),
+            layout=self.model.layout)
         self.last_pose: np.ndarray | None = None
 
     def reset(self) -> None:
@@ -99,6 +116,17 @@ class TouchEncoder:
                              f"{N_FINGERS}")
         if not np.isfinite(pos).all():
             raise InputError("touch frame has non-finite contact positions")
+        off = frame.off_surface(self.config.surface_margin) & frame.in_contact
+        if off.any():
+            x, y = frame.positions[np.argmax(off)]
+            raise InputError(f"contact at ({x:.3f}, {y:.3f}) m is outside the {frame.width:.3f}"
+                             f" x {frame.height:.3f} m surface (margin "
+                             f"{self.config.surface_margin} m)")
+        if len(pos) > 1:
+            span = float(np.linalg.norm(pos[:, None] - pos[None], axis=-1).max())
+            if span > self.config.max_span:
+                raise InputError(f"contacts {span:.3f} m apart; one hand spans at most "
+                                 f"{self.config.max_span} m")
         if len(ids) == 0:
             self.labeller.reset()
             if self.last_pose is None:
@@ -114,7 +142,8 @@ class TouchEncoder:
         u, origin = encode_input(fingertips, contact, enc.input_scale, enc.lifted_value)
         rel = enc.predict(u[None])[0]  # eq. (1), root relative to the leftmost contact
         distance = float(self.labeller.nearest_distance(rel)[0])
-        pose = absolute_pose(rel, origin)
+        # joints inside their limits (hand_capture.model.joints); the root is free
+        pose = clamp_to_limits(absolute_pose(rel, origin))
         self.last_pose = pose
         return EncodedPose(pose, "tracking", dict(self.labeller.labels), searched,
                            float(np.exp(-distance / self.config.confidence_scale)),

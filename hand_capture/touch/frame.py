@@ -68,6 +68,12 @@ class TouchFrame:
         m = self.in_contact
         return self.session_ids[m], self.positions[m]
 
+    def off_surface(self, margin: float = 0.0) -> np.ndarray:
+        """(n,) bool: touches more than ``margin`` [m] outside the surface rectangle."""
+        x, y = self.positions[:, 0], self.positions[:, 1]
+        return (x < -margin) | (x > self.width + margin) | (y < -margin) | \
+            (y > self.height + margin)
+
     @staticmethod
     def empty(width: float, height: float, stamp: float = 0.0,
               frame_id: str = "touch_surface") -> TouchFrame:

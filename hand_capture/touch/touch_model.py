@@ -1,8 +1,9 @@
 """The trained multi-touch model: encoder coefficients + labelling reference, one small .npz.
 
 ``data/touch/touch_model.npz`` holds the linear, quadratic and cubic coefficients (eq. 1-3)
-fitted on the generated training set, and a float32 subsample of the training poses for the
-labelling search (nearest neighbour, sec. 2). It is made by
+fitted on the generated training set, a float32 subsample of the training poses for the
+labelling search (nearest neighbour, sec. 2) and the layout prior of the labelling
+(:class:`~hand_capture.touch.labelling.LayoutPrior`). It is made by
 ``python -m hand_capture.touch.train`` (see that module) and loaded by the encoder node.
 """
 
@@ -13,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hand_capture.errors import ConfigError
+from hand_capture.errors import ConfigError, InputError
 from hand_capture.touch.encoding import DEGREES, POSE_DIM, PolynomialEncoder
+from hand_capture.touch.labelling import LayoutPrior
 
 MODEL_FILE = Path("data") / "touch" / "touch_model.npz"
 #: Most reference poses kept in the file (float32, 27 values each: ~430 KB).
@@ -35,6 +37,7 @@ class TouchModel:
     encoders: dict[str, PolynomialEncoder]
     reference_poses: np.ndarray
     meta: dict[str, str] = field(default_factory=dict)
+    layout: LayoutPrior | None = None  # labelling prior (None in files made before it)
 
     def encoder(self, name: str) -> PolynomialEncoder:
         try:
@@ -54,6 +57,8 @@ class TouchModel:
                                          "encodings": np.array(sorted(self.encoders))}
         for name, enc in self.encoders.items():
             arrays.update(enc.to_arrays(prefix=f"{name}_"))
+        if self.layout is not None:
+            arrays.update(self.layout.to_arrays())
         for k, v in self.meta.items():
             arrays[f"meta_{k}"] = np.array(str(v))
         path = Path(path)
@@ -76,13 +81,14 @@ class TouchModel:
                             for n in names}
                 ref = np.asarray(data["reference_poses"], np.float64)
                 meta = {k[5:]: str(data[k]) for k in data.files if k.startswith("meta_")}
+                layout = LayoutPrior.from_arrays(data)
         except FileNotFoundError as e:
             raise ConfigError(f"touch model file not found: {path} (make it with "
                               "'python -m hand_capture.touch.train')") from e
-        except (KeyError, ValueError, OSError) as e:
+        except (KeyError, ValueError, OSError, InputError) as e:
             raise ConfigError(f"touch model file {path} is unreadable: {e}") from e
         unknown = set(names) - set(DEGREES)
         if unknown or ref.ndim != 2 or ref.shape[1] != POSE_DIM:
             raise ConfigError(f"touch model file {path} is malformed")
-        return TouchModel(encoders, ref, meta)
+        return TouchModel(encoders, ref, meta, layout)
 
