@@ -44,7 +44,10 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
     "sim": (("baseline_rtf", "lockstep_rtf", "lockstep_vs_baseline", "lockstep_success",
              "topics_rtf", "topics2_rtf"), ()),
     "touch": (("quadratic_wrist_cm", "quadratic_angle_deg", "pcaik_wrist_cm", "label_acc_5",
-               "eval_us", "eval_speedup_vs_pcaik"), (pytest.mark.slow,)),  # new data sets
+               "eval_us", "eval_speedup_vs_pcaik", "heldout_quadratic_wrist_cm",
+               "heldout_quadratic_angle_deg", "heldout_label_acc_2", "heldout_label_acc_3",
+               "heldout_label_acc_4", "heldout_label_acc_5"),
+              (pytest.mark.slow,)),  # new data sets
     "tracking": (("fps", "mean_joint_err_mm", "success_20mm", "icp_only_mean_joint_err_mm",
                   "fps_ratio_vs_icp_only", "heldout_mean_mm", "heldout_success_20mm",
                   "forearm_mean_mm", "forearm_success_20mm", "calib_bone_err_pct",
