@@ -200,8 +200,16 @@ def _capture_rig(a: argparse.Namespace) -> int:
         from hand_control.sim.scenario import load_scenario
 
         objects, qpos = record_motion(load_scenario(a.scenario), a.fps, a.seconds)
+    poses = None
+    if a.pose_file:  # world-frame hand poses (CSV / NPZ, as the synthetic camera reads them)
+        import numpy as np
+
+        from hand_capture.cameras.motion import load_motion
+
+        clip = load_motion("", a.pose_file, rate=a.pose_file_rate, loop=False)
+        poses = clip.sample_many(np.arange(int(round(a.seconds * a.fps))) / a.fps)
     res = write_rig_capture(out, a.rig, seconds=a.seconds, fps=a.fps, objects=objects,
-                            qpos=qpos,
+                            qpos=qpos, poses=poses,
                             noise=StudioNoise(sensor_sigma=a.sensor_noise, seed=a.noise_seed),
                             noise_seed=a.noise_seed, two_hands=a.two_hands,
                             surface_seed=None if a.heldout_surface < 0 else a.heldout_surface,
@@ -345,6 +353,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "forearm, sleeve) drawn from SEED; -1 = the MJCF hand")
     cp.add_argument("--scenario", default="", help="--rig: motion of a simulated scenario "
                     "(config/scenarios/NAME.yaml) instead of the studio's performance")
+    cp.add_argument("--pose-file", default="", help="--rig: world-frame hand poses (CSV / "
+                    "NPZ, 27 values per row) instead of the studio's performance")
+    cp.add_argument("--pose-file-rate", type=float, default=30.0,
+                    help="--rig: rate of a pose file without a time column [Hz]")
     cp.set_defaults(func=cmd_capture)
 
     tr = sub.add_parser("train", help="train a learned component (touch, tracker)")

@@ -33,13 +33,12 @@ RIG = "studio6"
 def _studio(quick: bool, smoke: bool = False) -> dict[str, float]:
     import mujoco
 
-    from hand_capture.model.mjcf import build_scene
     from hand_capture.multiview.rig import load_rig
-    from hand_capture.multiview.studio import Studio, StudioNoise, studio_motion
+    from hand_capture.multiview.studio import Studio, StudioNoise, studio_motion, studio_scene
 
     rig = load_rig(RIG)
     poses = studio_motion(1 if smoke else 4 if quick else 20)
-    with Studio(rig, build_scene(["box"]), StudioNoise()) as st:
+    with Studio(rig, studio_scene(["box"]), StudioNoise()) as st:
         st.set_state(poses[0])
         st.render_all()  # warm-up (context, textures)
         t0 = time.perf_counter()

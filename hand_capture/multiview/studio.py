@@ -135,20 +135,58 @@ def _add_camera(spec: object, cam: RigCamera) -> None:
 def studio_scene(objects: Sequence[object] = ("box",), *, two_hands: bool = False,
                  left_root: Sequence[float] = (0.0, 0.3, 0.12)) -> object:
     """The studio's scene as a ``mujoco.MjSpec``: table, objects and the right hand of
-    :func:`hand_capture.model.mjcf.build_scene` (object kinds or ``ObjectSpec``); with
-    ``two_hands`` also a left hand (its
-    bodies and joints prefixed ``left_``), rooted at ``left_root`` [m]."""
+    :func:`hand_capture.model.mjcf.build_scene` (object kinds or ``ObjectSpec``), the objects
+    textured (a 17 mm checker in their colour: structure for optical flow and edges)
+    and four backdrop walls 1.5 m away (visual only); with ``two_hands`` also a left hand
+    (its bodies and joints prefixed ``left_``), rooted at ``left_root`` [m]. The qpos layout
+    is :func:`~hand_capture.model.mjcf.build_scene`'s (plus the left hand at the end)."""
     import mujoco
 
     from hand_capture.model.mjcf import build_hand, build_scene
 
     spec = mujoco.MjSpec.from_string(build_scene(list(objects)))
+    for body in spec.bodies:
+        if body.name in ("world",) or not body.joints or \
+                body.joints[0].type != mujoco.mjtJoint.mjJNT_FREE:
+            continue
+        for geom in body.geoms:
+            rgb = np.asarray(geom.rgba[:3], dtype=float)
+            tex = spec.add_texture(name=f"{body.name}_{geom.name or id(geom)}_tex",
+                                   type=mujoco.mjtTexture.mjTEXTURE_2D,
+                                   builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+                                   rgb1=rgb, rgb2=0.55 * rgb, width=64, height=64)
+            mat = spec.add_material(name=f"{tex.name}_mat", texrepeat=[30, 30],
+                                    texuniform=True)
+            mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = tex.name
+            geom.material = mat.name
+            geom.rgba = [1.0, 1.0, 1.0, 1.0]
+    for i, (pos, euler) in enumerate((((1.5, 0, 0.5), (0, -np.pi / 2, 0)),
+                                      ((-1.5, 0, 0.5), (0, np.pi / 2, 0)),
+                                      ((0, 1.5, 0.5), (np.pi / 2, 0, 0)),
+                                      ((0, -1.5, 0.5), (-np.pi / 2, 0, 0)))):
+        spec.worldbody.add_geom(name=f"backdrop{i}", type=mujoco.mjtGeom.mjGEOM_PLANE,
+                                size=[1.5, 1.5, 0.05], pos=list(pos),
+                                quat=_euler_quat(euler), rgba=[0.72, 0.74, 0.78, 1.0],
+                                contype=0, conaffinity=0)
     if two_hands:
         left = mujoco.MjSpec.from_string(build_hand(hand="left", root_pos=tuple(left_root)))
         spec.worldbody.add_frame().attach_body(left.body("palm"), LEFT_PREFIX, "")
     for key in list(spec.keys):  # the keyframes hold the one-hand layout
         spec.delete(key)
     return spec
+
+
+def _euler_quat(euler: Sequence[float]) -> list[float]:
+    """Quaternion (w, x, y, z) of x-y-z Euler angles [rad] (one of them nonzero here)."""
+    from hand_capture.cameras.transforms import rotvec_to_matrix
+
+    R = np.eye(3)
+    for axis, a in enumerate(euler):
+        v = np.zeros(3)
+        v[axis] = a
+        R = R @ rotvec_to_matrix(v)
+    x, y, z, w = matrix_to_quat(R)
+    return [w, x, y, z]
 
 
 class Studio:
