@@ -51,7 +51,7 @@ class ScenarioSpec:
     object_size: tuple[float, ...] = param(
         (), "box half extents (3) | ball radius (1) | cylinder radius, half height (2) [m]; "
         "empty = the MJCF export's default", lo=0.005, hi=0.2)
-    object_mass: float = param(0.2, "object mass [kg]", lo=0.005, hi=5.0)
+    object_mass: float = param(0.2, "object mass [kg]", lo=0.005, hi=10.0)
     object_friction: float = param(0.75, "sliding friction of the object (seed 000 sec. 7.2)",
                                    lo=0.001, hi=3.0)
     object_xy: tuple[float, ...] = param((0.12, 0.0), "object position on the table [m]")
