@@ -169,8 +169,9 @@ def test_signal_stops_every_node_and_exits_zero(tmp_path: Path, sig: int) -> Non
     assert wait_for(lambda: any("subscribed to" in ln for ln in lines), 30.0), lines
     t0 = time.monotonic()
     p.send_signal(sig)
-    code = p.wait(timeout=10)
-    assert time.monotonic() - t0 < 5.0
+    code = p.wait(timeout=15)
+    # the runner escalates to SIGKILL within 4.5 s; the rest is slack for a loaded machine
+    assert time.monotonic() - t0 < 8.0
     assert code == 0, "".join(lines)
     assert (tmp_path / "o" / "metadata.yaml").is_file(), "recorder did not finish its bag"
 

@@ -116,13 +116,24 @@ def test_controller_answers_a_new_hand_pose_without_waiting_for_a_joint_state(
                       tick=lambda: pub_js.publish(js))
     hand = fill_pose_msg(HandPose(), rest_pose(), status="tracking")
     hand.header.frame_id = "world"
-    hand.header.stamp.sec = 77
+    hand.header.stamp.sec = 76
+    # the topic reaches the controller ...
+    assert spin_until(lambda: ctrl._hand_stamp is not None, 10.0,
+                      tick=lambda: pub_hand.publish(hand))
 
     def carried() -> bool:
         return any(c.header.stamp.sec == 77 for c in got["control/joint_command"])
 
-    assert spin_until(lambda: ctrl._hand_stamp is not None, 10.0,
-                      tick=lambda: pub_hand.publish(hand))
-    assert spin_until(carried, 0.5) == answer
-    pub_js.publish(js)
-    assert spin_until(carried, 5.0)
+    # ... and a new pose is answered inside its own callback, or not at all (no timing: a
+    # joint state still in flight cannot blur this)
+    hand.header.stamp.sec = 77
+    js.header.stamp.sec = 6  # a fresh joint state just before (answers on a stale one stop)
+    ctrl._on_joint_state(js)
+    before = ctrl.commands
+    ctrl._on_hand_pose(hand)
+    assert (ctrl.commands == before + 1) == answer
+    if not answer:  # the next joint state's step carries it
+        js.header.stamp.sec = 7
+        ctrl._on_joint_state(js)
+        assert ctrl.commands == before + 1
+    assert spin_until(carried, 10.0)  # and the command on the topic carries the pose's stamp
