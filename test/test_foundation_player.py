@@ -27,13 +27,16 @@ def ros():
 
 
 def _play(bag: Path, **params: object) -> tuple[PlayerNode, list[float], list[int], float]:
-    """Play ``bag``; returns the node, receive times [s] of hand/pose, /clock stamps [ns],
-    and the wall time the playback took [s]."""
+    """Play ``bag``; returns the node, receive times [s] of hand/pose (the middleware's, so
+    that a slow executor on a loaded machine does not shift them), /clock stamps [ns], and the
+    wall time the playback took [s]."""
     sub = rclpy.create_node("probe")
     times: list[float] = []
     clocks: list[int] = []
-    sub.create_subscription(HandPose, "/hand/pose", lambda m: times.append(time.monotonic()),
-                            QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE))
+    sub.create_subscription(
+        HandPose, "/hand/pose",
+        lambda m, info: times.append(info.get("received_timestamp", 0) * 1e-9),
+        QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE))
     sub.create_subscription(Clock, "/clock",
                             lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec), 10)
     overrides = [Parameter("bag", value=str(bag)), Parameter("wait_for_subscribers", value=True),
@@ -45,8 +48,11 @@ def _play(bag: Path, **params: object) -> tuple[PlayerNode, list[float], list[in
     ex.add_node(sub)
     t0 = time.monotonic()
     ex.spin_until_future_complete(player.done, timeout_sec=30)
-    ex.spin_once(timeout_sec=0.2)
     elapsed = time.monotonic() - t0
+    deadline = time.monotonic() + 10.0  # take what is still queued (acknowledged, not taken)
+    while len(times) < player.published and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.05)
+    ex.spin_once(timeout_sec=0.05)
     player.on_shutdown()
     for n in (player, sub):
         n.destroy_node()
