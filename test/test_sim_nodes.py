@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 import pytest
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from hand_msgs.msg import ContactArray, JointCommand
@@ -82,6 +83,26 @@ def test_controller_node_closes_the_loop_over_topics(ros) -> None:
     assert ctrl.core.counters["non_finite_outputs"] == 0
     # lifting started at 1.3 s: the box is up by most of the reference's 10 cm by 2.5 s
     assert sim.world.object_pose("box").position[2] - z0 > 0.05
+
+
+def test_teleop_controller_holds_the_start_until_the_first_hand_pose(ros) -> None:
+    """reference: hand_pose: before any hand pose (a slow tracker on a loaded machine) the
+    hand holds the scenario's start and the object stays put; the scripted reach and lift
+    (which, with grasp torques off, knocks the box away) must not play."""
+    peer, add, spin_until = ros
+    sim = add(SimNode(parameter_overrides=[Parameter("scenario", value="lift_box"),
+                                           Parameter("real_time", value=False),
+                                           Parameter("command_timeout", value=1.0)]))
+    ctrl = add(ControllerNode(parameter_overrides=[
+        Parameter("scenario", value="lift_box"), Parameter("reference", value="hand_pose")]))
+    p0 = sim.world.object_pose("box").position.copy()
+    q0 = ctrl.core.reference(0.0).q_target[:3].copy()
+    # the scripted reference has reached, closed and lifted by 2.5 s
+    assert spin_until(lambda: sim.world.time > 2.5, 180.0), sim.world.time
+    assert ctrl.commands > 10
+    assert np.linalg.norm(sim.world.object_pose("box").position - p0) < 0.005
+    q = sim.world.hand_state()[0]
+    assert np.linalg.norm(q[:3] - q0) < 0.01  # the wrist stayed at the start
 
 
 @pytest.mark.parametrize("answer", [True, False])
