@@ -104,3 +104,40 @@ def test_corrupt_first_message_refused_at_start(ros, tmp_path: Path) -> None:
     w.close()
     with pytest.raises(BagError, match=str(bag)):
         PlayerNode(parameter_overrides=[Parameter("bag", value=str(bag))])
+
+
+def test_player_holds_its_first_message_until_the_awaited_topic_answers(
+        ros, tmp_path: Path) -> None:
+    """wait_for_topics: the first message is held (published again and again) and nothing
+    else is played until a message arrives on the awaited topic; then the whole bag plays."""
+    from std_msgs.msg import String
+
+    bag = tmp_path / "s"
+    write_sample_bag(bag, duration=1.0, rate=30.0)
+    peer = rclpy.create_node("probe")
+    got: list[int] = []
+    peer.create_subscription(HandPose, "/hand/pose", lambda m: got.append(1),
+                             QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE))
+    ready = peer.create_publisher(String, "/probe/ready", 10)
+    player = PlayerNode(parameter_overrides=[
+        Parameter("bag", value=str(bag)), Parameter("topics", value=["/hand/pose"]),
+        Parameter("wait_for_topics", value=["/probe/ready"]), Parameter("hold_rate", value=20.0),
+        Parameter("wait_timeout", value=120.0)])
+    ex = SingleThreadedExecutor()
+    ex.add_node(player)
+    ex.add_node(peer)
+    try:
+        deadline = time.monotonic() + 60.0
+        while len(got) < 3 and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.05)
+        assert len(got) >= 3 and player.published == 0  # held, not played
+        deadline = time.monotonic() + 60.0
+        while not player.done.done() and time.monotonic() < deadline:
+            ready.publish(String(data="up"))
+            ex.spin_once(timeout_sec=0.05)
+        assert player.done.result() == 0
+        assert player.published == 30  # the whole bag, after the held first message
+    finally:
+        player.on_shutdown()
+        for n in (player, peer):
+            n.destroy_node()
