@@ -3,6 +3,7 @@
 Run the suite under load (the tests must pass on a loaded machine)::
 
     HAND_SUITE_TEST_LOAD=2 python -m pytest -q test/      # conftest starts 2 burners
+    # (they stop with the session, or after HAND_SUITE_TEST_LOAD_SECONDS, default 3600)
 
 or by hand, beside anything else::
 
