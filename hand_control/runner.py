@@ -7,7 +7,13 @@ and exits
 * 0 after SIGINT/SIGTERM (forwarded to every node as SIGINT; SIGTERM after 3 s, SIGKILL
   after 4.5 s, so the graph is down within 5 s), or when a ``required`` node exits with 0;
 * non-zero when any node exits with an error; its traceback (printed by the node's main)
-  appears under its name, followed by a line naming the node and its exit code.
+  appears under its name, followed by a line naming the node and its exit code. A node that
+  does not stop cleanly when the graph stops (killed, or a failing shutdown hook: e.g. a
+  recorder whose bag was not finished) is named the same way and makes the exit code 1.
+
+A node that gets the stop signal while its Python modules still load exits at once with 0
+(nothing was built yet); from :func:`~hand_capture.nodes.shell.run_node` on, the node shell
+handles the signals (build finishes, shutdown hook runs).
 
 Children get SIGTERM if the runner itself dies (PR_SET_PDEATHSIG), so no node is orphaned.
 """
@@ -54,7 +60,14 @@ def node_command(node: NodeSpec, params_files: list[Path],
         raise GraphError(f"node {node.name}: no console script {node.executable!r}; "
                          f"available: {sorted(scripts)}")
     module, func = target.split(":")
-    code = f"import sys; from {module} import {func} as m; sys.exit(m())"
+    # a stop while the modules load ends the process cleanly; run_node installs its own
+    # handlers before it builds anything
+    code = ("import signal, sys\n"
+            "def _early_stop(*_): raise SystemExit(0)\n"
+            "signal.signal(signal.SIGINT, _early_stop)\n"
+            "signal.signal(signal.SIGTERM, _early_stop)\n"
+            f"from {module} import {func} as m\n"
+            "sys.exit(m())")
     return [sys.executable, "-c", code, *ros_args(node, params_files, overrides)]
 
 
@@ -152,11 +165,21 @@ def run_graph(
                       f"{', '.join(c.spec.name for c in children)}\n")
         result = _supervise(children, stop, should_stop, out, lock, cpu)
     finally:
+        running = [c for c in children if c.code is None]
         _stop_all(children)
         for c in children:
             c.reader.join(timeout=1.0)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    for c in running:  # the nodes this stop ended: did each finish cleanly?
+        code = c.proc.poll()
+        if code is None or code == 0:
+            continue
+        how = "was killed" if code == -signal.SIGKILL else "did not stop cleanly"
+        with lock:
+            out.write(f"[runner] node {c.spec.name} {how} (exit code {code})\n")
+        result.code = 1
+        result.failed.append(c.spec.name)
     with lock:
         out.write(f"[runner] graph {graph.name} stopped, exit code {result.code}\n")
         out.flush()

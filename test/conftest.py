@@ -23,6 +23,31 @@ import time  # noqa: E402  (after the environment set-up above)
 
 import pytest  # noqa: E402
 
+_LOAD_ENV = "HAND_SUITE_TEST_LOAD"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """``HAND_SUITE_TEST_LOAD=N``: run the session beside N CPU-burning processes
+    (test/load.py), to check that the tests hold on a loaded machine."""
+    raw = os.environ.get(_LOAD_ENV, "").strip()
+    if not raw or config.option.collectonly:
+        return
+    try:
+        n = int(raw)
+    except ValueError as e:
+        raise pytest.UsageError(f"{_LOAD_ENV} must be a whole number of burners, "
+                                f"got {raw!r}") from e
+    from load import CpuLoad
+
+    load = CpuLoad(n, seconds=float(os.environ.get(_LOAD_ENV + "_SECONDS", "3600"))).start()
+    config.add_cleanup(load.stop)
+    config._hand_suite_load = load  # type: ignore[attr-defined]
+
+
+def pytest_report_header(config: pytest.Config) -> str | None:
+    load = getattr(config, "_hand_suite_load", None)
+    return None if load is None else f"{_LOAD_ENV}: {load.n} CPU burner(s) running"
+
 
 @pytest.fixture
 def ros():

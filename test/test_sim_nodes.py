@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 import pytest
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from hand_msgs.msg import ContactArray, JointCommand
@@ -84,6 +85,26 @@ def test_controller_node_closes_the_loop_over_topics(ros) -> None:
     assert sim.world.object_pose("box").position[2] - z0 > 0.05
 
 
+def test_teleop_controller_holds_the_start_until_the_first_hand_pose(ros) -> None:
+    """reference: hand_pose: before any hand pose (a slow tracker on a loaded machine) the
+    hand holds the scenario's start and the object stays put; the scripted reach and lift
+    (which, with grasp torques off, knocks the box away) must not play."""
+    peer, add, spin_until = ros
+    sim = add(SimNode(parameter_overrides=[Parameter("scenario", value="lift_box"),
+                                           Parameter("real_time", value=False),
+                                           Parameter("command_timeout", value=1.0)]))
+    ctrl = add(ControllerNode(parameter_overrides=[
+        Parameter("scenario", value="lift_box"), Parameter("reference", value="hand_pose")]))
+    p0 = sim.world.object_pose("box").position.copy()
+    q0 = ctrl.core.reference(0.0).q_target[:3].copy()
+    # the scripted reference has reached, closed and lifted by 2.5 s
+    assert spin_until(lambda: sim.world.time > 2.5, 180.0), sim.world.time
+    assert ctrl.commands > 10
+    assert np.linalg.norm(sim.world.object_pose("box").position - p0) < 0.005
+    q = sim.world.hand_state()[0]
+    assert np.linalg.norm(q[:3] - q0) < 0.01  # the wrist stayed at the start
+
+
 @pytest.mark.parametrize("answer", [True, False])
 def test_controller_answers_a_new_hand_pose_without_waiting_for_a_joint_state(
         ros, answer: bool) -> None:
@@ -116,13 +137,24 @@ def test_controller_answers_a_new_hand_pose_without_waiting_for_a_joint_state(
                       tick=lambda: pub_js.publish(js))
     hand = fill_pose_msg(HandPose(), rest_pose(), status="tracking")
     hand.header.frame_id = "world"
-    hand.header.stamp.sec = 77
+    hand.header.stamp.sec = 76
+    # the topic reaches the controller ...
+    assert spin_until(lambda: ctrl._hand_stamp is not None, 10.0,
+                      tick=lambda: pub_hand.publish(hand))
 
     def carried() -> bool:
         return any(c.header.stamp.sec == 77 for c in got["control/joint_command"])
 
-    assert spin_until(lambda: ctrl._hand_stamp is not None, 10.0,
-                      tick=lambda: pub_hand.publish(hand))
-    assert spin_until(carried, 0.5) == answer
-    pub_js.publish(js)
-    assert spin_until(carried, 5.0)
+    # ... and a new pose is answered inside its own callback, or not at all (no timing: a
+    # joint state still in flight cannot blur this)
+    hand.header.stamp.sec = 77
+    js.header.stamp.sec = 6  # a fresh joint state just before (answers on a stale one stop)
+    ctrl._on_joint_state(js)
+    before = ctrl.commands
+    ctrl._on_hand_pose(hand)
+    assert (ctrl.commands == before + 1) == answer
+    if not answer:  # the next joint state's step carries it
+        js.header.stamp.sec = 7
+        ctrl._on_joint_state(js)
+        assert ctrl.commands == before + 1
+    assert spin_until(carried, 10.0)  # and the command on the topic carries the pose's stamp

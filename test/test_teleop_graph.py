@@ -1,5 +1,6 @@
-"""Teleoperation end to end: the shipped performance meets the simulated object, the offline
-chain grasps and lifts, and the teleop and replay graphs publish every topic of the contract."""
+"""Teleoperation end to end: the shipped performance meets the simulated object without being
+made from the grasp plan, the offline chain grasps and lifts, the teleop graph lifts the box
+from tracked input, and the teleop and replay graphs publish every topic of the contract."""
 
 from __future__ import annotations
 
@@ -42,6 +43,25 @@ def test_shipped_performance_and_camera_pose_come_from_the_generator(performance
     assert np.allclose(cfg["camera_rotation"], performance.camera_rotation, atol=1e-5)
 
 
+def test_performance_is_not_built_from_the_grasp_plan(monkeypatch) -> None:
+    """The operator's performance comes from human keyframes and the object's size: it builds
+    with grasp planning switched off, and its grasp is not the plan's."""
+    import hand_control.sim.grasp as grasp
+    import hand_control.sim.lockstep as lockstep
+
+    def no_plan(*_a, **_k):
+        raise AssertionError("the performance must not use the grasp plan")
+
+    monkeypatch.setattr(grasp, "plan_grasp", no_plan)
+    monkeypatch.setattr(lockstep, "plan_grasp", no_plan)
+    perf = performance_for_scenario("lift_box")
+    monkeypatch.undo()
+    plan = LockstepRunner(load_scenario("lift_box")).plan
+    q = perf.poses[np.argmin(np.abs(perf.times - 2.5))]  # held at the grasp
+    assert np.degrees(np.abs(q[6:] - plan.q_grasp[6:]).max()) > 20.0
+    assert np.linalg.norm(q[:3] - plan.q_grasp[:3]) > 0.03
+
+
 def test_controller_period_matches_the_sims_state_rate() -> None:
     """The controller caps the object's rotational gains by its control period: in teleop it
     must be the period of the sim's joint states (timestep x steps_per_tick)."""
@@ -68,7 +88,9 @@ def test_offline_teleop_grasps_lifts_carries_and_releases(performance) -> None:
     runner = LockstepRunner(load_scenario("lift_box"), control_every=4)
     res = run_teleop(runner, performance.times[idx], performance.poses[idx])
     order = [int(p) for i, p in enumerate(res.phases) if i == 0 or p != res.phases[i - 1]]
-    assert order == [Phase.REACHING, Phase.CLOSING, Phase.MANIPULATION, Phase.RELEASING]
+    # ... and the hand withdraws far enough to start over
+    assert order == [Phase.REACHING, Phase.CLOSING, Phase.MANIPULATION, Phase.RELEASING,
+                     Phase.REACHING]
     assert res.max_lift_mm > 70.0  # the performance lifts by 100 mm
     assert res.carried_mm > 70.0   # ... and carries 100 mm sideways
     assert res.qp_fallbacks == 0
@@ -99,15 +121,24 @@ def _topics(bag: Path) -> dict[str, int]:
     return counts
 
 
-def test_teleop_graph_runs_the_performance_and_records_every_topic(tmp_path: Path) -> None:
+def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
+    """The whole graph with the tracker in the loop (grasp_phase and the controller see only
+    the tracked hand/pose, never the camera's ground truth): every topic is recorded and the
+    box is lifted most of the performance's 10 cm."""
+    from hand_control.report.series import load_bag, max_lift_mm, positions
+
     p = hand_suite("run", "teleop", "-p", f"bag_recorder.output:={tmp_path}/bag")
-    out, _ = p.communicate(timeout=240)
+    out, _ = p.communicate(timeout=300)
     assert p.returncode == 0, out[-5000:]
     assert "required node synthetic_camera finished" in out
     assert "grasp phase: manipulation" in out, out[-5000:]
     counts = _topics(tmp_path / "bag")
     missing = [t for t in TELEOP_TOPICS if counts.get(t, 0) == 0]
     assert not missing, (missing, counts, out[-4000:])
+    data = load_bag(tmp_path / "bag", skip=("camera/depth/image_raw", "hand/markers",
+                                            "control/contact_markers"))
+    lift = max_lift_mm(positions(data.topics["sim/object_pose"].msgs))
+    assert lift > 60.0, (lift, out[-4000:])
 
 
 def test_replay_graph_runs_the_shipped_capture_through_the_chain(tmp_path: Path) -> None:

@@ -204,6 +204,11 @@ class BagWriter:
             st.conn.commit()
         self._last_flush = time.monotonic()
 
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` has run."""
+        return self._closed
+
     def close(self) -> None:
         """Finish the bag (writes the index and metadata.yaml). Idempotent."""
         if self._closed:

@@ -11,6 +11,13 @@ subscribers alike) with the recorded durability: a topic recorded transient-loca
 ``hand/shape``) is republished transient-local with the recorded depth, so a subscriber that
 joins late still gets it. A topic without recorded QoS (MCAP files from the ``mcap`` tools) is
 played reliable and volatile, with a note in the log.
+
+Start-up of a graph (``wait_for_topics``): until a message has arrived on each awaited topic
+(the downstream nodes run; :class:`~hand_capture.nodes.awaiting.TopicWaiter`), the player holds
+the bag's first message of every played topic, publishing it ``hold_rate`` times a second, as a
+camera shows its first frame, so that the chain can answer; playback starts ``start_delay``
+seconds after. The nodes of a graph come up seconds apart on a loaded machine, so a fixed delay
+is not enough.
 """
 
 from __future__ import annotations
@@ -29,6 +36,7 @@ from rosgraph_msgs.msg import Clock
 from hand_capture.bag import BagReader
 from hand_capture.config import param, validate
 from hand_capture.errors import BagError, ConfigError
+from hand_capture.nodes.awaiting import TopicWaiter
 from hand_capture.nodes.msgtypes import message_class
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
@@ -52,8 +60,14 @@ class PlayerConfig:
     wait_for_subscribers: bool = param(
         False, "wait until every played topic has a subscriber before starting")
     wait_timeout: float = param(10.0, "longest wait for subscribers [s]", lo=0.0, hi=600.0)
-    start_delay: float = param(0.0, "pause after start-up before the first message [s]",
-                               lo=0.0, hi=60.0)
+    start_delay: float = param(0.0, "pause after start-up (after the wait) before the first "
+                               "message [s]", lo=0.0, hi=60.0)
+    wait_for_topics: tuple[str, ...] = param(
+        (), "hold the first message of every played topic (published hold_rate times a "
+        "second) until a message has arrived on each of these topics, i.e. the graph's other "
+        "nodes run; at most wait_timeout")
+    hold_rate: float = param(5.0, "rate of the held first messages while waiting [Hz]",
+                             lo=0.1, hi=100.0)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -77,7 +91,13 @@ class PlayerNode(Node):
             self.pubs[topic] = self.create_publisher(message_class(msgtype), topic, qos)
         self.clock_pub = (self.create_publisher(Clock, "/clock", 10)
                           if self.cfg.clock_rate > 0 else None)
+        self._first: dict[str, bytes] = {}  # topic -> its first message (held while waiting)
         self._warm_up()
+        self._chain_ready = threading.Event()
+        self._waiter = (TopicWaiter(self, self.cfg.wait_for_topics, self.cfg.wait_timeout)
+                        if self.cfg.wait_for_topics else None)
+        if self._waiter is not None:  # probes are made in the executor's thread
+            self._wait_timer = self.create_timer(0.05, self._poll_waiter)
         self.done: Future = Future()
         self.published = 0
         self._stop = threading.Event()
@@ -124,6 +144,7 @@ class PlayerNode(Node):
         for msg in self.reader.messages():
             if msg.topic in pending:
                 self.reader.check(msg)
+                self._first[msg.topic] = msg.data
                 pending.discard(msg.topic)
                 if not pending:
                     break
@@ -137,6 +158,23 @@ class PlayerNode(Node):
         missing = [t for t, p in self.pubs.items() if p.get_subscription_count() == 0]
         if missing:
             self.get_logger().warning(f"starting without subscribers on {missing}")
+
+    def _poll_waiter(self) -> None:
+        if self._waiter.poll():
+            self._wait_timer.cancel()
+            self._chain_ready.set()
+            self.get_logger().info(
+                f"a message has arrived on every awaited topic: playing in "
+                f"{self.cfg.start_delay:g} s")
+
+    def _hold_first(self) -> None:
+        """Publish the first messages until the awaited topics answered (or a stop)."""
+        self.get_logger().info(f"holding the first messages until messages arrive on "
+                               f"{list(self.cfg.wait_for_topics)}")
+        while not self._stop.is_set() and not self._chain_ready.is_set():
+            for topic, data in self._first.items():
+                self.pubs[topic].publish(data)
+            self._chain_ready.wait(1.0 / self.cfg.hold_rate)
 
     def _sleep_until(self, wall: float) -> bool:
         """Wait until monotonic time ``wall`` [s]; False if asked to stop."""
@@ -171,6 +209,8 @@ class PlayerNode(Node):
         try:
             if self.cfg.wait_for_subscribers:
                 self._wait_subscribers()
+            if self._waiter is not None:
+                self._hold_first()
             if self.cfg.start_delay > 0:
                 self._stop.wait(self.cfg.start_delay)
             while not self._stop.is_set():
@@ -198,6 +238,7 @@ class PlayerNode(Node):
     def on_shutdown(self) -> None:
         """Stop the playback thread and close the bag."""
         self._stop.set()
+        self._chain_ready.set()
         self._thread.join(timeout=2.0)
         self.reader.close()
 

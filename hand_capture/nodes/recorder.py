@@ -5,7 +5,8 @@ publishers (reliable only if every publisher is reliable), receives the serialis
 without deserialising them and writes them with the middleware's receive time (the node clock
 under use_sim_time). It takes them in batches (``batch_period``), which leaves the CPU to the
 nodes it records. The bag is made durable
-every ``flush_period`` seconds and finished (index, metadata.yaml) on every exit path.
+every ``flush_period`` seconds and finished (index, metadata.yaml) on every exit path, after
+taking what has arrived but was not taken yet.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ from hand_capture.errors import BagError
 from hand_capture.nodes.msgtypes import message_class
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
+
+_DRAIN_MAX = 100_000  # most messages taken per topic when the recorder stops
 
 
 @dataclass(frozen=True)
@@ -149,8 +152,31 @@ class RecorderNode(Node):
         arr.header.stamp = self.get_clock().now().to_msg()
         self.diag_pub.publish(arr)
 
+    def _drain(self) -> int:
+        """Write what the middleware has received but the executor has not taken yet (a stop
+        comes between two batched wake-ups, and later still on a loaded machine); returns the
+        number of messages taken."""
+        n = 0
+        for topic, sub in self.subs.items():
+            if sub is None:  # a topic that could not be recorded
+                continue
+            for _ in range(_DRAIN_MAX):
+                try:
+                    with sub.handle:
+                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                except Exception:  # destroyed or failing: the bag comes first
+                    break
+                if taken is None:
+                    break
+                self._on_message(topic, taken[0], taken[1])
+                n += 1
+        return n
+
     def on_shutdown(self) -> None:
-        """Finish the bag (called by run_node on every exit path)."""
+        """Finish the bag (called by run_node on every exit path): write what has arrived,
+        then the index and metadata.yaml."""
+        if not self.writer.closed:
+            self._drain()
         self.writer.close()
         self.get_logger().info(f"wrote {self.writer.count} messages to {self.writer.path}")
 

@@ -9,6 +9,16 @@ Nodes spin on :class:`~hand_capture.nodes.executor.LeanExecutor` (rclpy's single
 executor without its per-wake-up Python cost) unless ``executor_factory`` names another.
 Every node gets the ``realtime_priority`` parameter (:mod:`hand_capture.nodes.realtime`) and
 loopback-only discovery unless the environment sets it (:mod:`hand_capture.network`).
+
+Stopping, in this order (the graph runner escalates SIGINT -> SIGTERM -> SIGKILL):
+
+1. The first SIGINT/SIGTERM only *asks* to stop. A node being built finishes its
+   constructor (a recorder that has opened its bag must reach its shutdown hook, however late
+   the signal comes), and a callback that runs finishes too (a message half-written into a bag
+   would corrupt it); the spin loop wakes at least every :data:`STOP_POLL` seconds to look.
+2. A second signal while the node is still being built or spun means it is stuck (a long
+   constructor or callback): that is interrupted (KeyboardInterrupt).
+3. Once the shutdown hook runs, no signal interrupts it (torque-off, closing a bag).
 """
 
 from __future__ import annotations
@@ -31,14 +41,27 @@ from hand_capture.nodes.executor import LeanExecutor
 from hand_capture.nodes.realtime import apply_realtime_priority
 
 _stop_signal: list[int] = []  # the SIGINT/SIGTERM that asked this process to stop
+_running: list[bool] = [False]  # building or spinning the node: a 2nd signal interrupts it
+#: longest time [s] between two looks at a stop request while spinning
+STOP_POLL = 0.1
 
 
-def _signal_to_keyboardinterrupt(signum: int, frame: object) -> None:
-    """The first stop signal interrupts the spin; later ones (a runner escalating to SIGTERM)
-    must not interrupt the shutdown hooks, e.g. the servos' torque-off."""
+def _on_stop_signal(signum: int, frame: object) -> None:
+    """Record a stop request; interrupt only a spin that ignored a first one (module doc)."""
     _stop_signal.append(signum)
-    if len(_stop_signal) == 1:
+    if len(_stop_signal) >= 2 and _running[0]:
+        _running[0] = False  # interrupt once; the shutdown hook that follows is spared
         raise KeyboardInterrupt
+
+
+def _spin(executor: object, done: Future | None) -> int:
+    """Spin until a stop is requested (or ``done`` completes); the exit code."""
+    while not _stop_signal:
+        if done is not None and done.done():
+            result = done.result()
+            return result if isinstance(result, int) else 0
+        executor.spin_once(timeout_sec=STOP_POLL)
+    return 0
 
 
 def run_node(
@@ -49,31 +72,29 @@ def run_node(
     """Run one node until shutdown; returns the process exit code (0 on a clean stop).
 
     A node with a ``done`` attribute (an rclpy Future) is spun until it completes, and the
-    Future's integer result becomes the exit code. The node may define ``on_shutdown()``:
-    it is called on every exit path (normal, Ctrl-C, SIGTERM, exception) before the node is
-    destroyed, e.g. to switch torque off.
+    Future's integer result becomes the exit code. A stop signal ends the spin (module doc).
+    The node may define ``on_shutdown()``: it is called on every exit path (normal, Ctrl-C,
+    SIGTERM, exception) before the node is destroyed, e.g. to switch torque off.
     """
+    _stop_signal.clear()
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _signal_to_keyboardinterrupt)
+        signal.signal(sig, _on_stop_signal)
     argv = list(sys.argv if args is None else args)
     apply_network_defaults()  # loopback-only discovery unless the environment says otherwise
     os.environ.update(dds_environment(os.environ))  # Fast DDS profile for large images
     code = 0
     node: Node | None = None
     rclpy.init(args=argv, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    _running[0] = True
     try:
         node = factory()
         apply_realtime_priority(node)  # the realtime_priority parameter
         executor = executor_factory()
         executor.add_node(node)
+        # A node that finishes by itself (e.g. a bag player) sets ``done`` (a Future) to its
+        # exit code.
         done = getattr(node, "done", None)
-        if isinstance(done, Future):
-            # A node that finishes by itself (e.g. a bag player) sets done to its exit code.
-            executor.spin_until_future_complete(done)
-            result = done.result() if done.done() else 0
-            code = result if isinstance(result, int) else 0
-        else:
-            executor.spin()
+        code = _spin(executor, done if isinstance(done, Future) else None)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except HandSuiteError as e:
@@ -83,14 +104,15 @@ def run_node(
         sys.stderr.write(f"[{name}] error: {e}\n")
         code = 1
     except Exception:
-        # A signal that lands inside rclpy's C++ (e.g. while a message is taken) surfaces as a
-        # RuntimeError from pybind11, not as KeyboardInterrupt: still a requested stop.
+        # A (second) signal that lands inside rclpy's C++ (e.g. while a message is taken)
+        # surfaces as a RuntimeError from pybind11, not as KeyboardInterrupt: still a stop.
         # Any other failure: reported with the node name, exit 1.
         if not _stop_signal:
             name = node.get_name() if node is not None else getattr(factory, "__name__", "node")
             sys.stderr.write(f"[{name}] failed:\n{traceback.format_exc()}")
             code = 1
     finally:
+        _running[0] = False  # from here on no signal interrupts: the hook must finish
         if node is not None:
             hook = getattr(node, "on_shutdown", None)
             if callable(hook):

@@ -26,7 +26,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from hand_msgs.msg import HandPose
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from rclpy.task import Future
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -34,14 +34,13 @@ from hand_capture.cameras.noise import DepthNoiseConfig
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
 from hand_capture.cameras.threads import limit_blas_threads, reuse_freed_memory
 from hand_capture.config import param, validate
-from hand_capture.errors import InputError
+from hand_capture.nodes.awaiting import TopicWaiter
 from hand_capture.nodes.images import (
     camera_info_msg,
     depth_image_msg,
     numpy_to_image,
     rgb_image_msg,
 )
-from hand_capture.nodes.msgtypes import message_class
 from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import fill_pose_msg
@@ -100,10 +99,9 @@ class SyntheticCameraNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", 10)
         self._info = camera_info_msg(self.intr)  # reused: only the stamp changes
         self._start_ns: int | None = None
-        self._created = time.monotonic()
+        self._waiter = TopicWaiter(self, self.node_cfg.wait_for_topics,
+                                   self.node_cfg.wait_timeout_s)
         self._wait_logged: list[str] = []
-        self._wait_subs: dict[str, object] = {}  # awaited topic -> its probe subscription
-        self._heard: set[str] = set()  # awaited topics a message has arrived on
         self._ready_t: float | None = None  # time.monotonic() when all of them had one [s]
         self._wait_log_t = -1e9
         self.done: Future = Future()
@@ -122,55 +120,27 @@ class SyntheticCameraNode(Node):
             f"{'on' if self.noise_cfg.enabled else 'off'}")
 
     def _waiting(self) -> bool:
-        """Whether the motion still waits for ``wait_for_topics`` (logs what it waits for).
-
-        A topic counts once a message has arrived on it: a publisher alone can belong to a
-        node that is still setting up (e.g. the sim building its world), and a motion started
-        then would be answered late at first. Each awaited topic with a publisher gets a probe
-        subscription (raw, best effort: it matches every publisher), dropped at the start."""
-        missing = [t for t in self.node_cfg.wait_for_topics if t not in self._heard]
-        for t in missing:
-            if t not in self._wait_subs:
-                self._probe(t)
-        if missing and time.monotonic() - self._created > self.node_cfg.wait_timeout_s:
-            self.get_logger().warning(f"starting the motion without messages on {missing} "
-                                      f"(waited {self.node_cfg.wait_timeout_s:g} s)")
-            missing = []
-        if missing:
-            # throttled here: rclpy's own throttling inspects the caller's stack (about 1 ms)
-            # on every call, i.e. on every tick while the graph starts
-            now = time.monotonic()
-            if missing != self._wait_logged or now - self._wait_log_t >= 5.0:
-                self._wait_logged, self._wait_log_t = missing, now
-                self.get_logger().info(f"holding the first pose until messages arrive on "
-                                       f"{missing}")
-        elif self._start_ns is None and self.node_cfg.wait_for_topics:
-            now = time.monotonic()
-            if self._ready_t is None:
-                self._ready_t = now
-                for sub in self._wait_subs.values():
-                    self.destroy_subscription(sub)
-                self._wait_subs.clear()
-                self.get_logger().info(
-                    f"a message has arrived on every awaited topic: motion starts in "
-                    f"{self.node_cfg.start_delay_s:g} s")
-            return now - self._ready_t < self.node_cfg.start_delay_s
-        return bool(missing)
-
-    def _probe(self, topic: str) -> None:
-        """Subscribe to an awaited topic once it has a publisher (its type is known then)."""
-        infos = self.get_publishers_info_by_topic(topic)
-        if not infos:
-            return
-        try:
-            cls = message_class(infos[0].topic_type)
-        except InputError as e:  # not installed here: its publisher has to do
-            self.get_logger().warning(f"cannot subscribe to awaited topic {topic}: {e}")
-            self._heard.add(topic)
-            return
-        qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self._wait_subs[topic] = self.create_subscription(
-            cls, topic, lambda _msg, t=topic: self._heard.add(t), qos, raw=True)
+        """Whether the motion still waits for ``wait_for_topics`` (logs what it waits for):
+        until a message has arrived on each (:class:`~hand_capture.nodes.awaiting.TopicWaiter`),
+        then ``start_delay_s`` more."""
+        if not self.node_cfg.wait_for_topics:
+            return False
+        now = time.monotonic()
+        if self._ready_t is None:
+            if not self._waiter.poll():
+                # throttled here: rclpy's own throttling inspects the caller's stack (about
+                # 1 ms) on every call, i.e. on every tick while the graph starts
+                missing = self._waiter.missing()
+                if missing != self._wait_logged or now - self._wait_log_t >= 5.0:
+                    self._wait_logged, self._wait_log_t = missing, now
+                    self.get_logger().info(f"holding the first pose until messages arrive on "
+                                           f"{missing}")
+                return True
+            self._ready_t = now
+            self.get_logger().info(
+                f"a message has arrived on every awaited topic: motion starts in "
+                f"{self.node_cfg.start_delay_s:g} s")
+        return now - self._ready_t < self.node_cfg.start_delay_s
 
     def _tick(self) -> None:
         now = self.get_clock().now()

@@ -136,7 +136,8 @@ class BridgeConfig:
                             "needed)", read_only=True)
     autostart_retry_s: float = param(
         2.0, "with autostart: retry a failed configure (bus not plugged in yet, servos not "
-        "powered) this often [s]; 0 = give up after the first try", lo=0.0, hi=60.0,
+        "powered) or activate (first reads timed out) this often [s]; 0 = give up after the "
+        "first try", lo=0.0, hi=60.0,
         read_only=True)
     emulator_return_delay_us: float = param(0.0, "return delay of the emulated servos [us] "
                                             "(port: emulator)", lo=0.0, hi=508.0,

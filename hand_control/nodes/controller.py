@@ -118,6 +118,14 @@ class ControllerNode(Node):
         self._hand_stamp = None  # stamp of the hand pose followed (reference: hand_pose)
         if self.cfg.reference == "hand_pose":
             self.core.grasp_override = False
+            # Until the first hand pose comes, hold the hand at the scenario's start and the
+            # object where it rests: the scripted reach and lift must not play meanwhile (on a
+            # loaded machine the tracker's first pose can come seconds after the sim starts,
+            # and the scripted motion, with grasp torques off, knocks the object away).
+            start = setup.reference(0.0)
+            self.core.hand_target_override = np.array(start.q_target, dtype=np.float64)
+            self.core.object_target_override = (np.array(start.object_position, dtype=float),
+                                                 np.array(start.object_quaternion, dtype=float))
             self.create_subscription(HandPose, "hand/pose", self._on_hand_pose,
                                      qos_profile_sensor_data)
             self.create_subscription(GraspPhase, "control/grasp_phase", self._on_phase, 10)

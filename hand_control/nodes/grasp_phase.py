@@ -83,7 +83,8 @@ class GraspPhaseNode(Node):
         self.object_name = runner.obj.name
         self.ui = PerformanceInterface(runner.plan.q_grasp,
                                        object_matrix(pose.position, pose.quaternion),
-                                       phase_cfg, ui_cfg)
+                                       phase_cfg, ui_cfg,
+                                       q_pregrasp=runner.plan.q_pregrasp)
         self.R_wc = rotvec_to_matrix(np.array(self.cfg.camera_rotation))
         self.t_wc = np.array(self.cfg.camera_position, dtype=float)
         self.object_T: np.ndarray | None = None

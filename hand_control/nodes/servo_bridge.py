@@ -96,15 +96,17 @@ class ServoBridgeNode(LifecycleNode):
                                                   self._retry_autostart)
 
     def _autostart(self) -> bool:
-        """Configure and activate; whether it configured."""
-        if self.trigger_configure() != _SUCCESS:
+        """Configure (unless configured) and activate; whether the node is active. A failed
+        activation (e.g. the first reads timing out on a loaded machine) is retried as a
+        failed configure is: it leaves the node inactive with torque off."""
+        if self._state_machine.current_state[1] == "unconfigured" \
+                and self.trigger_configure() != _SUCCESS:
             return False
-        self.trigger_activate()
-        return True
+        return self.trigger_activate() == _SUCCESS
 
     def _retry_autostart(self) -> None:
-        self.get_logger().info(f"retrying configure (every {self.config.autostart_retry_s} s)",
-                               throttle_duration_sec=30.0)
+        self.get_logger().info(f"retrying configure / activate (every "
+                               f"{self.config.autostart_retry_s} s)", throttle_duration_sec=30.0)
         if self._autostart() and self._retry_timer is not None:
             self.destroy_timer(self._retry_timer)
             self._retry_timer = None

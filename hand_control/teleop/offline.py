@@ -54,7 +54,7 @@ def run_teleop(runner: LockstepRunner, times: np.ndarray, poses: np.ndarray,
     op = w.object_pose(name)
     p0 = op.position.copy()
     ui = PerformanceInterface(runner.plan.q_grasp, object_matrix(op.position, op.quaternion),
-                              phase_config, config, model)
+                              phase_config, config, model, q_pregrasp=runner.plan.q_pregrasp)
     phases, objs = [], []
     k, dt = 0, w.model.opt.timestep
     n = int(round(times[-1] / dt))

@@ -8,8 +8,13 @@ not have). Our substitute for that synthesis is the grasp planned by fingertip i
 kinematics onto the object's surface (:func:`hand_control.sim.grasp.plan_grasp`):
 
 * reaching, releasing: the target is the tracked hand;
-* closing: the target blends from the tracked hand to the planned grasp (fixed to the object)
-  as the operator's grip closes, progress ``s = (g_open - g) / (g_open - g_grasp)`` in [0, 1];
+* closing: the target goes from the tracked hand to the planned grasp (fixed to the object)
+  as the operator's grip closes, progress ``s = (g_open - g) / span`` in [0, 1], where ``span``
+  is the closing the phase detector needs for a grasp (``close_decrease``), so the target is
+  the grasp by the time the grasp is detected. The operator's wrist need not be the plan's (a
+  tracked hand reaches as it likes): over the first half of the progress the wrist moves to the
+  plan's with the fingers opening to the plan's pre-grasp, over the second half the fingers
+  close from the pre-grasp to the grasp, so the fingers do not sweep into the object;
 * manipulation: the planned grasp, moved rigidly with the operator's wrist since the phase
   began, ``T_wrist = T_op(t) T_op(t0)^-1 T_plan`` (the same rigid motion the object's target
   follows, so the controller carries the object with the grasp it was planned for).
@@ -104,12 +109,19 @@ class GraspRetarget:
         q_grasp: (27,) planned grasp, world frame, for the object at ``object_pose``.
         object_pose: (4, 4) the object's pose the grasp was planned for.
         model: the hand model whose keypoints measure the grip size.
+        q_pregrasp: (27,) the plan's open pre-grasp (same wrist); None = the grasp itself.
+        closing_span: the operator's grip closing [m] that completes the progress; None =
+            from the open grip down to the planned grasp's grip.
     """
 
     def __init__(self, q_grasp: np.ndarray, object_pose: np.ndarray,
-                 model: HandModel | None = None) -> None:
+                 model: HandModel | None = None, q_pregrasp: np.ndarray | None = None,
+                 closing_span: float | None = None) -> None:
         self.model = model or HandModel()
         self.q_grasp = np.array(q_grasp, dtype=np.float64)
+        self.q_pregrasp = self.q_grasp if q_pregrasp is None \
+            else np.array(q_pregrasp, dtype=np.float64)
+        self.closing_span = closing_span
         # the planned wrist in the object's frame: the grasp stays fixed to the object
         self._wrist_in_object = np.linalg.inv(object_pose) @ pose_matrix(self.q_grasp)
         self.grip_grasp = float(grip_size(self.model.joint_positions(self.q_grasp)))
@@ -120,7 +132,8 @@ class GraspRetarget:
 
     def progress(self, grip: float) -> float:
         """Closing progress in [0, 1] of the operator's grip size [m]."""
-        span = self._grip_open - self.grip_grasp
+        span = self._grip_open - self.grip_grasp if self.closing_span is None \
+            else self.closing_span
         if span <= 1e-6:
             return 1.0
         return float(np.clip((self._grip_open - grip) / span, 0.0, 1.0))
@@ -147,8 +160,12 @@ class GraspRetarget:
             self._phase = phase
         if phase == Phase.CLOSING:
             s = self.progress(grip)
-            q = (1 - s) * np.asarray(q_op, dtype=np.float64) + s * self.q_grasp
-            return pose_with_wrist(q, _blend(T_op, T_plan, s))
+            if s < 0.5:  # wrist to the plan's, fingers to the open pre-grasp
+                u = 2.0 * s
+                q = (1 - u) * np.asarray(q_op, dtype=np.float64) + u * self.q_pregrasp
+                return pose_with_wrist(q, _blend(T_op, T_plan, u))
+            u = 2.0 * s - 1.0  # then the fingers close onto the grasp
+            return pose_with_wrist((1 - u) * self.q_pregrasp + u * self.q_grasp, T_plan)
         if phase == Phase.MANIPULATION:
             return pose_with_wrist(self.q_grasp,
                                    T_op @ np.linalg.inv(self._T_op0) @ self._T_plan0)
@@ -183,16 +200,20 @@ class PerformanceInterface:
 
     Args:
         q_grasp: (27,) the planned grasp (world) for the object at ``object_pose`` (4, 4).
+        q_pregrasp: (27,) the plan's open pre-grasp (see :class:`GraspRetarget`).
     """
 
     def __init__(self, q_grasp: np.ndarray, object_pose: np.ndarray,
                  phase_config: PhaseConfig | None = None,
-                 config: InterfaceConfig | None = None, model: HandModel | None = None) -> None:
+                 config: InterfaceConfig | None = None, model: HandModel | None = None,
+                 q_pregrasp: np.ndarray | None = None) -> None:
         self.config = config or InterfaceConfig()
         self.model = model or HandModel()
         self.detector = GraspPhaseDetector(phase_config)
         self.filter = WristFilter(self.config.wrist_cutoff)
-        self.retarget = GraspRetarget(q_grasp, object_pose, self.model)
+        # the progress completes with the closing the detector needs to see a grasp
+        self.retarget = GraspRetarget(q_grasp, object_pose, self.model, q_pregrasp,
+                                      closing_span=self.detector.cfg.close_decrease)
 
     def update(self, t: float, q_op: np.ndarray, object_pose: np.ndarray) -> InterfaceStep:
         """Advance with the operator's pose ``q_op`` (27,) at ``t`` [s] and the object's pose.
