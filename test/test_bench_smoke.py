@@ -36,7 +36,8 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                "render_fps", "raycast_fps", "render_speedup_vs_raycast"), ()),
     "pipeline": (("latency_p50_ms", "latency_p99_ms", "fps", "truth_latency_p50_ms",
                   "latency_vs_truth", "lift_mm"), (pytest.mark.slow,)),  # 3 graph runs
-    "rig": (("views_per_s", "groups_per_s", "baseline_views_per_s", "speedup",
+    "rig": (("views_per_s", "groups_per_s", "parallel_groups_per_s", "baseline_views_per_s",
+             "speedup",
              "sync_frames_per_s", "sync_max_skew_ms", "calib_reproj_px", "calib_extrinsic_mm",
              "calib_extrinsic_deg"), ()),
     "servo": (("loop_hz", "cycle_p50_ms", "baseline_loop_hz", "loop_ratio",

@@ -196,3 +196,21 @@ def test_a_heldout_surface_subject_stands_in_for_the_mjcf_hand():
         st.set_surface(None)
         assert st.label_names == ["background", "hand", "box"]
         np.testing.assert_array_equal(st.render(0).labels, mjcf_view.labels)
+
+
+def test_parallel_studio_renders_what_one_studio_renders():
+    from hand_capture.multiview.studio import ParallelStudio, studio_scene
+
+    rig = ring_rig("three", 3, width=160, height=120)
+    with Studio(rig, studio_scene(["box"])) as one:
+        one.set_state(home_pose())
+        q = one.data.qpos.copy()
+        ref = one.render_all()
+    with ParallelStudio(rig, ["box"], workers=2) as par:
+        views = par.render_all(q)
+        assert list(views) == list(rig.names)
+        for name in rig.names:
+            np.testing.assert_array_equal(views[name].labels, ref[name].labels)
+            np.testing.assert_array_equal(views[name].depth_m, ref[name].depth_m)
+        with pytest.raises(Exception, match="qpos"):
+            par.render_all(np.zeros(3))

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,7 +34,7 @@ from hand_capture.errors import ConfigError, InputError
 from hand_capture.model.joints import N_DOF, matrix_to_quat
 from hand_capture.multiview.rig import Rig, RigCamera
 
-__all__ = ["HAND_LABEL", "LEFT_PREFIX", "Studio", "StudioNoise", "StudioView",
+__all__ = ["HAND_LABEL", "LEFT_PREFIX", "ParallelStudio", "Studio", "StudioNoise", "StudioView",
            "jittered_stamps", "studio_motion", "studio_scene"]
 
 #: label of the (right) hand in :attr:`StudioView.labels`; a left hand and the objects get the
@@ -441,6 +441,93 @@ class Studio:
             self._closed = True
 
     def __enter__(self) -> Studio:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _worker(conn: object, rig: Rig, names: Sequence[str], objects: Sequence[object],
+            two_hands: bool, noise: StudioNoise | None) -> None:
+    """A :class:`ParallelStudio` process: renders its cameras of each state it is sent."""
+    sub = Rig(rig.name, tuple(rig.camera(n) for n in names), rig.world_frame)
+    with Studio(sub, studio_scene(objects, two_hands=two_hands), noise) as st:
+        conn.send("ready")
+        while True:
+            msg = conn.recv()
+            if msg is None:
+                break
+            try:
+                st.set_qpos(msg)
+                conn.send(st.render_all())
+            except Exception as e:  # reported in the parent, which raises it
+                conn.send(e)
+
+
+class ParallelStudio:
+    """The studio's cameras split over ``workers`` processes (one GL context each), so a
+    group renders on every core; :meth:`render_all` returns the same views as one
+    :class:`Studio` of the same scene (colour noise drawn per worker).
+
+    Args:
+        rig, noise: as :class:`Studio`.
+        objects, two_hands: the scene, as :func:`studio_scene` builds it.
+        workers: processes (at most one per camera).
+    """
+
+    def __init__(self, rig: Rig, objects: Sequence[object] = ("box",), *,
+                 two_hands: bool = False, noise: StudioNoise | None = None,
+                 workers: int = 2) -> None:
+        import multiprocessing as mp
+
+        if workers < 1:
+            raise ConfigError(f"workers must be >= 1, got {workers}")
+        ctx = mp.get_context("spawn")  # GL contexts must not be inherited across fork
+        n = min(workers, len(rig))
+        self.rig = rig
+        self._parts = [list(rig.names[i::n]) for i in range(n)]
+        self._conns, self._procs = [], []
+        for i, names in enumerate(self._parts):
+            parent, child = ctx.Pipe()
+            seeded = None if noise is None else replace(noise, seed=noise.seed + i)
+            p = ctx.Process(target=_worker, args=(child, rig, names, list(objects), two_hands,
+                                                  seeded), daemon=True)
+            p.start()
+            self._conns.append(parent)
+            self._procs.append(p)
+        for c in self._conns:
+            if c.recv() != "ready":
+                raise InputError("a studio worker failed to start")
+        self._nq: int | None = None
+
+    def render_all(self, qpos: np.ndarray) -> dict[str, StudioView]:
+        """Every camera's view of the scene state ``qpos`` (the full vector, as
+        :meth:`Studio.set_qpos`), rendered in parallel."""
+        q = np.asarray(qpos, dtype=float)
+        for c in self._conns:
+            c.send(q)
+        views: dict[str, StudioView] = {}
+        for c in self._conns:
+            got = c.recv()
+            if isinstance(got, Exception):
+                raise got
+            views.update(got)
+        return {n: views[n] for n in self.rig.names}
+
+    def close(self) -> None:
+        """Stop the worker processes."""
+        for c in self._conns:
+            try:
+                c.send(None)
+            except (BrokenPipeError, OSError):
+                pass
+        for p in self._procs:
+            p.join(timeout=10)
+            if p.is_alive():
+                p.kill()
+        self._conns, self._procs = [], []
+
+    def __enter__(self) -> ParallelStudio:
         return self
 
     def __exit__(self, *exc: object) -> None:
