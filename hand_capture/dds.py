@@ -6,8 +6,10 @@ loses whole frames when a fragment is dropped. ``config/fastdds_profile.xml`` gi
 participant a shared-memory transport with a larger segment (and large socket buffers for
 the UDP fallback). The graph runner (``hand-suite run``), the launch files, every node's
 ``main()`` (:func:`hand_capture.nodes.shell.run_node`) and ``hand-suite`` itself set
-``FASTDDS_DEFAULT_PROFILES_FILE`` (Fast DDS 3) and ``FASTRTPS_DEFAULT_PROFILES_FILE`` (Fast
-DDS 2) to it, unless the user already set one.
+``FASTDDS_DEFAULT_PROFILES_FILE`` (Fast DDS 3: Kilted, the PyPI wheels) to it, and on a
+Fast DDS 2 distribution (``ROS_DISTRO`` humble, iron or jazzy) also
+``FASTRTPS_DEFAULT_PROFILES_FILE``, which those read (Fast DDS 3's rmw warns at every start
+that the old name is deprecated, so it is not set there), unless the user already set one.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ __all__ = ["PROFILE_VARS", "dds_environment", "profile_file"]
 
 #: the variables Fast DDS 3 / Fast DDS 2 read the default XML profile from
 PROFILE_VARS = ("FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")
+#: ROS 2 distributions on Fast DDS 2 (they read the second variable)
+FAST_DDS_2_DISTROS = frozenset({"humble", "iron", "jazzy"})
 
 
 def profile_file() -> Path:
@@ -34,8 +38,8 @@ def dds_environment(env: Mapping[str, str]) -> dict[str, str]:
     out = dict(env)
     given = next((out[k] for k in PROFILE_VARS if out.get(k)), None)
     path = given or str(profile_file())
-    for k in PROFILE_VARS:
-        out.setdefault(k, path)
-        if not out[k]:
+    wanted = PROFILE_VARS if out.get("ROS_DISTRO", "") in FAST_DDS_2_DISTROS else PROFILE_VARS[:1]
+    for k in wanted:
+        if not out.get(k):
             out[k] = path
     return out
