@@ -270,6 +270,7 @@ class CompositeController:
         self.steps = 0
         self.grasp_steps = 0
         self.fallbacks = 0
+        self.unreachable = 0  # grasp steps whose target the contacts could only approach
 
     @property
     def nv(self) -> int:
@@ -295,12 +296,19 @@ class CompositeController:
         III.23 or eq. 10-11, ``config.method``), then ``transpose(result)`` maps the forces
         and torsional torques to joint torques (eq. 12 / III.21: stacked Jacobians, or
         MuJoCo's ``mj_applyFT`` in the simulator's process). Counts the step, and the
-        fallback when the QP finds no solution (``tau_grasp`` is then ``None``)."""
+        fallback when the QP finds no solution (``tau_grasp`` is then ``None``).
+
+        An ``"unreachable"`` target (the contacts cannot apply it, e.g. a pull) still has an
+        exact optimum: the wrench nearest to the target that the contacts can apply, which
+        eq. III.23 minimises for. It is applied, and counted in ``unreachable`` (dropping it
+        to PD-only let a grasp slip whenever a tracked target asked for a little pull)."""
         res = solve()
         self.steps += 1
-        if not res.found:
+        if not res.found and res.status != "unreachable":
             self.fallbacks += 1
             return None, res
+        if not res.found:
+            self.unreachable += 1
         self.grasp_steps += 1
         return transpose(res), res
 
@@ -370,7 +378,7 @@ class CompositeController:
                 lambda r: _grasp_torques(contacts, r.forces, r.torsion))
         else:
             self.steps += 1
-        fallback = attempt and not qp_result.found
+        fallback = attempt and tau_grasp is None
         # eq. (13) / (III.19): tau = tau_pd + tau_gravity + tau_grasp
         if tau_gravity is None:
             tau_gravity = np.zeros(nv)
