@@ -180,7 +180,7 @@ def cmd_capture(a: argparse.Namespace) -> int:
                       fps=a.fps, shape_seed=a.shape_seed, noise_seed=a.noise_seed,
                       render_color=True)
     else:
-        cfg = SyntheticCameraConfig(clip=a.clip, fps=a.fps, shape_seed=a.shape_seed,
+        cfg = SyntheticCameraConfig(clip=a.clip or "grasp", fps=a.fps, shape_seed=a.shape_seed,
                                     noise_seed=a.noise_seed)
     res = write_capture(a.output or SAMPLE_CAPTURE, cfg, seconds=a.seconds, overwrite=True)
     print(f"wrote {res.frames} frames ({res.messages} messages, {res.size_bytes / 1e6:.2f} MB) "
@@ -201,13 +201,20 @@ def _capture_rig(a: argparse.Namespace) -> int:
 
         objects, qpos = record_motion(load_scenario(a.scenario), a.fps, a.seconds)
     poses = None
-    if a.pose_file:  # world-frame hand poses (CSV / NPZ, as the synthetic camera reads them)
+    if a.pose_file or a.clip:
         import numpy as np
 
         from hand_capture.cameras.motion import load_motion
 
-        clip = load_motion("", a.pose_file, rate=a.pose_file_rate, loop=False)
+        clip = load_motion(a.clip or "", a.pose_file, rate=a.pose_file_rate, loop=True)
         poses = clip.sample_many(np.arange(int(round(a.seconds * a.fps))) / a.fps)
+        if not a.pose_file:  # a clip is a hand in front of a camera: put that camera above
+            from hand_capture.cameras.transforms import pose_in_world  # the studio's table
+            from hand_capture.multiview.rig import look_at
+
+            eye, centre = np.array([0.0, 0.0, 0.55]), np.array([0.0, 0.0, 0.12])
+            R_wc = look_at(eye, centre, up=(1.0, 0.0, 0.0))
+            poses = np.array([pose_in_world(q, R_wc, eye) for q in poses])
     res = write_rig_capture(out, a.rig, seconds=a.seconds, fps=a.fps, objects=objects,
                             qpos=qpos, poses=poses,
                             noise=StudioNoise(sensor_sigma=a.sensor_noise, seed=a.noise_seed),
@@ -332,7 +339,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     cp = sub.add_parser("capture", help="synthetic RGB-D capture with ground truth into a bag")
     cp.add_argument("-o", "--output", default=None, help="bag (default data/sample_capture)")
-    cp.add_argument("--clip", default="grasp")
+    cp.add_argument("--clip", default=None, help="motion clip (default grasp); with --rig "
+                    "the clip is seen by a camera 0.43 m above the table, looking down")
     cp.add_argument("--params", default=None,
                     help="camera from a parameter file's synthetic_camera section (e.g. "
                     "config/teleop.yaml: the teleop performance); replaces --clip")
@@ -354,7 +362,8 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--scenario", default="", help="--rig: motion of a simulated scenario "
                     "(config/scenarios/NAME.yaml) instead of the studio's performance")
     cp.add_argument("--pose-file", default="", help="--rig: world-frame hand poses (CSV / "
-                    "NPZ, 27 values per row) instead of the studio's performance")
+                    "NPZ, 27 values per row) instead of the studio's performance (a --clip "
+                    "is a camera-frame motion instead)")
     cp.add_argument("--pose-file-rate", type=float, default=30.0,
                     help="--rig: rate of a pose file without a time column [Hz]")
     cp.set_defaults(func=cmd_capture)

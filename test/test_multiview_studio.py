@@ -214,3 +214,23 @@ def test_parallel_studio_renders_what_one_studio_renders():
             np.testing.assert_array_equal(views[name].depth_m, ref[name].depth_m)
         with pytest.raises(Exception, match="qpos"):
             par.render_all(np.zeros(3))
+
+
+def test_capture_rig_cli_plays_a_motion_clip_above_the_table(tmp_path):
+    from hand_capture.bag import BagReader
+    from hand_capture.multiview.rig import save_rig
+    from hand_capture.posemsg import pose_from_msg
+    from hand_control.cli import main
+
+    rig = save_rig(ring_rig("small", 2, width=160, height=120), tmp_path / "small.yaml")
+    out = tmp_path / "bag"
+    assert main(["capture", "--rig", str(rig), "--clip", "pinch", "--seconds", "0.4",
+                 "--fps", "5", "-o", str(out)]) == 0
+    with BagReader(out) as bag:
+        roots = [pose_from_msg(bag.check(m))[:3] for m in bag.messages()
+                 if m.topic == "/hand/pose_truth"]
+        hand_px = [int(np.sum(np.asarray(bag.check(m).data) == HAND_LABEL))
+                   for m in bag.messages() if m.topic == "/cam0/labels/image_raw"]
+    assert len(roots) == 2
+    assert all(0.0 < r[2] < 0.4 for r in roots)  # above the table, below the camera
+    assert all(n > 50 for n in hand_px)  # the hand is in view
