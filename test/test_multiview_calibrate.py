@@ -164,3 +164,38 @@ def test_board_text_is_parsed_or_refused_with_the_expected_form():
     assert (b.squares_x, b.squares_y, b.square_m, b.marker_m) == (8, 6, 0.03, 0.022)
     with pytest.raises(Exception, match="SQUARESxSQUARES"):
         parse_board("8by6")
+
+
+def test_calibrates_from_a_bag_of_unsynchronised_cameras(tmp_path):
+    """`hand-suite calibrate rig BAG`: board images on camN/color/image_raw, each camera on its
+    own clock (offsets, jitter); the synchroniser groups them into views."""
+    from builtin_interfaces.msg import Time
+    from rclpy.serialization import serialize_message
+
+    from hand_capture.bag import BagWriter
+    from hand_capture.multiview.rig import load_rig
+    from hand_capture.nodes.images import numpy_to_image
+    from hand_control.cli import main
+
+    rig = ring_rig("truth", 3)
+    poses = sample_board_poses(SPEC, rig, 14, seed=5, min_cameras=2)
+    bag = BagWriter(tmp_path / "boards", storage="mcap")
+    for cam in rig.cameras:
+        bag.add_topic(f"/{cam.name}/color/image_raw", "sensor_msgs/msg/Image")
+    rng = np.random.default_rng(2)
+    for v, T in enumerate(poses):  # one board placement a second
+        for i, cam in enumerate(rig.cameras):
+            t = 100.0 + v + 0.003 * i + rng.uniform(-0.001, 0.001)
+            ns = int(round(t * 1e9))
+            img = np.dstack([render_board_view(SPEC, cam, T, supersample=1)] * 3)
+            msg = numpy_to_image(img, "rgb8", Time(sec=ns // 10**9, nanosec=ns % 10**9),
+                                 cam.intrinsics.frame_id)
+            bag.write(f"/{cam.name}/color/image_raw", ns + 5_000_000, serialize_message(msg))
+    bag.close()
+    out = tmp_path / "rig.yaml"
+    assert main(["calibrate", "rig", str(tmp_path / "boards"), "-o", str(out)]) == 0
+    est = load_rig(out)
+    assert est.names == rig.names
+    moved = est.transformed(poses[0] @ np.linalg.inv(WORLD_FROM_BOARD))
+    for name, (mm, deg) in compare_rigs(moved, rig).items():
+        assert mm < 10.0 and deg < 2.0, (name, mm, deg)
