@@ -14,6 +14,13 @@ from pathlib import Path
 
 REQ = Path(__file__).resolve().parents[1] / "requirements.txt"
 OWN = {"hand-suite", "hand-msgs"}
+NODEPS = Path(__file__).resolve().parents[1] / "requirements-nodeps.txt"
+
+
+def _nodeps() -> set[str]:
+    """Names pinned in requirements-nodeps.txt (installed with --no-deps, kept out of here)."""
+    lines = NODEPS.read_text().splitlines() if NODEPS.exists() else []
+    return {ln.split("==")[0].strip().lower() for ln in lines if ln and not ln.startswith("#")}
 
 
 def main() -> None:
@@ -22,7 +29,7 @@ def main() -> None:
         if Path(str(dist._path)).suffix != ".dist-info":
             continue
         name = dist.metadata["Name"].lower().replace("_", "-")
-        if name not in OWN:
+        if name not in OWN and name not in _nodeps():
             pins[name] = dist.version
     header = [ln for ln in REQ.read_text().splitlines() if ln.startswith("#")]
     REQ.write_text("\n".join(header + [f"{n}=={v}" for n, v in sorted(pins.items())]) + "\n")

@@ -81,11 +81,13 @@ VPY="$VENV/bin/python"
 
 # 4. Python dependencies ------------------------------------------------------------------------
 STEP="python dependencies (requirements.txt)"
-h="$(hash_of "$ROOT/requirements.txt")-$PYVER"
+h="$(hash_of "$ROOT/requirements.txt" "$ROOT/requirements-nodeps.txt")-$PYVER"
 if ! stamp_ok requirements "$h"; then
     say "installing pinned Python dependencies (about 2 GB, a few minutes the first time)"
     run_logged "$VPY" -m pip install --no-input --disable-pip-version-check -q \
         -r "$ROOT/requirements.txt"
+    run_logged "$VPY" -m pip install --no-input --disable-pip-version-check -q --no-deps \
+        -r "$ROOT/requirements-nodeps.txt"
     stamp_set requirements "$h"
 fi
 
