@@ -21,6 +21,9 @@ NODES = {
     "controller": "hand_control.nodes.controller:main",
     "tracker": "hand_capture.nodes.tracker:main",
     "rig_sync": "hand_capture.nodes.rig_sync:main",
+    "multiview_tracker": "hand_capture.nodes.multiview_tracker:main",
+    "rgb_tracker": "hand_capture.nodes.rgb_tracker:main",
+    "retarget": "hand_control.nodes.retarget:main",
 }
 
 setup(
