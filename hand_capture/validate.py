@@ -46,6 +46,7 @@ __all__ = [
     "joint_bounds",
     "validate_contacts",
     "validate_grasp_phase",
+    "validate_hand_keypoints_msg",
     "validate_hand_pose",
     "validate_hand_pose_msg",
     "validate_joint_command",
@@ -374,6 +375,48 @@ def validate_hand_pose_msg(msg: object, limits: InputLimits = DEFAULT_LIMITS) ->
     return validate_hand_pose(msg.joint_names, msg.positions, (p.x, p.y, p.z),
                               (o.x, o.y, o.z, o.w), msg.status, msg.handedness,
                               float(msg.confidence), limits)
+
+
+def validate_hand_keypoints_msg(msg: object, limits: InputLimits = DEFAULT_LIMITS
+                                ) -> tuple[np.ndarray, str, int]:
+    """A hand_msgs/HandKeypoints with 3-D points (common 21-keypoint order):
+    ``(points (21, 3) [m], side, status)``.
+
+    A frame whose status is STATUS_LOST may carry no points; it is returned with NaN points
+    (the consumer holds its last output). Any other frame must carry 21 finite points.
+
+    Raises:
+        RejectedInputError: a status outside 0-4, a handedness other than 0/1, a confidence
+            outside [0, 1], a point count other than 21, NaN/Inf points (naming the
+            keypoints), a coordinate beyond ``max_position`` [m].
+    """
+    from hand_capture.model.keypoints21 import KEYPOINT21_NAMES, N_KEYPOINTS21
+
+    status, handedness = int(msg.status), int(msg.handedness)
+    if status not in HAND_POSE_STATUS:
+        raise _reject(f"status {status} is not a HandPose status "
+                      f"({', '.join(f'{k}={v}' for k, v in HAND_POSE_STATUS.items())})")
+    if handedness not in (0, 1):
+        raise _reject(f"handedness {handedness} is neither HAND_RIGHT (0) nor HAND_LEFT (1)")
+    conf = float(msg.confidence)
+    if not (math.isfinite(conf) and 0.0 <= conf <= 1.0):
+        raise _reject(f"confidence {conf} is outside [0, 1]")
+    side = "left" if handedness == 1 else "right"
+    n = len(msg.points)
+    if n == 0 and status == 3:
+        return np.full((N_KEYPOINTS21, 3), np.nan), side, status
+    if n != N_KEYPOINTS21:
+        raise _reject(f"hand keypoints carry {n} 3-D points; {N_KEYPOINTS21} are needed "
+                      "(wrist + 4 per finger)")
+    pts = np.array([(p.x, p.y, p.z) for p in msg.points], dtype=np.float64)
+    if not (np.abs(pts) <= limits.max_position).all():
+        bad = ~np.isfinite(pts).all(axis=1)
+        if bad.any():
+            raise _reject(f"hand keypoints have NaN/Inf at "
+                          f"{[KEYPOINT21_NAMES[i] for i in np.flatnonzero(bad)[:5]]}")
+        _in_bounds(np.abs(pts).max(axis=1), 0.0, limits.max_position, "keypoint", "m",
+                   KEYPOINT21_NAMES)
+    return pts, side, status
 
 
 def _unit_quat(o: np.ndarray, what: str, limits: InputLimits) -> np.ndarray:

@@ -49,6 +49,7 @@ from hand_capture.model.joints import (
     validate_pose,
     within_limits,
 )
+from hand_capture.model.keypoints21 import KEYPOINT21_NAMES, keypoints21
 from hand_capture.model.mesh import vertex_normals
 from hand_capture.model.shape import (
     BETA_NAMES,
@@ -71,9 +72,11 @@ from hand_capture.model.skeleton import (
 __all__ = [
     "ARTICULATED_JOINTS", "BETA_NAMES", "BONE_NAMES", "BONE_PARENT", "FINGERS",
     "FINGERTIP_KEYPOINTS", "FINGER_JOINTS", "JOINT_INDEX", "JOINT_LIMITS", "JOINT_NAMES",
+    "KEYPOINT21_NAMES",
     "KEYPOINT_NAMES", "N_ALPHA", "N_BETA", "N_BONES", "N_DOF", "N_KEYPOINTS", "ROOT_JOINTS",
     "SCALE_NAMES", "THUMB_JOINTS", "Capsule", "FKResult", "HandModel", "HandShape",
-    "clamp_to_limits", "default_shape", "joint_limits_dict", "matrix_to_quat", "mirror_pose",
+    "clamp_to_limits", "default_shape", "joint_limits_dict", "keypoints21", "matrix_to_quat",
+    "mirror_pose",
     "pose_from_dict", "pose_from_names", "pose_to_dict", "quat_from_root_angles",
     "quat_to_matrix", "rest_pose", "root_angles_from_matrix", "root_angles_from_quat",
     "root_rotation_matrix", "sample_shape", "segment_distance", "validate_pose",
