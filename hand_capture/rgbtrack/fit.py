@@ -44,11 +44,13 @@ from hand_capture.config import param, validate
 from hand_capture.errors import InputError
 from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel
 from hand_capture.model.joints import root_angles_from_matrix, root_rotation_matrix
+from hand_capture.model.keypoints21 import MODEL_TO_21
 
 __all__ = ["PALM_KEYPOINTS", "FitConfig", "FitResult", "KeypointFitter", "project_points",
            "projection_jacobian"]
 
-#: keypoints fixed in the palm frame (wrist, thumb CMC, index..little MCP)
+#: keypoints fixed in the palm frame (wrist, thumb CMC, index..little MCP), common 21 order
+#: (``hand_capture.model.keypoints21``; detector pixels and fitted keypoints use it)
 PALM_KEYPOINTS = np.array([0, 1, 5, 9, 13, 17])
 _LO = JOINT_LIMITS[:, 0]
 _HI = JOINT_LIMITS[:, 1]
@@ -97,7 +99,7 @@ class FitResult:
 
     Attributes:
         pose: (27,) fitted pose in the camera optical frame (within the joint limits).
-        keypoints: (21, 3) model keypoints of ``pose`` [m] (camera frame).
+        keypoints: (21, 3) model keypoints of ``pose`` [m] (camera frame), common 21 order.
         projected: (21, 2) their projections [px].
         rms_px: RMS reprojection error over the keypoints [px].
         hand_px: size of the hand in the image (wrist to middle MCP of the fit) [px].
@@ -213,8 +215,9 @@ class KeypointFitter:
         c = self.config
         if jac:
             kp, jk = self.model.keypoints_and_jacobian(q)
+            kp, jk = kp[MODEL_TO_21], jk[MODEL_TO_21]
         else:
-            kp, jk = self.model.joint_positions(q), None
+            kp, jk = self.model.joint_positions(q)[MODEL_TO_21], None
         uv = project_points(intr, kp)
         e = uv - obs                                             # (21, 2) [px]
         err = np.linalg.norm(e, axis=1)
@@ -312,7 +315,7 @@ class KeypointFitter:
         """Candidate wrist poses from PnP on the palm keypoints (finger joints neutral)."""
         q0 = self.neutral.copy()
         q0[0:6] = 0.0
-        local = self.model.joint_positions(q0)[PALM_KEYPOINTS]
+        local = self.model.joint_positions(q0)[MODEL_TO_21][PALM_KEYPOINTS]
         img = obs[PALM_KEYPOINTS].astype(np.float64)
         k = intr.K
         cands: list[np.ndarray] = []
@@ -343,7 +346,7 @@ class KeypointFitter:
                 palm = palm[np.isfinite(palm)]
                 if palm.size >= 3:
                     # slide along the wrist's ray so the palm's depth matches the image
-                    kp = self.model.joint_positions(q)[PALM_KEYPOINTS]
+                    kp = self.model.joint_positions(q)[MODEL_TO_21][PALM_KEYPOINTS]
                     zt = float(np.median(palm)) + self.config.depth_offset
                     s = zt / max(float(np.mean(kp[:, 2])), 1e-6)
                     q[0:3] = q[0:3] * s
