@@ -201,6 +201,15 @@ class KeypointFitter:
         self.neutral = np.asarray(neutral, dtype=float)
         self._kp_w = np.ones(21)
         self._kp_w[1] = self.config.thumb_cmc_weight
+        c = self.config
+        # constant Jacobian rows of the priors (first order in the root rotation)
+        self._j_temporal = np.zeros((N_DOF, N_DOF))
+        self._j_temporal[0:3, 0:3] = np.eye(3) / c.temporal_sigma_m
+        self._j_temporal[3:, 3:] = np.eye(N_DOF - 3) / c.temporal_sigma_rad
+        self._j_prior = np.zeros((len(_FINGER), N_DOF))
+        self._j_prior[:, _FINGER] = np.eye(len(_FINGER)) / c.prior_sigma_rad
+        self._r_prev_t = np.eye(3)
+        self._prev_ref: np.ndarray | None = None
 
     def set_model(self, model: HandModel) -> None:
         """Use another hand (e.g. a newly calibrated shape)."""
@@ -220,24 +229,23 @@ class KeypointFitter:
             kp, jk = self.model.joint_positions(q)[MODEL_TO_21], None
         uv = project_points(intr, kp)
         e = uv - obs                                             # (21, 2) [px]
-        err = np.linalg.norm(e, axis=1)
+        err = np.sqrt(e[:, 0] ** 2 + e[:, 1] ** 2)
         hub = np.where(err <= c.huber_px, 1.0, np.sqrt(c.huber_px / np.maximum(err, 1e-12)))
         w = self._kp_w * hub / c.pixel_sigma                     # (21,)
         res = [(e * w[:, None]).ravel()]
         jrows = []
         if jac:
-            # root rotation columns as world-frame rotations about the wrist: w x (p - t)
-            jk = jk.copy()
+            # root rotation columns as camera-frame rotations about the wrist: e_i x (p - t)
             d = kp - q[0:3]
-            for i in range(3):
-                jk[:, :, 3 + i] = np.cross(np.eye(3)[i], d)
+            z = np.zeros(len(d))
+            jk[:, :, 3] = np.stack([z, -d[:, 2], d[:, 1]], axis=1)
+            jk[:, :, 4] = np.stack([d[:, 2], z, -d[:, 0]], axis=1)
+            jk[:, :, 5] = np.stack([-d[:, 1], d[:, 0], z], axis=1)
             jp = projection_jacobian(intr, kp)                   # (21, 2, 3)
-            jrows.append((np.einsum("kab,kbn->kan", jp, jk) * w[:, None, None]).reshape(
-                -1, N_DOF))
+            jrows.append((np.matmul(jp, jk) * w[:, None, None]).reshape(-1, N_DOF))
         n_depth = 0
         if depth_obs is not None:
-            target = depth_obs + c.depth_offset
-            dz = kp[:, 2] - target
+            dz = kp[:, 2] - (depth_obs + c.depth_offset)
             use = np.isfinite(dz) & (np.abs(dz) < c.depth_gate)
             n_depth = int(use.sum())
             if n_depth:
@@ -247,24 +255,20 @@ class KeypointFitter:
         if prev is not None:
             dt = np.empty(N_DOF)
             dt[0:3] = (q[0:3] - prev[0:3]) / c.temporal_sigma_m
-            r_rel = root_rotation_matrix(q[3:6]) @ root_rotation_matrix(prev[3:6]).T
+            if self._prev_ref is not prev:
+                self._prev_ref, self._r_prev_t = prev, root_rotation_matrix(prev[3:6]).T
+            r_rel = root_rotation_matrix(q[3:6]) @ self._r_prev_t
             dt[3:6] = _rotvec(r_rel) / c.temporal_sigma_rad
             dt[6:] = (q[6:] - prev[6:]) / c.temporal_sigma_rad
             res.append(dt)
             if jac:
-                jt = np.zeros((N_DOF, N_DOF))
-                jt[0:3, 0:3] = np.eye(3) / c.temporal_sigma_m
-                jt[3:, 3:] = np.eye(N_DOF - 3) / c.temporal_sigma_rad
-                jrows.append(jt)
-        dp = (q[_FINGER] - self.neutral[_FINGER]) / c.prior_sigma_rad
-        res.append(dp)
+                jrows.append(self._j_temporal)
+        res.append((q[_FINGER] - self.neutral[_FINGER]) / c.prior_sigma_rad)
         if jac:
-            jpr = np.zeros((len(_FINGER), N_DOF))
-            jpr[:, _FINGER] = np.eye(len(_FINGER)) / c.prior_sigma_rad
-            jrows.append(jpr)
+            jrows.append(self._j_prior)
         r = np.concatenate(res)
         info = {"kp": kp, "uv": uv, "err": err, "n_depth": n_depth}
-        return r, (np.vstack(jrows) if jac else None), info
+        return r, (np.concatenate(jrows) if jac else None), info
 
     @staticmethod
     def _apply(q: np.ndarray, step: np.ndarray) -> np.ndarray:
