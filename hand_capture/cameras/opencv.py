@@ -17,6 +17,7 @@ import numpy as np
 from hand_capture.cameras.base import Frame, FrameSource, Intrinsics
 from hand_capture.config import param, validate
 from hand_capture.errors import ConfigError, DeviceError
+from hand_capture.paths import resolve_path
 
 __all__ = ["OpenCVConfig", "OpenCVSource"]
 
@@ -58,7 +59,12 @@ class OpenCVConfig:
 
 def _target(device: str) -> int | str:
     d = device.strip()
-    return int(d) if d.isdigit() else d
+    if d.isdigit():
+        return int(d)
+    if "://" in d or d.startswith("/dev/"):
+        return d
+    # a relative video path missing here names the shipped file (data/webcam/...)
+    return str(resolve_path(d))
 
 
 class OpenCVSource(FrameSource):
