@@ -259,7 +259,8 @@ class HandRetargeter:
 
         pos, r, cost = evaluate(q)
         it = 0
-        for it in range(1, s.max_iterations + 1):
+        while it < s.max_iterations:
+            it += 1
             jp = robot.jacobians(self.points, pos)
             j = (self._jac(rows, jp) * sw[:, :, None]).reshape(-1, n)
             h = j.T @ j
