@@ -65,6 +65,8 @@ class RetargetSettings:
                              lo=1e-12, hi=1.0)
     cost_tolerance: float = param(1e-3, "stop when a step lowers the cost by less than this "
                                   "fraction (unitless)", lo=0.0, hi=1.0)
+    max_step: float = param(0.3, "largest joint change of one Gauss-Newton step [rad or m]",
+                            lo=1e-3, hi=10.0)
     damping: float = param(1e-6, "Levenberg-Marquardt damping of each step [m^2/rad^2]",
                            lo=0.0, hi=1.0)
     smoothness: float = param(2e-6, "weight of (q - q_previous)^2 against the squared point "

@@ -22,7 +22,8 @@ point (position mode) or the difference of two points (a vector), and ``t_k`` it
 
 Each step solves ``(J^T W J + (lambda + mu) I) dq = -(J^T W r + mu (q - q_prev))`` under the
 box ``lo - q <= dq <= hi - q`` (an active-set solve of the small QP), so the limits hold
-exactly at every iterate; a step that raises the cost is retried with 10x the damping.
+exactly at every iterate; a joint step is at most ``max_step`` (a trust region), and a step
+that raises the cost is retried with 10x the damping.
 """
 
 from __future__ import annotations
@@ -144,6 +145,7 @@ class HandRetargeter:
         self.lower, self.upper = robot.lower, robot.upper
         self._q = robot.reference_q()
         self._last_stamp: float | None = None
+        self._warm = False
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -155,6 +157,7 @@ class HandRetargeter:
             np.asarray(q0, dtype=np.float64), self.lower, self.upper)
         self.filter = LowPassFilter(self.settings.filter_cutoff_hz)
         self._last_stamp = None
+        self._warm = False
 
     # ------------------------------------------------------------------------ targets
     def human_points(self, keypoints: np.ndarray, side: str | None = None) -> np.ndarray:
@@ -259,28 +262,38 @@ class HandRetargeter:
 
         pos, r, cost = evaluate(q)
         it = 0
-        while it < s.max_iterations:
+        # a cold start (no previous frame) may need to travel far: more steps
+        limit = s.max_iterations * (1 if self._warm else 5)
+        while it < limit:
             it += 1
             jp = robot.jacobians(self.points, pos)
             j = (self._jac(rows, jp) * sw[:, :, None]).reshape(-1, n)
             h = j.T @ j
             g = j.T @ r + mu * (q - q_prev)
-            for _ in range(4):
+            h_scale = float(np.trace(h)) / n
+            damped = False
+            for _ in range(8):
                 step = solve_box_qp(h + (lam + mu) * eye, g, self.lower - q, self.upper - q)
+                big = float(np.max(np.abs(step)))
+                if big > s.max_step:  # a trust region: the box holds 0, so it holds the step
+                    step *= s.max_step / big
                 q_new = np.clip(q + step, self.lower, self.upper)
                 pos_new, r_new, cost_new = evaluate(q_new)
                 if cost_new <= cost + 1e-15:
                     break
-                lam = max(lam * 10.0, 1e-9)
+                damped = True
+                lam = max(lam * 10.0, 1e-4 * h_scale)
             else:  # no step lowers the cost: q is a (local) minimum
                 robot.set_q(q)
                 break
             gain = cost - cost_new
             q, pos, r, cost = q_new, pos_new, r_new, cost_new
-            lam = max(lam * 0.3, s.damping)
-            if float(np.max(np.abs(step))) < s.tolerance or gain <= s.cost_tolerance * cost:
+            lam = max(lam * 0.1, s.damping)
+            if float(np.max(np.abs(step))) < s.tolerance or (
+                    not damped and gain <= s.cost_tolerance * cost):
                 break
         self._q = q
+        self._warm = True
         err = np.linalg.norm(pos - self.targets(human), axis=1)
         if stamp_s is None or self.settings.filter_cutoff_hz <= 0:
             q_out = q.copy()
