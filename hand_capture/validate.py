@@ -55,6 +55,8 @@ __all__ = [
     "validate_pose",
     "validate_touch_frame",
     "validate_twist",
+    "validate_camera_info",
+    "validate_image_size",
 ]
 
 #: hand_msgs/HandPose status codes (STATUS_UNKNOWN .. STATUS_GROUND_TRUTH).
@@ -558,3 +560,50 @@ def validate_touch_frame(session_ids: Sequence[int], positions: np.ndarray,
                 raise _reject(f"touches {span:.3g} m apart: more than one hand spans "
                               f"({limits.max_touch_span} m)")
     return pos
+
+
+# ------------------------------------------------------------------------------ images
+def validate_image_size(width: int, height: int, encoding: str, n_bytes: int,
+                        encodings: Collection[str] = ("rgb8", "bgr8")) -> tuple[int, int]:
+    """A sensor_msgs/Image's size and encoding before its pixels are touched:
+    ``(width, height)``.
+
+    Raises:
+        RejectedInputError: an empty image (0 px or no data), an encoding outside
+            ``encodings``.
+    """
+    w, h = int(width), int(height)
+    if w <= 0 or h <= 0 or int(n_bytes) == 0:
+        raise _reject(f"empty image: {w} x {h} px, {int(n_bytes)} bytes of data")
+    if encoding not in encodings:
+        raise _reject(f"image encoding {encoding!r} is not one of {sorted(encodings)}")
+    return w, h
+
+
+def validate_camera_info(msg: object, width: int | None = None, height: int | None = None
+                         ) -> object:
+    """The pinhole of a sensor_msgs/CameraInfo (any object with its fields) as
+    :class:`~hand_capture.cameras.base.Intrinsics`, checked against the image it comes with.
+
+    Raises:
+        RejectedInputError: a K without 9 finite values, fx or fy <= 0 [px], a size of
+            0 px, or a size other than the image's ``width`` x ``height``.
+    """
+    from hand_capture.cameras.base import Intrinsics
+
+    k = np.asarray(list(msg.k), dtype=np.float64)
+    if k.shape != (9,) or not np.isfinite(k).all():
+        raise _reject(f"camera_info K must be 9 finite values, got {k.tolist()}")
+    if k[0] <= 0 or k[4] <= 0:
+        raise _reject(f"camera_info focal lengths fx {k[0]}, fy {k[4]} must be > 0 [px]")
+    w, h = int(msg.width), int(msg.height)
+    if w <= 0 or h <= 0:
+        raise _reject(f"camera_info size {w} x {h} px is empty")
+    if width is not None and (w, h) != (int(width), int(height)):
+        raise _reject(f"camera_info is for {w} x {h} px, the image is {width} x {height}")
+    d = np.asarray(list(msg.d), dtype=np.float64)
+    if not np.isfinite(d).all():
+        raise _reject(f"camera_info distortion has NaN/Inf: {d.tolist()}")
+    return Intrinsics(w, h, float(k[0]), float(k[4]), float(k[2]), float(k[5]),
+                      msg.distortion_model or "plumb_bob", tuple(d) or (0.0,) * 5,
+                      msg.header.frame_id)

@@ -36,6 +36,9 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                "render_fps", "raycast_fps", "render_speedup_vs_raycast"), ()),
     "pipeline": (("latency_p50_ms", "latency_p99_ms", "fps", "truth_latency_p50_ms",
                   "latency_vs_truth", "lift_mm"), (pytest.mark.slow,)),  # 3 graph runs
+    "rgb": (("rgb_tracker_fps", "rgb_detector_fps", "rgb_fps_vs_detector",
+             "rgb_keypoint_err_px", "rgb_detection_rate", "rgb_heldout_keypoint_err_px",
+             "rgb_heldout_detection_rate", "rgb_rgbd_wrist_depth_err_mm"), ()),
     "rig": (("views_per_s", "groups_per_s", "parallel_groups_per_s", "baseline_views_per_s",
              "speedup",
              "sync_frames_per_s", "sync_max_skew_ms", "calib_reproj_px", "calib_extrinsic_mm",

@@ -261,6 +261,29 @@ def test_opencv_reads_a_video_as_rgb_and_reports_its_end(tmp_path):
         OpenCVConfig(fourcc="MJPEG")
 
 
+def test_opencv_video_file_loops_and_plays_at_its_frame_rate(tmp_path):
+    """A video file stands in for a webcam: with ``loop`` it starts again at its end (frame
+    order kept), and frames come at the file's rate, not as fast as they decode."""
+    path = tmp_path / "clip.avi"
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 20.0, (64, 48))
+    for k in range(3):
+        w.write(np.full((48, 64, 3), 60 * (k + 1), np.uint8))
+    w.release()
+    src = OpenCVSource(OpenCVConfig(device=str(path), loop=True, failures_to_disconnect=1))
+    src.open()
+    t0 = time.monotonic()
+    levels = [int(src.read().color[24, 32, 0]) for _ in range(7)]
+    elapsed = time.monotonic() - t0
+    src.close()
+    assert src.loops == 2
+    assert [round(v / 60) for v in levels] == [1, 2, 3, 1, 2, 3, 1]
+    assert elapsed >= 6 * 0.05 * 0.9   # 7 frames at 20 Hz span 6 periods
+    fast = OpenCVSource(OpenCVConfig(device=str(path), realtime=False))
+    fast.open()
+    assert all(fast.read() is not None for _ in range(3)) and fast.read() is None
+    fast.close()
+
+
 # --- supervisor ---------------------------------------------------------------------------
 
 

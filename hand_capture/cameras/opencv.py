@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from hand_capture.cameras.base import Frame, FrameSource, Intrinsics
 from hand_capture.config import param, validate
 from hand_capture.errors import ConfigError, DeviceError
+from hand_capture.paths import resolve_path
 
 __all__ = ["OpenCVConfig", "OpenCVSource"]
 
@@ -44,6 +46,10 @@ class OpenCVConfig:
     frame_id: str = param("camera_color_optical_frame", "optical frame of the images")
     failures_to_disconnect: int = param(
         5, "consecutive failed reads that mean the device is gone", lo=1, hi=1000)
+    loop: bool = param(False, "a video file starts again at its end (else its end is the "
+                       "end of the stream)")
+    realtime: bool = param(True, "a video file plays at its own frame rate (else as fast "
+                           "as it decodes)")
 
     def __post_init__(self) -> None:
         validate(self)
@@ -53,7 +59,12 @@ class OpenCVConfig:
 
 def _target(device: str) -> int | str:
     d = device.strip()
-    return int(d) if d.isdigit() else d
+    if d.isdigit():
+        return int(d)
+    if "://" in d or d.startswith("/dev/"):
+        return d
+    # a relative video path missing here names the shipped file (data/webcam/...)
+    return str(resolve_path(d))
 
 
 class OpenCVSource(FrameSource):
@@ -67,6 +78,11 @@ class OpenCVSource(FrameSource):
         self._intr: Intrinsics | None = None
         self._seq = 0
         self._fails = 0
+        self._is_file = False
+        self._period = 0.0
+        self._next_t: float | None = None
+        #: times a looping video file started again
+        self.loops = 0
 
     @property
     def is_open(self) -> bool:
@@ -105,6 +121,10 @@ class OpenCVSource(FrameSource):
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, c.width)
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, c.height)
             cap.set(cv2.CAP_PROP_FPS, c.fps)
+        self._is_file = isinstance(target, str) and Path(target).is_file()
+        file_fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0) if self._is_file else 0.0
+        self._period = 1.0 / (file_fps if 0.5 <= file_fps <= 500.0 else c.fps)
+        self._next_t = None
         w = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) or c.width
         h = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) or c.height
         self._cap = cap
@@ -131,6 +151,10 @@ class OpenCVSource(FrameSource):
         import cv2
 
         ok, bgr = self._cap.read()
+        if (not ok or bgr is None) and self._is_file and self.config.loop:
+            self._cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
+            ok, bgr = self._cap.read()
+            self.loops += 1
         if not ok or bgr is None:
             self._fails += 1
             if self._fails >= self.config.failures_to_disconnect:
@@ -138,6 +162,8 @@ class OpenCVSource(FrameSource):
                                   f"({self._fails} failed reads; unplugged or end of stream)")
             return None
         self._fails = 0
+        if self._is_file and self.config.realtime:
+            self._pace(timeout_s)
         if bgr.ndim == 2:
             rgb = cv2.cvtColor(bgr, cv2.COLOR_GRAY2RGB)
         else:
@@ -149,6 +175,17 @@ class OpenCVSource(FrameSource):
                       color_intrinsics=self._intr)
         self._seq += 1
         return frame
+
+    def _pace(self, timeout_s: float) -> None:
+        """Hold a video file's frame until its time (one period after the previous one)."""
+        now = time.monotonic()
+        if self._next_t is None:
+            self._next_t = now
+        wait = self._next_t - now
+        if wait > 0:
+            time.sleep(min(wait, max(timeout_s, 0.0)))
+        # a late reader does not get a burst of catch-up frames
+        self._next_t = max(self._next_t + self._period, time.monotonic() - self._period)
 
     def close(self) -> None:
         cap, self._cap = self._cap, None
