@@ -155,7 +155,7 @@ def test_urdf_and_mjcf_files_both_load(tmp_path) -> None:
         "model": str(files.hand), "base_body": "palm", "fixed_joints": ["root_*"],
         "points": [{"keypoint": "index_tip", "site": "index_tip"},
                    {"keypoint": "thumb_tip", "site": "thumb_tip"}],
-        "solver": {"mode": "vector"}})
+        "solver": {"mode": "vector", "damping": 1e-6, "smoothness": 1e-6}})
     rt = HandRetargeter(cfg)
     assert rt.robot.n == 21 and "index_pip_flex" in rt.joint_names
     q = rest_pose()

@@ -67,9 +67,9 @@ class RetargetSettings:
                                   "fraction (unitless)", lo=0.0, hi=1.0)
     max_step: float = param(0.3, "largest joint change of one Gauss-Newton step [rad or m]",
                             lo=1e-3, hi=10.0)
-    damping: float = param(1e-6, "Levenberg-Marquardt damping of each step [m^2/rad^2]",
+    damping: float = param(1e-3, "Levenberg-Marquardt damping of each step [m^2/rad^2]",
                            lo=0.0, hi=1.0)
-    smoothness: float = param(2e-6, "weight of (q - q_previous)^2 against the squared point "
+    smoothness: float = param(1e-4, "weight of (q - q_previous)^2 against the squared point "
                               "errors [m^2/rad^2]: less jitter, more lag", lo=0.0, hi=1.0)
     vector_weight: float = param(1.0, "vector / pinch modes: weight of the tip-to-tip "
                                  "vectors against the wrist-to-point vectors (unitless)",
