@@ -77,3 +77,22 @@ def test_validation_names_nan_keypoints_and_lets_lost_frames_through() -> None:
     assert np.isnan(pts).all() and status == 3 and side == "right"
     with pytest.raises(RejectedInputError, match="21 are needed"):
         validate_hand_keypoints_msg(fill_keypoints_msg(HandKeypoints()))
+
+
+def test_hand_frame_of_model_keypoints_is_the_root_frame() -> None:
+    from hand_capture.model import root_rotation_matrix
+    from hand_capture.model.keypoints21 import hand_frame_from_keypoints21
+
+    rng = np.random.default_rng(3)
+    for side in ("right", "left"):
+        q = rest_pose()
+        q[0:3] = rng.uniform(-0.3, 0.3, 3)
+        q[3:6] = rng.uniform(-1.2, 1.2, 3)
+        q[6:] = rng.uniform(-0.2, 0.6, 21)  # finger joints do not move the palm points
+        rot, origin = hand_frame_from_keypoints21(keypoints21(None, q, side), side)
+        np.testing.assert_allclose(rot, root_rotation_matrix(q[3:6]), atol=1e-9)
+        np.testing.assert_allclose(origin, q[0:3], atol=1e-12)
+    bad = keypoints21(None, rest_pose())
+    bad[5] = np.nan
+    with pytest.raises(InputError, match="palm keypoints"):
+        hand_frame_from_keypoints21(bad)

@@ -97,6 +97,57 @@ def keypoints21(model: object | None, pose: object, side: str = "right") -> np.n
     return kp[..., MODEL_TO_21, :]
 
 
+#: The keypoints fixed to the palm (wrist, thumb CMC, the four MCPs): they define the hand frame.
+PALM_KEYPOINTS: tuple[str, ...] = ("wrist", "thumb_cmc", "index_mcp", "middle_mcp", "ring_mcp",
+                                   "little_mcp")
+_PALM_IDX = np.array([KEYPOINT21_INDEX[n] for n in PALM_KEYPOINTS], dtype=np.int64)
+
+
+@functools.lru_cache(maxsize=4)
+def _palm_template(side: str) -> np.ndarray:
+    from hand_capture.model.joints import rest_pose
+
+    pts = keypoints21(None, rest_pose(), side)[_PALM_IDX]
+    pts.setflags(write=False)
+    return pts
+
+
+def hand_frame_from_keypoints21(points: object, side: str = "right",
+                                template: np.ndarray | None = None
+                                ) -> tuple[np.ndarray, np.ndarray]:
+    """The hand (palm) frame of 21 keypoints: rotation (3, 3) and origin (3,) [m].
+
+    The frame is the suite's hand frame (joints.py: ``+x`` distal, ``+y`` radial, ``+z``
+    dorsal, origin at the wrist): the rotation is the least-squares rigid fit (Kabsch /
+    Umeyama without scale, via the SVD of the cross-covariance) of the template hand's
+    :data:`PALM_KEYPOINTS` (palm frame, rest pose) onto the observed ones; the origin is the
+    wrist keypoint. For keypoints of the suite's model of the same shape it returns the
+    model's root frame exactly; for other hands it is the best rigid match of the palm.
+
+    Args:
+        points: (21, 3) keypoints in the common order [m].
+        side: ``"right"`` or ``"left"`` (the template's side).
+        template: (6, 3) palm keypoints of another hand shape in its palm frame (default: the
+            template hand of ``side``).
+
+    Raises:
+        InputError: a wrong shape, NaN among the palm keypoints, or degenerate palm points.
+    """
+    p = validate_keypoints21(points)[_PALM_IDX]
+    if not np.isfinite(p).all():
+        raise InputError("the palm keypoints (wrist, thumb CMC, MCPs) must be finite to "
+                         "define the hand frame")
+    t = _palm_template(side) if template is None else np.asarray(template, dtype=np.float64)
+    pc, tc = p.mean(axis=0), t.mean(axis=0)
+    cov = (t - tc).T @ (p - pc)  # sum of template (x) observed
+    u, sv, vt = np.linalg.svd(cov)
+    if sv[1] < 1e-10:
+        raise InputError("the palm keypoints are degenerate (collinear): no hand frame")
+    dfix = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
+    rot = vt.T @ dfix @ u.T  # observed = rot @ template + ...
+    return rot, p[0].copy()
+
+
 def validate_keypoints21(points: object, name: str = "keypoints") -> np.ndarray:
     """``points`` as a float64 (21, 3) array; NaN entries are allowed (unknown keypoints).
 
@@ -115,6 +166,6 @@ def validate_keypoints21(points: object, name: str = "keypoints") -> np.ndarray:
 
 __all__ = [
     "FINGER_INDEX", "FINGER_POINTS", "KEYPOINT21_INDEX", "KEYPOINT21_NAMES", "MODEL_TO_21",
-    "N_KEYPOINTS21", "THUMB_POINTS", "TIP_INDEX", "WRIST_INDEX", "keypoints21",
-    "validate_keypoints21",
+    "N_KEYPOINTS21", "PALM_KEYPOINTS", "THUMB_POINTS", "TIP_INDEX", "WRIST_INDEX",
+    "hand_frame_from_keypoints21", "keypoints21", "validate_keypoints21",
 ]

@@ -59,7 +59,7 @@ from hand_control.dynamixel.retarget import (
 )
 from hand_control.dynamixel.safety import FailureCounter, FaultLatch, GoalLimiter, InputWatchdog
 from hand_control.dynamixel.servo_map import ServoMap, load_servo_map
-from hand_control.errors import InputError, ServoError
+from hand_control.errors import ConfigError, InputError, ServoError
 
 EMULATOR_PORT = "emulator"
 _EMULATOR_SWITCH_INTERVAL_S = 2e-4  # GIL switch interval with the in-process emulator [s]
@@ -92,9 +92,11 @@ class BridgeConfig:
                       read_only=True)
     baud: int = param(4_000_000, "baud rate [bit/s]", choices=BAUD_RATES, read_only=True)
     source: str = param("tracked", "input: tracked (hand/pose, HandPose), simulated "
-                        "(sim/joint_states, JointState) or commanded (control/joint_command, "
-                        "the controller's position targets)",
-                        choices=("tracked", "simulated", "commanded"), read_only=True)
+                        "(sim/joint_states, JointState), commanded (control/joint_command, "
+                        "the controller's position targets) or robot (robot/joint_command, "
+                        "the retargeting node's robot joints; needs a servo map with "
+                        "joint_vocabulary: robot)",
+                        choices=("tracked", "simulated", "commanded", "robot"), read_only=True)
     control_rate_hz: float = param(200.0, "control loop rate (sync read + sync write) [Hz]",
                                    lo=1.0, hi=2000.0, read_only=True)
     filter_cutoff_hz: float = param(10.0, "low-pass cutoff on servo targets [Hz]; 0 = off",
@@ -203,6 +205,13 @@ class ServoBridge:
         self._index = {i: k for k, i in enumerate(self.ids)}
         self._ids_arr = np.array(self.ids, dtype=int)
         n = len(self.ids)
+        robot_map = self.map.joint_vocabulary == "robot"
+        if robot_map != (config.source == "robot"):
+            raise ConfigError(
+                f"servo map {self.map.name!r} has joint_vocabulary "
+                f"{self.map.joint_vocabulary!r} but source is {config.source!r}: source "
+                "'robot' (robot/joint_command) goes with a robot-joint map (e.g. "
+                "leap_hand_joints), the other sources with a hand-model map (e.g. leap_hand)")
         self.retarget = Retargeter(self.map)
         self.filter = LowPassFilter(config.filter_cutoff_hz)
         self.limiter = GoalLimiter(self.map)

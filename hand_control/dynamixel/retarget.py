@@ -3,7 +3,9 @@
 The map is linear: for servo ``i``, ``theta_i = offset_i + direction_i * scale_i *
 sum_j w_ij q_j`` [rad], so the whole map is one matrix ``A`` (servos x articulated joints) and a
 vector ``b``: ``theta = A q + b``. Joint angles arrive by name (HandPose.joint_names,
-JointState.name); the name -> column lookup is cached per distinct name list.
+JointState.name); the name -> column lookup is cached per distinct name list. ``q`` is over the
+hand model's articulated joints, or, for a map with ``joint_vocabulary: robot``, over the
+robot joints the map names (in the map's order).
 """
 
 from __future__ import annotations
@@ -19,23 +21,25 @@ from hand_control.dynamixel.control_table import POSITION_CENTER, TICKS_PER_RAD
 from hand_control.dynamixel.servo_map import ServoMap
 from hand_control.errors import InputError
 
-_JOINT_INDEX = {name: i for i, name in enumerate(ARTICULATED_JOINTS)}
-
 
 class Retargeter:
     """Linear retargeting of named hand-model joint angles to servo angles and ticks."""
 
     def __init__(self, servo_map: ServoMap, limits: InputLimits = DEFAULT_LIMITS) -> None:
         self.servo_map = servo_map
-        n, m = len(servo_map.servos), len(ARTICULATED_JOINTS)
+        self.vocabulary: tuple[str, ...] = (
+            ARTICULATED_JOINTS if servo_map.joint_vocabulary == "hand_model"
+            else servo_map.joints_used())
+        self._index = {name: i for i, name in enumerate(self.vocabulary)}
+        n, m = len(servo_map.servos), len(self.vocabulary)
         self.A = np.zeros((n, m))
         self.b = np.zeros(n)
         for i, s in enumerate(servo_map.servos):
             for j, w in s.joints:
-                self.A[i, _JOINT_INDEX[j]] += s.direction * s.scale * w
+                self.A[i, self._index[j]] += s.direction * s.scale * w
             self.b[i] = s.offset
         self.required = tuple(servo_map.joints_used())
-        self._required_idx = np.array([_JOINT_INDEX[j] for j in self.required], dtype=int)
+        self._required_idx = np.array([self._index[j] for j in self.required], dtype=int)
         # only the joints the map uses enter A q: a NaN in any other joint of a message can
         # never reach a servo (0 * NaN = NaN in a full product)
         self._A_used = np.ascontiguousarray(self.A[:, self._required_idx])
@@ -48,15 +52,16 @@ class Retargeter:
         hit = self._cache.get(names)
         if hit is not None:
             return hit
+        index = self._index
         if strict:
-            unknown = [n for n in names if n not in _JOINT_INDEX]
+            unknown = [n for n in names if n not in index]
             if unknown:
                 raise InputError(f"unknown joint name(s) {unknown[:5]}; valid joints: "
-                                 f"{list(ARTICULATED_JOINTS)}")
+                                 f"{list(self.vocabulary)}")
         if len(set(names)) != len(names):
             raise InputError("duplicate joint names in the message")
-        src = [k for k, n in enumerate(names) if n in _JOINT_INDEX]
-        dst = [_JOINT_INDEX[names[k]] for k in src]
+        src = [k for k, n in enumerate(names) if n in index]
+        dst = [index[names[k]] for k in src]
         missing = [j for j in self.required if j not in names]
         if missing:
             raise InputError(f"joint(s) {missing} needed by servo map "
@@ -69,7 +74,8 @@ class Retargeter:
 
     def joint_vector(self, names: Sequence[str], positions: Sequence[float],
                      strict: bool = True) -> np.ndarray:
-        """The articulated-joint vector q (21,) from named angles [rad].
+        """The joint vector q (21 articulated joints, or the map's robot joints) from named
+        angles [rad].
 
         Args:
             strict: refuse names outside the joint vocabulary (HandPose); when False they are
@@ -84,7 +90,7 @@ class Retargeter:
             raise InputError(f"{len(names)} joint names but {len(positions)} positions")
         src, dst = self._lookup(names, strict)
         vals = np.asarray(positions, dtype=float)[src]
-        q = np.zeros(len(ARTICULATED_JOINTS))
+        q = np.zeros(len(self.vocabulary))
         q[dst] = vals
         if not np.all(np.isfinite(q[self._required_idx])):
             bad = [self.required[k] for k in np.flatnonzero(

@@ -20,7 +20,10 @@ A servo map is a YAML file per robot hand (``config/servo_maps/<name>.yaml``)::
 
 Servo angle (rad, 0 at the centre tick 2048) = offset + direction * scale * sum_j w_j * q_j,
 goal tick = 2048 + angle * 4096 / (2 pi). Joint names are those of
-``hand_capture.model.joints.ARTICULATED_JOINTS``. Maps are validated on load; every problem found
+``hand_capture.model.joints.ARTICULATED_JOINTS`` (``joint_vocabulary: hand_model``, the default),
+or, with ``joint_vocabulary: robot``, the joint names of a robot hand model (the retargeting
+node's ``robot/joint_command``; any names, typically one servo per robot joint with weight 1).
+Maps are validated on load; every problem found
 is listed in one :class:`ConfigError` (unknown joint names list the valid ones, duplicate IDs name
 both servos, limits outside the model's range name the range, ...).
 """
@@ -44,6 +47,8 @@ from hand_control.dynamixel.control_table import (
 )
 from hand_control.errors import ConfigError
 
+#: Joint vocabularies of a map: the hand model's articulated joints, or a robot model's joints.
+JOINT_VOCABULARIES = ("hand_model", "robot")
 #: Operating modes a servo map may ask for (the bridge commands positions).
 MAP_OPERATING_MODES = ("position", "current_based_position")
 HANDEDNESS = ("right", "left", "any")
@@ -53,7 +58,8 @@ _SERVO_KEYS = (
     "max_position", "current_limit_ma", "goal_current_ma", "profile_velocity_rad_s",
     "max_velocity_rad_s",
 )
-_TOP_KEYS = ("name", "description", "handedness", "operating_mode", "defaults", "servos")
+_TOP_KEYS = ("name", "description", "handedness", "operating_mode", "joint_vocabulary",
+             "defaults", "servos")
 _DEFAULT_MAX_VELOCITY = 6.0  # rad/s, software rate limit when a map gives none
 
 
@@ -98,6 +104,7 @@ class ServoMap:
     operating_mode: str
     servos: tuple[ServoSpec, ...]
     source: str = "<dict>"
+    joint_vocabulary: str = "hand_model"
 
     @property
     def ids(self) -> tuple[int, ...]:
@@ -183,6 +190,10 @@ def servo_map_from_dict(data: Any, source: str = "<dict>") -> ServoMap:
     handedness = data.get("handedness", "any")
     if handedness not in HANDEDNESS:
         errors.append(f"handedness {handedness!r} is not one of {list(HANDEDNESS)}")
+    vocab = data.get("joint_vocabulary", "hand_model")
+    if vocab not in JOINT_VOCABULARIES:
+        errors.append(f"joint_vocabulary {vocab!r} is not one of {list(JOINT_VOCABULARIES)}")
+        vocab = "hand_model"
     mode = data.get("operating_mode", "position")
     if mode not in MAP_OPERATING_MODES:
         errors.append(f"operating_mode {mode!r} is not one of {list(MAP_OPERATING_MODES)}")
@@ -205,7 +216,7 @@ def servo_map_from_dict(data: Any, source: str = "<dict>") -> ServoMap:
             errors.append(f"servos[{i}] must be a mapping, got {raw!r}")
             continue
         entry = {**defaults, **raw}
-        spec = _servo_from_entry(i, entry, errors)
+        spec = _servo_from_entry(i, entry, errors, vocab == "hand_model")
         if spec is not None:
             servos.append(spec)
 
@@ -224,10 +235,11 @@ def servo_map_from_dict(data: Any, source: str = "<dict>") -> ServoMap:
         raise ConfigError(f"servo map {source}: " + "; ".join(errors))
     return ServoMap(name=name, description=str(data.get("description", "")),
                     handedness=handedness, operating_mode=mode, servos=tuple(servos),
-                    source=source)
+                    source=source, joint_vocabulary=vocab)
 
 
-def _servo_from_entry(i: int, e: Mapping[str, Any], errors: list[str]) -> ServoSpec | None:
+def _servo_from_entry(i: int, e: Mapping[str, Any], errors: list[str],
+                      hand_model: bool = True) -> ServoSpec | None:
     n0 = len(errors)
     label = f"servos[{i}]"
     unknown = sorted(set(e) - set(_SERVO_KEYS))
@@ -253,15 +265,18 @@ def _servo_from_entry(i: int, e: Mapping[str, Any], errors: list[str]) -> ServoS
     if not isinstance(joints_raw, Mapping) or not joints_raw:
         errors.append(f"{label}: joints must be a non-empty mapping joint_name: weight")
     else:
-        bad = [j for j in joints_raw if j not in ARTICULATED_JOINTS]
+        known = ARTICULATED_JOINTS if hand_model else tuple(
+            j for j in joints_raw if isinstance(j, str) and j)
+        bad = [j for j in joints_raw if j not in known]
         if bad:
             errors.append(f"{label}: unknown joint name(s) {bad}; valid joints: "
-                          f"{list(ARTICULATED_JOINTS)}")
+                          + (f"{list(ARTICULATED_JOINTS)}" if hand_model else
+                             "non-empty names (joint_vocabulary: robot)"))
         for j, w in joints_raw.items():
             if not _finite(w):
                 errors.append(f"{label}: weight of joint {j!r} must be a finite number, "
                               f"got {w!r}")
-            elif j in ARTICULATED_JOINTS:
+            elif j in known:
                 joints.append((str(j), float(w)))
 
     scale = e.get("scale", 1.0)

@@ -7,7 +7,9 @@ Topics:
     in   hand/pose (hand_msgs/HandPose, source: tracked) or
          sim/joint_states (sensor_msgs/JointState, source: simulated), sensor-data QoS, or
          control/joint_command (hand_msgs/JointCommand, source: commanded; the controller's
-         position targets, reliable)
+         position targets, reliable), or
+         robot/joint_command (hand_msgs/JointCommand, source: robot; the retargeting node's
+         robot joints, reliable; with a servo map of joint_vocabulary: robot)
     out  servo/joint_states (sensor_msgs/JointState: servo angle [rad], velocity [rad/s],
          effort = motor current [A]; only servos read cleanly in that cycle)
     out  servo/goal (hand_msgs/JointCommand: the goals [rad] written to the bus in a cycle,
@@ -132,6 +134,10 @@ class ServoBridgeNode(LifecycleNode):
         elif self.config.source == "commanded":
             self._sub = self.create_subscription(JointCommand, "control/joint_command",
                                                  self._on_command, 10)
+        elif self.config.source == "robot":
+            self._sub = self.create_subscription(
+                JointCommand, "robot/joint_command",
+                lambda m: self._on_command(m, "robot/joint_command"), 10)
         else:
             self._sub = self.create_subscription(JointState, "sim/joint_states",
                                                  self._on_joint_state, qos_profile_sensor_data)
@@ -215,9 +221,9 @@ class ServoBridgeNode(LifecycleNode):
         if self.core.handle_joint_state(msg.name, msg.position):
             self._accepted(msg.header.stamp)
 
-    def _on_command(self, msg: JointCommand) -> None:
+    def _on_command(self, msg: JointCommand, topic: str = "control/joint_command") -> None:
         if self.core is None or self.gate.check(
-                "control/joint_command", validate_joint_command, msg.joint_names,
+                topic, validate_joint_command, msg.joint_names,
                 msg.positions, msg.velocities, msg.efforts) is None:
             return
         if not len(msg.positions):  # efforts only: no position targets for the servos
