@@ -15,8 +15,7 @@ from hand_msgs.msg import HandShape as HandShapeMsg
 from rclpy.executors import SingleThreadedExecutor
 
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
-from hand_capture.model import ARTICULATED_JOINTS
-from hand_capture.model import sample_shape
+from hand_capture.model import ARTICULATED_JOINTS, sample_shape
 from hand_capture.nodes.images import camera_info_msg, depth_image_msg, rgb_image_msg
 from hand_capture.nodes.rgb_tracker import RgbTrackerNode
 
