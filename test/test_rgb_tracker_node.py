@@ -167,3 +167,16 @@ def test_rgb_tracker_uses_aligned_depth_and_the_calibrated_shape(ros, frames):
     node._on_shape(bad)
     assert node.gate.rejected["hand/shape"] == 1
     node.destroy_node()
+
+
+def test_rgb_tracker_keeps_only_the_newest_image(ros):
+    """Frames are dropped, not queued, while the tracker is busy: the image subscriptions
+    hold one message (SensorDataQoS otherwise: best effort)."""
+    from rclpy.qos import ReliabilityPolicy
+
+    node = RgbTrackerNode()
+    subs = {s.topic_name.lstrip("/"): s.qos_profile for s in node.subscriptions}
+    for topic in ("camera/color/image_raw", "camera/depth/image_raw"):
+        assert subs[topic].depth == 1, topic
+        assert subs[topic].reliability == ReliabilityPolicy.BEST_EFFORT
+    node.destroy_node()
