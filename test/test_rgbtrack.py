@@ -185,3 +185,19 @@ def test_left_hand_fit_recovers_the_pose() -> None:
     res = fitter.fit(project_points(INTR, truth), INTR)
     assert res.rms_px < 1.0
     assert np.linalg.norm(res.keypoints - truth, axis=1).mean() < 0.01
+
+
+def test_rgb_tracker_parameter_file_holds_every_parameter_with_its_default() -> None:
+    from ros_helpers import ROOT
+    from test_camera_config_files import _check_section
+
+    from hand_capture.config import load_yaml
+    from hand_capture.rgbtrack import DetectorConfig, RgbTrackerConfig
+
+    data = load_yaml(ROOT / "config" / "rgb_tracker.yaml")
+    p = dict(data["rgb_tracker"]["ros__parameters"])
+    _check_section(p.pop("detector"), [DetectorConfig])
+    _check_section(p.pop("fit"), [FitConfig])
+    from hand_capture.nodes.rgb_tracker import RgbTrackerNodeConfig
+
+    _check_section(p, [RgbTrackerConfig, RgbTrackerNodeConfig])
