@@ -201,3 +201,31 @@ def test_rgb_tracker_parameter_file_holds_every_parameter_with_its_default() -> 
     from hand_capture.nodes.rgb_tracker import RgbTrackerNodeConfig
 
     _check_section(p, [RgbTrackerConfig, RgbTrackerNodeConfig])
+
+
+def test_camera_info_and_image_checks_name_the_problem() -> None:
+    from types import SimpleNamespace
+
+    from hand_capture.errors import RejectedInputError
+    from hand_capture.validate import validate_camera_info, validate_image_size
+
+    def info(**kw):
+        base = dict(k=[500.0, 0, 320, 0, 500.0, 240, 0, 0, 1], d=[0.0] * 5, width=640,
+                    height=480, distortion_model="plumb_bob",
+                    header=SimpleNamespace(frame_id="cam"))
+        return SimpleNamespace(**{**base, **kw})
+
+    intr = validate_camera_info(info(), 640, 480)
+    assert (intr.fx, intr.cx, intr.frame_id) == (500.0, 320.0, "cam")
+    for bad, text in ((info(k=[float("nan")] * 9), "finite"),
+                      (info(k=[0.0, 0, 320, 0, 500.0, 240, 0, 0, 1]), "> 0"),
+                      (info(d=[float("inf")] * 5), "distortion"),
+                      (info(width=0), "empty"),
+                      (info(width=320, height=240), "the image is 640 x 480")):
+        with pytest.raises(RejectedInputError, match=text):
+            validate_camera_info(bad, 640, 480)
+    assert validate_image_size(640, 480, "rgb8", 921600) == (640, 480)
+    with pytest.raises(RejectedInputError, match="empty image"):
+        validate_image_size(0, 0, "rgb8", 0)
+    with pytest.raises(RejectedInputError, match="encoding"):
+        validate_image_size(640, 480, "16UC1", 614400)
