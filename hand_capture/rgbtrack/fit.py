@@ -7,8 +7,9 @@ residuals
 
 * reprojection: ``(pi(p_k(q)) - u_k) / sigma_px`` for the 21 keypoints ``p_k`` of the model
   (``u = fx x / z + cx``, ``v = fy y / z + cy``), with a Huber weight so that one wrong
-  landmark does not drag the hand (the robust keypoint term of seed 002's LM tracker, eq. 2/5
-  there with detections instead of salient points);
+  landmark does not drag the hand: Ballan et al.'s (seed 002) projected-point term,
+  eq. (2), with detected keypoints in the place of their salient points, minimised as there by
+  Levenberg-Marquardt kept inside the joint-limit box;
 * depth (optional, aligned depth image): ``(z_k(q) - (d(u_k) + offset)) / sigma_d`` for the
   keypoints whose measured depth lies within ``depth_gate`` of the model (an occluded joint or
   the background further away is ignored); ``offset`` is about a finger radius, since the
@@ -230,7 +231,7 @@ class KeypointFitter:
         else:
             kp, jk = self.model.joint_positions(q)[MODEL_TO_21], None
         uv = project_points(intr, kp)
-        e = uv - obs                                             # (21, 2) [px]
+        e = uv - obs            # Pi(v_k(q)) - p, eq. (2) of seed 002; (21, 2) [px]
         err = np.sqrt(e[:, 0] ** 2 + e[:, 1] ** 2)
         hub = np.where(err <= c.huber_px, 1.0, np.sqrt(c.huber_px / np.maximum(err, 1e-12)))
         w = self._kp_w * hub / c.pixel_sigma                     # (21,)
@@ -255,7 +256,7 @@ class KeypointFitter:
                 if jac:
                     jrows.append(jk[use, 2, :] / c.depth_sigma)
         if prev is not None:
-            dt = np.empty(N_DOF)
+            dt = np.empty(N_DOF)     # smoothness term, cf. E_smoothness of eq. (II.21)
             dt[0:3] = (q[0:3] - prev[0:3]) / c.temporal_sigma_m
             if self._prev_ref is not prev:
                 self._prev_ref, self._r_prev_t = prev, root_rotation_matrix(prev[3:6]).T
@@ -299,7 +300,7 @@ class KeypointFitter:
                 except np.linalg.LinAlgError:
                     lam *= 10.0
                     continue
-                qn = self._apply(q, step)
+                qn = self._apply(q, step)    # projected onto the limits (seed 002: in Theta)
                 if not (self.config.min_z <= qn[2] <= self.config.max_z):
                     lam *= 10.0
                     continue
