@@ -1,11 +1,14 @@
 """``hand-suite bench retarget``: human hand -> robot hand retargeting against today's joint map.
 
-For each robot hand model (the LEAP Hand of ``config/retarget/leap_hand.yaml``, and the suite's
-own exported hand, ``suite_hand``) and each motion, every frame's 21 human keypoints are
+For each robot hand model (the LEAP Hand of ``config/retarget/leap_hand.yaml``; the Allegro
+Hand, ``allegro_hand``, the "other" robot; and the suite's own exported hand, ``suite_hand``,
+as the self-retargeting check) and each motion, every frame's 21 human keypoints are
 retargeted by the optimiser (:class:`hand_control.retarget.HandRetargeter`, the config's mode)
-and, as the baseline, through today's weighted joint map (``config/servo_maps/leap_hand.yaml``
-for the LEAP Hand: human joint angles -> servo angles = the LEAP joints, clipped to their
-limits; the identity for the suite's hand). Figures, per method, in the same run:
+and, as the baseline, through today's weighted joint map (``config/servo_maps/leap_hand.yaml``:
+human joint angles -> servo angles = the LEAP joints, clipped to their limits; the same map
+applied by joint order to the Allegro's joint_0.0 .. joint_15.0, whose fingers have the same
+base / three-flexion layout; the identity for the suite's hand). Figures, per method, in the
+same run:
 
 * ``tip_err_mm``: mean distance of the robot's fingertips from the scaled human fingertips
   placed in the robot (the retargeting target: human tips in the human hand frame x the
@@ -25,7 +28,8 @@ the embedded teleoperation performance (``data/teleop/lift_box.npz``) and the sa
 performed by other operators' hand shapes (``sample_shape`` seeds) with 3 mm Gaussian noise on
 every keypoint (a tracker's), neither of which the configs were built from. Top-level keys are
 the LEAP Hand's on everything; ``*_indist`` / ``*_heldout`` split them; ``other_*`` are the
-suite's hand (retargeting a hand onto itself: ~0 by construction, a check).
+Allegro Hand's; ``self_tip_err_mm`` is the suite's hand retargeted onto itself (in-distribution
+clips: the input comes back).
 
 The colour tracker's figures (``rgb_tracker_fps``, ``rgb_keypoint_err_px``) come from
 :func:`hand_capture.rgbtrack.evaluate.rgb_tracker_figures`, the ``rgb`` bench's function.
@@ -118,6 +122,9 @@ def joint_map_for(rt: HandRetargeter) -> tuple[Any, np.ndarray | None]:
     if rt.config.name == "leap_hand":
         jm = Retargeter(load_servo_map("leap_hand"))
         return jm, np.array([jm.servo_map.names.index(n) for n in rt.joint_names])
+    if rt.config.name == "allegro_hand":  # servo i of the LEAP map -> joint_i.0
+        jm = Retargeter(load_servo_map("leap_hand"))
+        return jm, np.array([int(float(n.split("_")[1])) for n in rt.joint_names])
     return None, np.array([ARTICULATED_JOINTS.index(n) for n in rt.joint_names])
 
 
@@ -173,8 +180,18 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     seqs = motions(quick, smoke)
     figs: dict[str, Any] = {}
     rows = []
-    for robot, prefix in (("leap_hand", ""), ("suite_hand", "other_")):
+    for robot, prefix in (("leap_hand", ""), ("allegro_hand", "other_"),
+                          ("suite_hand", "self_")):
         rt = HandRetargeter(robot)
+        if prefix == "self_":  # the check: the template hand onto itself
+            res = evaluate(rt, [m for m in seqs if m.split == "indist"])
+            fo = res["indist"]["opt"].figures()
+            rows.append([robot, "indist", "optimiser (self)", fo["tip_err_mm"],
+                         fo["pinch_err_mm"], fo["pinch_frames"], fo["jitter_mrad"],
+                         fo["ms_p50"]])
+            figs["self_tip_err_mm"] = round(fo["tip_err_mm"], 4)
+            figs["self_tip_err_mm_max"] = round(1e3 * max(res["indist"]["opt"].tip), 4)
+            continue
         res = evaluate(rt, seqs)
         for split in ("all", "indist", "heldout"):
             if split == "all":
