@@ -169,8 +169,9 @@ class HandRetargeter:
         kp = validate_keypoints21(keypoints)
         used = kp[self.keypoint_idx]
         if not np.isfinite(used).all():
-            raise InputError("NaN/Inf in keypoint(s) "
-                             f"{[self.config.points[i].keypoint for i in np.flatnonzero(~np.isfinite(used).all(axis=1))]}")  # noqa: E501
+            bad = np.flatnonzero(~np.isfinite(used).all(axis=1))
+            raise InputError(f"NaN/Inf in keypoint(s) "
+                             f"{[self.config.points[i].keypoint for i in bad]}")
         rot, origin = hand_frame_from_keypoints21(kp, side or self.config.handedness)
         return (used - origin) @ rot
 
