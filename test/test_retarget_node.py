@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point
 from hand_msgs.msg import HandKeypoints, HandPose, JointCommand
 from rclpy.parameter import Parameter
@@ -53,7 +54,9 @@ def test_node_retargets_keypoints_and_holds_on_nan_and_lost(ros) -> None:
     node = add(RetargetNode(parameter_overrides=[Parameter("input", value="keypoints"),
                                                  Parameter("config", value="leap_hand")]))
     cmds: list[JointCommand] = []
+    diags: list[DiagnosticArray] = []
     peer.create_subscription(JointCommand, "robot/joint_command", cmds.append, 50)
+    peer.create_subscription(DiagnosticArray, "diagnostics", diags.append, 50)
     pub = peer.create_publisher(HandKeypoints, "hand/keypoints", 50)
     assert spin_until(lambda: pub.get_subscription_count() > 0, 10.0)
     clip = builtin_clip("pinch")
@@ -74,6 +77,18 @@ def test_node_retargets_keypoints_and_holds_on_nan_and_lost(ros) -> None:
     pub.publish(_kp_msg(keypoints21(None, builtin_clip("fist").sample(1.5)), 3))
     assert spin_until(lambda: len(cmds) == 4, 10.0)
     assert list(cmds[3].positions) != list(cmds[0].positions)
+
+    def diag_values() -> dict[str, str]:
+        for arr in reversed(diags):
+            for st in arr.status:
+                if st.name == "retarget":
+                    return {kv.key: kv.value for kv in st.values}
+        return {}
+
+    assert spin_until(lambda: diag_values().get("solved") == "2", 10.0), diag_values()
+    v = diag_values()
+    assert v["held/invalid"] == "1" and v["held/no_hand"] == "1"
+    assert v["rejected/hand/keypoints"] == "1" and float(v["solve_ms_p50"]) > 0
 
 
 def test_node_follows_hand_poses(ros) -> None:
