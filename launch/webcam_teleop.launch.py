@@ -1,7 +1,7 @@
 """ros2 launch hand_suite webcam_teleop.launch.py [params_file:=FILE]
 
 The graph described in config/graphs/webcam_teleop.yaml: a colour camera (UVC webcam or the
-shipped sample video) -> rgb_tracker -> servo bridge on the emulated bus.
+shipped sample video) -> rgb_tracker -> retarget -> servo bridge on the emulated bus.
 """
 
 from hand_control.graph import launch_description

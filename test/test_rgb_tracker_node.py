@@ -11,11 +11,12 @@ import pytest
 import rclpy
 from builtin_interfaces.msg import Time
 from hand_msgs.msg import HandKeypoints, HandPose
+from hand_msgs.msg import HandShape as HandShapeMsg
 from rclpy.executors import SingleThreadedExecutor
 
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
-from hand_capture.model import ARTICULATED_JOINTS
-from hand_capture.nodes.images import camera_info_msg, rgb_image_msg
+from hand_capture.model import ARTICULATED_JOINTS, sample_shape
+from hand_capture.nodes.images import camera_info_msg, depth_image_msg, rgb_image_msg
 from hand_capture.nodes.rgb_tracker import RgbTrackerNode
 
 
@@ -133,4 +134,49 @@ def test_rgb_tracker_counts_bad_camera_info_and_empty_images(ros, frames):
     assert node.processed == 0            # nothing reached the tracker
     node._on_info(camera_info_msg(intr, Time(sec=3)))
     assert node.process(img) is not None  # and the node still works
+    node.destroy_node()
+
+
+def test_rgb_tracker_uses_aligned_depth_and_the_calibrated_shape(ros, frames):
+    """A depth image with the colour image's stamp joins the fit (wrong-size hand: the
+    depth keeps the wrist at its distance); one with another stamp is not used; a
+    hand/shape message replaces the model's shape."""
+    node = RgbTrackerNode()
+    intr = frames[0].color_intrinsics
+    node._on_info(camera_info_msg(intr, Time(sec=7)))
+    shape = sample_shape(3)
+    msg = HandShapeMsg()
+    for k, v in shape.to_msg_fields().items():
+        setattr(msg, k, v)
+    msg.global_scale = 1.15     # the hand in the images is the default one (scale 1)
+    node._on_shape(msg)
+    assert node.tracker.model.shape.global_scale == 1.15
+    f = frames[0]
+    node._on_depth(depth_image_msg(f.depth, Time(sec=7, nanosec=900_000_000)))
+    stale = node.process(rgb_image_msg(f.color, Time(sec=7), intr.frame_id))
+    assert stale.good and stale.fit.depth_used == 0
+    node.tracker.reset()
+    node._on_depth(depth_image_msg(f.depth, Time(sec=8)))
+    fresh = node.process(rgb_image_msg(f.color, Time(sec=8), intr.frame_id))
+    assert fresh.good and fresh.fit.depth_used >= 10
+    # colour only, the larger model sits further away; the depth keeps it near the truth
+    assert abs(fresh.pose[2] - f.pose[2]) < abs(stale.pose[2] - f.pose[2])
+    assert abs(fresh.pose[2] - f.pose[2]) < 0.03
+    bad = HandShapeMsg()
+    bad.global_scale = float("nan")
+    node._on_shape(bad)
+    assert node.gate.rejected["hand/shape"] == 1
+    node.destroy_node()
+
+
+def test_rgb_tracker_keeps_only_the_newest_image(ros):
+    """Frames are dropped, not queued, while the tracker is busy: the image subscriptions
+    hold one message (SensorDataQoS otherwise: best effort)."""
+    from rclpy.qos import ReliabilityPolicy
+
+    node = RgbTrackerNode()
+    subs = {s.topic_name.lstrip("/"): s.qos_profile for s in node.subscriptions}
+    for topic in ("camera/color/image_raw", "camera/depth/image_raw"):
+        assert subs[topic].depth == 1, topic
+        assert subs[topic].reliability == ReliabilityPolicy.BEST_EFFORT
     node.destroy_node()

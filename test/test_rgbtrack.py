@@ -174,3 +174,14 @@ def test_mediapipe_finds_no_hand_in_an_empty_image() -> None:
     assert res.status == "lost" and res.reason == "no_hand" and res.pose is None
     assert tr.counts["lost_no_hand"] == 1
     tr.detector.close()
+
+
+def test_left_hand_fit_recovers_the_pose() -> None:
+    left = HandModel(sample_shape(8), side="left")
+    fitter = KeypointFitter(left)
+    q = builtin_clip("pinch").sample(1.5)
+    q[1] = -q[1]                       # the left hand on the other side of the image
+    truth = keypoints21(left, q)
+    res = fitter.fit(project_points(INTR, truth), INTR)
+    assert res.rms_px < 1.0
+    assert np.linalg.norm(res.keypoints - truth, axis=1).mean() < 0.01

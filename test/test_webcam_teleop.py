@@ -1,6 +1,7 @@
 """The webcam teleop graph runs end to end on the shipped sample video as its camera:
-camera (OpenCV, video file) -> rgb_tracker -> servo bridge (emulated bus), started as a
-user does (``hand-suite run webcam_teleop``); a probe node listens."""
+camera (OpenCV, video file) -> rgb_tracker -> retarget (LEAP Hand model, from hand/keypoints)
+-> servo bridge (emulated bus), started as a user does (``hand-suite run webcam_teleop``); a
+probe node listens."""
 
 from __future__ import annotations
 
@@ -42,8 +43,8 @@ def test_mediapipe_tracks_the_shipped_sample_video() -> None:
 
 
 def test_webcam_teleop_graph_drives_the_servos_from_the_video() -> None:
-    """The tracked hand reaches the bus: servo goals follow hand/pose stamps from the
-    colour tracker, and they move (the sample pinches and turns the wrist)."""
+    """The tracked hand reaches the bus: servo goals carry the stamps of the colour
+    tracker's hand/keypoints (through the retargeting), and they move (the sample pinches)."""
     graph = hand_suite("run", "webcam_teleop")
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
@@ -60,8 +61,8 @@ def test_webcam_teleop_graph_drives_the_servos_from_the_video() -> None:
         ex.add_node(node)
 
         def enough() -> bool:
-            tracked = {(p.header.stamp.sec, p.header.stamp.nanosec) for p in poses
-                       if p.status in (HandPose.STATUS_TRACKING, HandPose.STATUS_RECOVERING)}
+            tracked = {(k.header.stamp.sec, k.header.stamp.nanosec) for k in kps
+                       if k.status in (HandPose.STATUS_TRACKING, HandPose.STATUS_RECOVERING)}
             from_tracker = [g for g in goals
                             if (g.header.stamp.sec, g.header.stamp.nanosec) in tracked]
             if len(from_tracker) < 20:
@@ -80,6 +81,6 @@ def test_webcam_teleop_graph_drives_the_servos_from_the_video() -> None:
         graph.send_signal(signal.SIGINT)
         out, _ = graph.communicate(timeout=60)
     assert graph.returncode == 0, out[-4000:]
-    assert ok, (len(poses), len(goals), [p.status for p in poses[-10:]], out[-3000:])
+    assert ok, (len(kps), len(goals), [k.status for k in kps[-10:]], out[-3000:])
     assert any(p.source == "rgb_tracker" for p in poses)
     assert any(len(k.points) == 21 and len(k.pixels) == 42 for k in kps)

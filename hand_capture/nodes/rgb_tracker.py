@@ -10,8 +10,8 @@ Publishes, stamped with the colour image's time:
 
 * ``hand/pose`` (hand_msgs/HandPose): the fitted pose, status TRACKING / RECOVERING (first
   frame after a loss) / LOST (no hand, or the fit does not explain the keypoints: positions
-  then hold the last good pose, never marked as tracking) / UNKNOWN (lost before any good
-  frame), confidence from the fit residual and the detector's score;
+  then hold the last good pose, never marked as tracking; before the first good frame
+  nothing is published here), confidence from the fit residual and the detector's score;
 * ``hand/keypoints`` (hand_msgs/HandKeypoints): the detected pixels and the fitted 3-D
   keypoints (common 21 order); a LOST frame carries no 3-D points;
 * ``diagnostics``: rates, frames dropped while busy, lost frames by reason, rejected inputs
@@ -223,7 +223,7 @@ class RgbTrackerNode(Node):
         elif self._last_good is not None:
             status, pose, conf = "lost", self._last_good, 0.0
         else:
-            status, pose, conf = "unknown", None, 0.0
+            status, pose, conf = "lost", None, 0.0   # no pose to hold yet: none is sent
         if pose is not None:
             msg = HandPose()
             msg.header.stamp = stamp
