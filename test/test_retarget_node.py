@@ -109,3 +109,16 @@ def test_node_follows_hand_poses(ros) -> None:
     # the suite hand onto itself: the finger joints come back (tips within 1 mm)
     assert node.stream.solved == 1
     assert abs(got["index_pip_flex"] - q[JOINT_INDEX["index_pip_flex"]]) < 0.05
+
+
+def test_stream_mirrors_the_other_hand_when_asked(leap) -> None:
+    from hand_capture.model import mirror_pose
+
+    q = builtin_clip("pinch").sample(1.8)
+    right = keypoints21(None, q, "right")
+    left = keypoints21(None, mirror_pose(q), "left")  # the same hand, mirrored
+    want = RetargetStream(HandRetargeter(leap.config, leap.robot)).keypoints(right, 0.0).q
+    s = RetargetStream(HandRetargeter(leap.config, leap.robot), mirror_other_hand=True)
+    got = s.keypoints(left, 0.0, side="left")
+    assert not got.held and s.counts()["held/other_hand"] == 0
+    np.testing.assert_allclose(got.q, want, atol=1e-6)
