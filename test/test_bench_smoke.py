@@ -38,7 +38,8 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                   "latency_vs_truth", "lift_mm"), (pytest.mark.slow,)),  # 3 graph runs
     "retarget": (("tip_err_mm", "joint_map_tip_err_mm", "pinch_err_mm", "joint_map_pinch_err_mm",
                   "retarget_ms_p50", "joint_map_ms_p50", "jitter_mrad", "tip_err_mm_heldout",
-                  "joint_map_tip_err_mm_heldout", "other_tip_err_mm", "rgb_tracker_fps",
+                  "joint_map_tip_err_mm_heldout", "other_tip_err_mm",
+                  "other_joint_map_tip_err_mm", "self_tip_err_mm", "rgb_tracker_fps",
                   "rgb_keypoint_err_px"), ()),
     "rgb": (("rgb_tracker_fps", "rgb_detector_fps", "rgb_fps_vs_detector",
              "rgb_keypoint_err_px", "rgb_detection_rate", "rgb_heldout_keypoint_err_px",

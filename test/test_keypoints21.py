@@ -96,3 +96,26 @@ def test_hand_frame_of_model_keypoints_is_the_root_frame() -> None:
     bad[5] = np.nan
     with pytest.raises(InputError, match="palm keypoints"):
         hand_frame_from_keypoints21(bad)
+
+
+def test_hostile_keypoint_messages_are_refused_never_crash() -> None:
+    rng = np.random.default_rng(20)
+    good = keypoints21(None, rest_pose())
+    specials = [np.nan, np.inf, -np.inf, 1e308, -1e12, 0.0]
+    for _ in range(300):
+        n = int(rng.choice([0, 1, 20, 21, 21, 21, 22, 400]))
+        pts = good[np.arange(n) % 21] + rng.normal(0, 0.01, (n, 3))
+        if n and rng.random() < 0.5:
+            pts[rng.integers(n), rng.integers(3)] = rng.choice(specials)
+        msg = HandKeypoints(points=[Point(x=float(a), y=float(b), z=float(c))
+                                    for a, b, c in pts])
+        msg.status = int(rng.choice([0, 1, 2, 3, 4, 5, 255]))
+        msg.handedness = int(rng.choice([0, 1, 2]))
+        msg.confidence = float(rng.choice([0.5, 1.0, -0.1, 2.0]))
+        try:
+            out, side, status = validate_hand_keypoints_msg(msg)
+        except RejectedInputError:
+            continue
+        assert out.shape == (21, 3) and side in ("right", "left") and status in range(5)
+        assert np.isfinite(out).all() or (status == 3 and np.isnan(out).all())
+        assert np.nan_to_num(np.abs(out)).max() <= 10.0

@@ -211,3 +211,30 @@ def test_base_body_moved_by_an_optimised_joint_is_refused() -> None:
     m = load_mujoco_model(load_retarget_config("leap_hand").model)
     with pytest.raises(ConfigError, match="moves with optimised joint"):
         RobotHand(m, "index_distal")
+
+
+def test_the_camera_frame_does_not_matter(leap: HandRetargeter) -> None:
+    from hand_capture.model import root_rotation_matrix
+
+    kp = keypoints21(None, builtin_clip("pinch").sample(1.8))
+    rot = root_rotation_matrix(np.array([0.7, -1.1, 2.0]))
+    moved = kp @ rot.T + np.array([0.3, -0.2, 0.9])  # the same hand seen from elsewhere
+    a = HandRetargeter(leap.config, leap.robot).solve(kp)
+    b = HandRetargeter(leap.config, leap.robot).solve(moved)
+    np.testing.assert_allclose(a.q, b.q, atol=1e-6)
+
+
+def test_wrist_rpy_follows_the_urdf_convention() -> None:
+    cfg = retarget_config_from_dict({**_leap_dict(), "wrist": {"rpy": [0.3, -0.5, 1.2]}})
+    r, p, y = cfg.wrist_rpy
+
+    def rx(a):
+        return np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+
+    def ry(a):
+        return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+
+    def rz(a):
+        return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+
+    np.testing.assert_allclose(cfg.wrist_rotation(), rz(y) @ ry(p) @ rx(r), atol=1e-12)

@@ -110,3 +110,19 @@ def test_bridge_follows_retargeted_robot_joints_on_the_emulated_bus(leap) -> Non
         assert any(g != 2048 for g in got)
     finally:
         b.close()
+
+
+def test_allegro_mjcf_model_follows_the_hand_frame_convention() -> None:
+    rt = HandRetargeter("allegro_hand")
+    assert rt.config.model.endswith(".xml")  # an MJCF file (the LEAP Hand is a URDF)
+    assert rt.joint_names == tuple(f"joint_{k}.0" for k in range(16))
+    names = [p.keypoint for p in rt.config.points]
+    tips = [names.index(f"{f}_tip") for f in ("index", "middle", "ring")]
+    q0 = np.clip(np.zeros(16), rt.lower, rt.upper)
+    flat = rt.robot_points(q0)
+    assert np.all(flat[tips, 0] > 0.12) and flat[names.index("thumb_tip"), 1] > 0.1
+    assert flat[tips[0], 1] > flat[tips[1], 1] > flat[tips[2], 1]
+    for j in ("joint_1.0", "joint_2.0", "joint_3.0"):  # flexion moves the tip palmwards (-z)
+        q = q0.copy()
+        q[rt.joint_names.index(j)] = 0.5
+        assert rt.robot_points(q)[tips[0], 2] < flat[tips[0], 2] - 0.005, j

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point
 from hand_msgs.msg import HandKeypoints, HandPose, JointCommand
 from rclpy.parameter import Parameter
@@ -53,7 +54,9 @@ def test_node_retargets_keypoints_and_holds_on_nan_and_lost(ros) -> None:
     node = add(RetargetNode(parameter_overrides=[Parameter("input", value="keypoints"),
                                                  Parameter("config", value="leap_hand")]))
     cmds: list[JointCommand] = []
+    diags: list[DiagnosticArray] = []
     peer.create_subscription(JointCommand, "robot/joint_command", cmds.append, 50)
+    peer.create_subscription(DiagnosticArray, "diagnostics", diags.append, 50)
     pub = peer.create_publisher(HandKeypoints, "hand/keypoints", 50)
     assert spin_until(lambda: pub.get_subscription_count() > 0, 10.0)
     clip = builtin_clip("pinch")
@@ -75,6 +78,18 @@ def test_node_retargets_keypoints_and_holds_on_nan_and_lost(ros) -> None:
     assert spin_until(lambda: len(cmds) == 4, 10.0)
     assert list(cmds[3].positions) != list(cmds[0].positions)
 
+    def diag_values() -> dict[str, str]:
+        for arr in reversed(diags):
+            for st in arr.status:
+                if st.name == "retarget":
+                    return {kv.key: kv.value for kv in st.values}
+        return {}
+
+    assert spin_until(lambda: diag_values().get("solved") == "2", 10.0), diag_values()
+    v = diag_values()
+    assert v["held/invalid"] == "1" and v["held/no_hand"] == "1"
+    assert v["rejected/hand/keypoints"] == "1" and float(v["solve_ms_p50"]) > 0
+
 
 def test_node_follows_hand_poses(ros) -> None:
     from hand_control.nodes.retarget import RetargetNode
@@ -94,3 +109,16 @@ def test_node_follows_hand_poses(ros) -> None:
     # the suite hand onto itself: the finger joints come back (tips within 1 mm)
     assert node.stream.solved == 1
     assert abs(got["index_pip_flex"] - q[JOINT_INDEX["index_pip_flex"]]) < 0.05
+
+
+def test_stream_mirrors_the_other_hand_when_asked(leap) -> None:
+    from hand_capture.model import mirror_pose
+
+    q = builtin_clip("pinch").sample(1.8)
+    right = keypoints21(None, q, "right")
+    left = keypoints21(None, mirror_pose(q), "left")  # the same hand, mirrored
+    want = RetargetStream(HandRetargeter(leap.config, leap.robot)).keypoints(right, 0.0).q
+    s = RetargetStream(HandRetargeter(leap.config, leap.robot), mirror_other_hand=True)
+    got = s.keypoints(left, 0.0, side="left")
+    assert not got.held and s.counts()["held/other_hand"] == 0
+    np.testing.assert_allclose(got.q, want, atol=1e-6)

@@ -118,8 +118,8 @@ def hand_frame_from_keypoints21(points: object, side: str = "right",
     """The hand (palm) frame of 21 keypoints: rotation (3, 3) and origin (3,) [m].
 
     The frame is the suite's hand frame (joints.py: ``+x`` distal, ``+y`` radial, ``+z``
-    dorsal, origin at the wrist): the rotation is the least-squares rigid fit (Kabsch /
-    Umeyama without scale, via the SVD of the cross-covariance) of the template hand's
+    dorsal, origin at the wrist): the rotation is the least-squares rigid fit (Kabsch, Acta
+    Cryst. A32, 1976, via the SVD of the cross-covariance) of the template hand's
     :data:`PALM_KEYPOINTS` (palm frame, rest pose) onto the observed ones; the origin is the
     wrist keypoint. For keypoints of the suite's model of the same shape it returns the
     model's root frame exactly; for other hands it is the best rigid match of the palm.

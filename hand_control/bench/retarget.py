@@ -1,11 +1,14 @@
 """``hand-suite bench retarget``: human hand -> robot hand retargeting against today's joint map.
 
-For each robot hand model (the LEAP Hand of ``config/retarget/leap_hand.yaml``, and the suite's
-own exported hand, ``suite_hand``) and each motion, every frame's 21 human keypoints are
+For each robot hand model (the LEAP Hand of ``config/retarget/leap_hand.yaml``; the Allegro
+Hand, ``allegro_hand``, the "other" robot; and the suite's own exported hand, ``suite_hand``,
+as the self-retargeting check) and each motion, every frame's 21 human keypoints are
 retargeted by the optimiser (:class:`hand_control.retarget.HandRetargeter`, the config's mode)
-and, as the baseline, through today's weighted joint map (``config/servo_maps/leap_hand.yaml``
-for the LEAP Hand: human joint angles -> servo angles = the LEAP joints, clipped to their
-limits; the identity for the suite's hand). Figures, per method, in the same run:
+and, as the baseline, through today's weighted joint map (``config/servo_maps/leap_hand.yaml``:
+human joint angles -> servo angles = the LEAP joints, clipped to their limits; the same map
+applied by joint order to the Allegro's joint_0.0 .. joint_15.0, whose fingers have the same
+base / three-flexion layout; the identity for the suite's hand). Figures, per method, in the
+same run:
 
 * ``tip_err_mm``: mean distance of the robot's fingertips from the scaled human fingertips
   placed in the robot (the retargeting target: human tips in the human hand frame x the
@@ -14,8 +17,11 @@ limits; the identity for the suite's hand). Figures, per method, in the same run
   30 mm), the mean |robot thumb-index distance - human distance|;
 * ``jitter_mrad``: joint-space jitter, mean |q[t+1] - 2 q[t] + q[t-1]| over joints and frames
   at 30 Hz [mrad], on the smooth in-distribution clips (what the method adds), and
-  ``jitter_mrad_heldout`` with the keypoint noise (the joint map is given the exact, noise-free
-  joint angles of every sequence: a baseline without tracker noise);
+  ``jitter_mrad_heldout`` with the keypoint noise, and the same after the servo bridge's
+  default low-pass (``*_heldout_lowpass``: what the servos follow). On noisy keypoints the
+  joint map gets its human joint angles from the same keypoints, by retargeting them onto
+  the suite's own hand (an inverse kinematics of the suite's model), so both methods see the
+  same tracker noise; on clean sequences it gets the exact angles;
 * ``retarget_ms_p50``: median wall time of one frame (keypoints in, joints out) [ms], and the
   joint map's (``joint_map_ms_p50``) for the ratio.
 
@@ -25,7 +31,8 @@ the embedded teleoperation performance (``data/teleop/lift_box.npz``) and the sa
 performed by other operators' hand shapes (``sample_shape`` seeds) with 3 mm Gaussian noise on
 every keypoint (a tracker's), neither of which the configs were built from. Top-level keys are
 the LEAP Hand's on everything; ``*_indist`` / ``*_heldout`` split them; ``other_*`` are the
-suite's hand (retargeting a hand onto itself: ~0 by construction, a check).
+Allegro Hand's; ``self_tip_err_mm`` is the suite's hand retargeted onto itself (in-distribution
+clips: the input comes back).
 
 The colour tracker's figures (``rgb_tracker_fps``, ``rgb_keypoint_err_px``) come from
 :func:`hand_capture.rgbtrack.evaluate.rgb_tracker_figures`, the ``rgb`` bench's function.
@@ -44,7 +51,8 @@ from hand_capture.cameras.motion import builtin_clip, load_motion
 from hand_capture.model import HandModel, sample_shape
 from hand_capture.model.joints import ARTICULATED_JOINTS, JOINT_INDEX
 from hand_capture.model.keypoints21 import keypoints21
-from hand_control.dynamixel.retarget import Retargeter
+from hand_control.dynamixel.bridge import BridgeConfig
+from hand_control.dynamixel.retarget import LowPassFilter, Retargeter
 from hand_control.dynamixel.servo_map import load_servo_map
 from hand_control.retarget import HandRetargeter
 
@@ -52,6 +60,7 @@ CLIPS = ("finger_counting", "fist", "pinch", "grasp")
 TELEOP = "data/teleop/lift_box.npz"
 RATE_HZ = 30.0
 NOISE_M = 0.003
+BRIDGE_CUTOFF_HZ = BridgeConfig().filter_cutoff_hz  # the servo bridge's default low-pass
 _ART = np.array([JOINT_INDEX[j] for j in ARTICULATED_JOINTS])
 
 
@@ -118,23 +127,31 @@ def joint_map_for(rt: HandRetargeter) -> tuple[Any, np.ndarray | None]:
     if rt.config.name == "leap_hand":
         jm = Retargeter(load_servo_map("leap_hand"))
         return jm, np.array([jm.servo_map.names.index(n) for n in rt.joint_names])
+    if rt.config.name == "allegro_hand":  # servo i of the LEAP map -> joint_i.0
+        jm = Retargeter(load_servo_map("leap_hand"))
+        return jm, np.array([int(float(n.split("_")[1])) for n in rt.joint_names])
     return None, np.array([ARTICULATED_JOINTS.index(n) for n in rt.joint_names])
 
 
-def evaluate(rt: HandRetargeter, seqs: list[Motion]
+def evaluate(rt: HandRetargeter, seqs: list[Motion], ik: HandRetargeter | None = None
              ) -> dict[str, dict[str, Tally]]:
-    """Tallies by split ('indist', 'heldout') and method ('opt', 'map')."""
+    """Tallies by split ('indist', 'heldout') and method ('opt', 'map', 'filt': the
+    optimiser after the bridge's low-pass). ``ik``: the suite's hand retargeted onto itself,
+    which gives the joint map its human joint angles from noisy keypoints (so both methods
+    see the same tracker noise); without it the joint map gets the exact angles."""
     jm, cols = joint_map_for(rt)
     names = [p.keypoint for p in rt.config.points]
     tips = rt.tip_rows
     th, ix = names.index("thumb_tip"), names.index("index_tip")
     close = rt.settings.pinch_close_m
-    out = {s: {"opt": Tally(), "map": Tally()} for s in ("indist", "heldout")}
+    out = {s: {"opt": Tally(), "map": Tally(), "filt": Tally()} for s in ("indist", "heldout")}
     for m in seqs:
         rng = np.random.default_rng(m.seed)
         kp_all = keypoints21(m.model, m.poses)
         rt.reset()
-        q_opt, q_map = [], []
+        if ik is not None:
+            ik.reset()
+        q_opt, q_map, targets = [], [], []
         tal = out[m.split]
         for k in range(len(m.poses)):
             clean = kp_all[k]
@@ -142,11 +159,14 @@ def evaluate(rt: HandRetargeter, seqs: list[Motion]
             t0 = time.perf_counter()
             res = rt.solve(seen)
             tal["opt"].ms.append(1e3 * (time.perf_counter() - t0))
+            q_human = m.poses[k][_ART]
+            if m.noise_m and ik is not None:  # the angles a tracker would give: noisy too
+                q_human = ik.solve(seen).q  # the suite hand's joints = ARTICULATED_JOINTS
             t0 = time.perf_counter()
             if jm is not None:
-                qm = jm.servo_angles(m.poses[k][_ART])[cols]
+                qm = jm.servo_angles(q_human)[cols]
             else:
-                qm = m.poses[k][_ART][cols]
+                qm = q_human[cols]
             qm = np.clip(qm, rt.lower, rt.upper)
             tal["map"].ms.append(1e3 * (time.perf_counter() - t0))
             human = rt.human_points(clean)
@@ -159,8 +179,16 @@ def evaluate(rt: HandRetargeter, seqs: list[Motion]
                     tal[key].pinch.append(abs(float(np.linalg.norm(p[ix] - p[th])) - d_h))
             q_opt.append(res.q)
             q_map.append(qm)
+            targets.append(target[tips])
         tal["opt"].add_sequence(np.asarray(q_opt))
         tal["map"].add_sequence(np.asarray(q_map))
+        # what the servos follow: the bridge's low-pass (filter_cutoff_hz) on the joints
+        lp = LowPassFilter(BRIDGE_CUTOFF_HZ)
+        q_f = np.array([lp(q, 1.0 / RATE_HZ).copy() for q in q_opt])
+        tal["filt"].add_sequence(q_f)
+        for q, tgt in zip(q_f, targets, strict=True):
+            tal["filt"].tip.extend(np.linalg.norm(rt.robot_points(q)[tips] - tgt,
+                                                  axis=1).tolist())
     return out
 
 
@@ -171,11 +199,23 @@ def _merge(a: Tally, b: Tally) -> Tally:
 def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     """Print the tables; return the figures for the last JSON line."""
     seqs = motions(quick, smoke)
+    ik = HandRetargeter("suite_hand")
+    assert ik.joint_names == ARTICULATED_JOINTS
     figs: dict[str, Any] = {}
     rows = []
-    for robot, prefix in (("leap_hand", ""), ("suite_hand", "other_")):
+    for robot, prefix in (("leap_hand", ""), ("allegro_hand", "other_"),
+                          ("suite_hand", "self_")):
         rt = HandRetargeter(robot)
-        res = evaluate(rt, seqs)
+        if prefix == "self_":  # the check: the template hand onto itself
+            res = evaluate(rt, [m for m in seqs if m.split == "indist"], ik)
+            fo = res["indist"]["opt"].figures()
+            rows.append([robot, "indist", "optimiser (self)", fo["tip_err_mm"],
+                         fo["pinch_err_mm"], fo["pinch_frames"], fo["jitter_mrad"],
+                         fo["ms_p50"]])
+            figs["self_tip_err_mm"] = round(fo["tip_err_mm"], 4)
+            figs["self_tip_err_mm_max"] = round(1e3 * max(res["indist"]["opt"].tip), 4)
+            continue
+        res = evaluate(rt, seqs, ik)
         for split in ("all", "indist", "heldout"):
             if split == "all":
                 opt = _merge(res["indist"]["opt"], res["heldout"]["opt"])
@@ -188,6 +228,12 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
                          fo["jitter_mrad"], fo["ms_p50"]])
             rows.append([robot, split, "joint map", fm["tip_err_mm"], fm["pinch_err_mm"],
                          fm["pinch_frames"], fm["jitter_mrad"], fm["ms_p50"]])
+            if split == "heldout":
+                ff = res[split]["filt"].figures()
+                rows.append([robot, split, f"optimiser + {BRIDGE_CUTOFF_HZ:g} Hz low-pass",
+                             ff["tip_err_mm"], "", "", ff["jitter_mrad"], ""])
+                figs[f"{prefix}jitter_mrad_heldout_lowpass"] = round(ff["jitter_mrad"], 3)
+                figs[f"{prefix}tip_err_mm_heldout_lowpass"] = round(ff["tip_err_mm"], 2)
             sfx = "" if split == "all" else f"_{split}"
             figs[f"{prefix}tip_err_mm{sfx}"] = round(fo["tip_err_mm"], 2)
             figs[f"{prefix}joint_map_tip_err_mm{sfx}"] = round(fm["tip_err_mm"], 2)

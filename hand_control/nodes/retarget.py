@@ -12,9 +12,10 @@ Topics:
          with ``source: robot`` and a one-servo-per-joint map, e.g. leap_hand_joints)
     out  diagnostics (1 Hz: frames solved, held by reason, rejected inputs, solve time, tip
          error)
-A frame with NaN keypoints, without a hand (status LOST / UNKNOWN), of the other hand or that
-the solver refuses is counted and holds the last command (repeated for ``hold_timeout_s``,
-then nothing is sent: the servo bridge's command timeout takes over). Inputs pass
+A frame with NaN keypoints, without a hand (status LOST / UNKNOWN), of the other hand (unless
+``mirror_other_hand``) or that the solver refuses is counted and holds the last command
+(repeated for ``hold_timeout_s``, then nothing is sent: the servo bridge's command timeout
+takes over). Inputs pass
 :mod:`hand_capture.validate` through the node's :class:`InputGate`.
 """
 
@@ -57,6 +58,9 @@ class RetargetNodeConfig:
     hold_timeout_s: float = param(1.0, "a frame without a usable hand repeats the last "
                                   "command this long after the last good frame [s]",
                                   lo=0.0, hi=60.0, read_only=True)
+    mirror_other_hand: bool = param(False, "drive the robot from the other hand than its "
+                                    "config's, mirror-imaged (false: such frames are held "
+                                    "and counted)", read_only=True)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -76,7 +80,8 @@ class RetargetNode(Node):
             changes["filter_cutoff_hz"] = self.cfg.filter_cutoff_hz
         if changes:
             rcfg = rcfg.with_settings(**changes)
-        self.stream = RetargetStream(HandRetargeter(rcfg), self.cfg.hold_timeout_s)
+        self.stream = RetargetStream(HandRetargeter(rcfg), self.cfg.hold_timeout_s,
+                                     mirror_other_hand=self.cfg.mirror_other_hand)
         self.gate = InputGate(self)
         self._names = list(self.stream.joint_names)
         self._solve_ms: deque[float] = deque(maxlen=200)

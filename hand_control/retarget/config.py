@@ -10,7 +10,7 @@ A retarget config is a YAML file per robot hand (``config/retarget/<name>.yaml``
     joints: []                   # joints to optimise (default: every hinge/slide joint ...)
     fixed_joints: []             # ... except these names / patterns, held at qpos0
     wrist:                       # the human hand frame (hand_capture joints.py convention:
-      pos: [-0.095, 0.0, 0.0]    #   +x distal, +y thumb side, +z dorsal, origin the wrist)
+      pos: [-0.125, -0.051, -0.019]  # +x distal, +y thumb side, +z dorsal, origin the wrist)
       rpy: [0.0, 0.0, 0.0]       #   in base_body: position [m], roll-pitch-yaw [rad]
     points:                      # robot points that follow human keypoints (keypoints21.py)
       - {keypoint: index_tip, body: index_tip}          # or site: NAME; offset: [x, y, z]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import fnmatch
 import functools
+import io
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -59,6 +60,16 @@ def _prepare_urdf(text: str, source: str) -> str:
     return ET.tostring(root, encoding="unicode")
 
 
+def _root_tag(text: str) -> str:
+    """The top element's tag of an XML document ('' when it does not parse)."""
+    try:
+        for _event, el in ET.iterparse(io.StringIO(text), events=("start",)):
+            return el.tag
+    except ET.ParseError:
+        return ""
+    return ""
+
+
 @functools.lru_cache(maxsize=4)
 def _suite_hand_xml(side: str) -> str:
     from hand_capture.model.mjcf import build_hand
@@ -81,10 +92,9 @@ def load_mujoco_model(model: str | Path, side: str = "right") -> mujoco.MjModel:
                           f"URDF .urdf file, or {BUILTIN_SUITE_HAND!r})")
     try:
         text = path.read_text()
-        if path.suffix.lower() == ".urdf" or text.lstrip().startswith("<robot") or \
-                "<robot" in text[:2000]:
+        if path.suffix.lower() == ".urdf" or _root_tag(text) == "robot":
             return mujoco.MjModel.from_xml_string(_prepare_urdf(text, str(path)))
-        return mujoco.MjModel.from_xml_path(str(path))
+        return mujoco.MjModel.from_xml_path(str(path))  # MJCF: includes relative to the file
     except (ValueError, OSError) as e:
         raise ConfigError(f"robot model {path}: MuJoCo could not load it: {e}") from e
 
@@ -178,7 +188,6 @@ class RobotHand:
                                   "(fixed_joints) or choose another base body")
             b = int(model.body_parentid[b])
         self._jacp = np.zeros((3, model.nv))
-        self._q = None
         self.set_q(self.reference_q())
         self.base_rot = self.data.xmat[self.base_body].reshape(3, 3).copy()
         self.base_pos = self.data.xpos[self.base_body].copy()

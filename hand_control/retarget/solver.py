@@ -17,8 +17,9 @@ point (position mode) or the difference of two points (a vector), and ``t_k`` it
 * pinch: vector mode where a thumb-to-finger vector whose human length ``d`` is below
   ``pinch_close_m`` keeps the human length (not scaled up: the robot closes the pinch the
   operator closes) with weight ``pinch_weight``, blending linearly to the scaled vector and
-  ``vector_weight`` at ``pinch_open_m`` (the distance-dependent projection of DexPilot,
-  Handa et al., ICRA 2020, eq. 1-2, with a linear blend instead of switching).
+  ``vector_weight`` at ``pinch_open_m`` (the distance-dependent vector projection of the
+  kinematic retargeting cost of DexPilot, Handa et al., ICRA 2020, with a linear blend
+  between the two regimes instead of a switch).
 
 Each step solves ``(J^T W J + (lambda + mu) I) dq = -(J^T W r + mu (q - q_prev))`` under the
 box ``lo - q <= dq <= hi - q`` (an active-set solve of the small QP), so the limits hold
@@ -169,8 +170,9 @@ class HandRetargeter:
         kp = validate_keypoints21(keypoints)
         used = kp[self.keypoint_idx]
         if not np.isfinite(used).all():
-            raise InputError("NaN/Inf in keypoint(s) "
-                             f"{[self.config.points[i].keypoint for i in np.flatnonzero(~np.isfinite(used).all(axis=1))]}")  # noqa: E501
+            bad = np.flatnonzero(~np.isfinite(used).all(axis=1))
+            raise InputError(f"NaN/Inf in keypoint(s) "
+                             f"{[self.config.points[i].keypoint for i in bad]}")
         rot, origin = hand_frame_from_keypoints21(kp, side or self.config.handedness)
         return (used - origin) @ rot
 
@@ -195,6 +197,7 @@ class HandRetargeter:
                     d = float(np.linalg.norm(v))
                     alpha = min(max((d - s.pinch_close_m)
                                     / (s.pinch_open_m - s.pinch_close_m), 0.0), 1.0)
+                    # DexPilot-style projection: human length in a pinch, scaled when open
                     factor = (1.0 - alpha) * 1.0 + alpha * scale
                     weight = (1.0 - alpha) * s.pinch_weight + alpha * s.vector_weight
                 rows.append((a, b))

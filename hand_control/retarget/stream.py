@@ -44,13 +44,17 @@ class RetargetStream:
         hold_timeout_s: how long after the last good frame the last command is repeated [s].
         model: the operator's :class:`~hand_capture.model.HandModel` for pose input (None:
             the template hand).
+        mirror_other_hand: retarget the other hand than the config's mirror-imaged (a left
+            hand drives a right robot hand as its mirror image would); False: such frames
+            are held and counted (``other_hand``).
     """
 
     def __init__(self, retargeter: HandRetargeter, hold_timeout_s: float = 1.0,
-                 model: object | None = None) -> None:
+                 model: object | None = None, mirror_other_hand: bool = False) -> None:
         self.rt = retargeter
         self.hold_timeout_s = float(hold_timeout_s)
         self.model = model
+        self.mirror_other_hand = bool(mirror_other_hand)
         self.last: np.ndarray | None = None
         self.last_good_t: float | None = None
         self.solved = 0
@@ -78,12 +82,16 @@ class RetargetStream:
         """One frame of 21 keypoints [m] (None or any NaN: invalid) at time ``t`` [s]."""
         if status not in USABLE_STATUS or points is None:
             return self.hold("no_hand", t, f"status {status}")
-        if side != self.rt.config.handedness:
-            return self.hold("other_hand", t, f"a {side} hand; the robot follows a "
-                             f"{self.rt.config.handedness} hand")
         pts = np.asarray(points, dtype=np.float64)
         if pts.shape != (21, 3) or not np.isfinite(pts).all():
             return self.hold("invalid", t, "keypoints not 21 finite points")
+        if side != self.rt.config.handedness:
+            if not self.mirror_other_hand:
+                return self.hold("other_hand", t, f"a {side} hand; the robot follows a "
+                                 f"{self.rt.config.handedness} hand")
+            # the mirror image (y -> -y) of a left hand is a right hand, and vice versa
+            pts = pts * np.array([1.0, -1.0, 1.0])
+            side = self.rt.config.handedness
         try:
             res = self.rt.solve(pts, stamp_s=t, side=side)
         except HandSuiteError as e:
