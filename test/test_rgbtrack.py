@@ -229,3 +229,15 @@ def test_camera_info_and_image_checks_name_the_problem() -> None:
         validate_image_size(0, 0, "rgb8", 0)
     with pytest.raises(RejectedInputError, match="encoding"):
         validate_image_size(640, 480, "16UC1", 614400)
+
+
+def test_missing_mediapipe_is_a_clear_error(monkeypatch) -> None:
+    import sys
+
+    from hand_capture.cameras.base import DriverNotInstalledError
+    from hand_capture.rgbtrack import HandDetector
+
+    monkeypatch.setitem(sys.modules, "mediapipe.python.solutions.hands", None)
+    monkeypatch.setitem(sys.modules, "mediapipe", None)
+    with pytest.raises(DriverNotInstalledError, match="pip install --no-deps mediapipe"):
+        HandDetector()
