@@ -237,7 +237,8 @@ def test_missing_mediapipe_is_a_clear_error(monkeypatch) -> None:
     from hand_capture.cameras.base import DriverNotInstalledError
     from hand_capture.rgbtrack import HandDetector
 
-    monkeypatch.setitem(sys.modules, "mediapipe.python.solutions.hands", None)
-    monkeypatch.setitem(sys.modules, "mediapipe", None)
+    for name in ("mediapipe", "mediapipe.python", "mediapipe.python.solutions",
+                 "mediapipe.python.solutions.hands"):
+        monkeypatch.setitem(sys.modules, name, None)      # as if not installed
     with pytest.raises(DriverNotInstalledError, match="pip install --no-deps mediapipe"):
         HandDetector()
