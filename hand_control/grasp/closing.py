@@ -235,10 +235,7 @@ class ClosingModel:
         y = ((warped - self.p0) * FEATURE_SCALE).ravel()
         basis = (self.p_basis * FEATURE_SCALE[None, :, None]).reshape(-1, self.n_alpha)
         alpha = np.linalg.lstsq(basis, y, rcond=None)[0] if self.n_alpha else np.zeros(0)
-        z = log_increments(w) - self.b0
-        gamma = (np.linalg.lstsq(self.b_basis, z, rcond=None)[0] if self.n_gamma
-                 else np.zeros(0))
-        return np.r_[alpha, gamma]
+        return np.r_[alpha, warp_params(w, self.b0, self.b_basis)]
 
     # ---- files -------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
@@ -277,6 +274,27 @@ class ClosingModel:
             raise InputError(f"{p} is not a closing model (no {e})") from e
 
 
+def warp_params(w: np.ndarray, b0: np.ndarray, b_basis: np.ndarray, iterations: int = 8
+                ) -> np.ndarray:
+    """The weights ``gamma`` (K,) whose warp ``H(gamma)`` (eq. III.2) is nearest to ``w``
+    (T,): the projection of the log increments, then Gauss-Newton on ``H(gamma) - w`` (the
+    projection alone loses the total duration when components are dropped)."""
+    k = b_basis.shape[1]
+    if k == 0:
+        return np.zeros(0)
+    g = np.linalg.lstsq(b_basis, log_increments(w) - b0, rcond=None)[0]
+    target = np.asarray(w, dtype=np.float64)[1:]
+    for _ in range(iterations):
+        inc = np.exp(b0 + b_basis @ g)
+        r = np.cumsum(inc) - target
+        jac = np.cumsum(inc[:, None] * b_basis, axis=0)
+        step = np.linalg.lstsq(jac, -r, rcond=None)[0]
+        g = g + step
+        if np.abs(step).max() < 1e-8:
+            break
+    return g
+
+
 def _pca(y: np.ndarray, keep: float, max_components: int
          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """PCA of the rows of ``y`` (N, D): ``(mean (D,), unit eigen vectors (D, M), standard
@@ -299,7 +317,8 @@ def _pca(y: np.ndarray, keep: float, max_components: int
 def fit_closing_model(grip_mode: str, segments: Sequence[np.ndarray], fps: float,
                       contacts: tuple[tuple[str, tuple[float, float, float]], ...] = (),
                       keep: float = 0.99, max_alpha: int = 8, max_gamma: int = 4,
-                      max_mixture: int = 3, seed: int = 0) -> ClosingModel:
+                      max_mixture: int = 3, reg_covar: float = 0.3,
+                      seed: int = 0) -> ClosingModel:
     """Fit the closing-phase model of one grip mode to its closing segments.
 
     Args:
@@ -308,6 +327,8 @@ def fit_closing_model(grip_mode: str, segments: Sequence[np.ndarray], fps: float
         keep: fraction of variance the functional PCAs keep (eq. III.1, III.2).
         max_alpha, max_gamma: caps on the numbers of components M and K.
         max_mixture: most Gaussian components; the number is chosen by BIC.
+        reg_covar: added to the mixture's covariance diagonals (the parameters have unit
+            variance per component; a few demonstrations per mode need the regulariser).
 
     Raises:
         SolverError: fewer than 3 segments.
@@ -336,12 +357,12 @@ def fit_closing_model(grip_mode: str, segments: Sequence[np.ndarray], fps: float
     b0, bvecs, bsd = _pca(z, keep, max_gamma)
     b_basis = bvecs * bsd
     alpha = ((y - mean) @ vecs) / np.where(sd > 0, sd, 1.0)
-    gamma = ((z - b0) @ bvecs) / np.where(bsd > 0, bsd, 1.0)
+    gamma = np.array([warp_params(w, b0, b_basis) for w in warps]).reshape(len(warps), -1)
     params = np.hstack([alpha, gamma])
     # the prior pr(alpha, gamma): a Gaussian mixture fitted by EM, components by BIC
     best = None
     for c in range(1, max(1, min(max_mixture, len(segs) // 4)) + 1):
-        gm = GaussianMixture(c, covariance_type="full", reg_covar=1e-2, random_state=seed,
+        gm = GaussianMixture(c, covariance_type="full", reg_covar=reg_covar, random_state=seed,
                              n_init=2).fit(params)
         bic = gm.bic(params)
         if best is None or bic < best[0]:
