@@ -248,3 +248,21 @@ def test_train_grasps_quick_is_reproducible(tmp_path) -> None:
     assert main(args[:-1] + ["6", "--out", str(tmp_path / "c")]) == 0
     dc = load_grasp_database(tmp_path / "c")
     assert not np.array_equal(dc[0].motion, da[0].motion)
+
+
+def test_generator_keeps_only_demonstrations_the_simulation_lifted(monkeypatch) -> None:
+    from hand_control.grasp import generate
+
+    real = generate._object_for
+    # the same draws, but a 2 kg object with the friction of ice: no fingertip grip lifts it
+    monkeypatch.setattr(generate, "_object_for",
+                        lambda mode, rng: real(mode, rng)[:2] + (2.0, 0.05))
+    rng_args = (0, GRIP_MODES.index("thumb_index_middle"), 0)
+    why: list[str] = []
+    assert generate.demonstrate("thumb_index_middle", np.random.default_rng(rng_args),
+                                why=why) is None
+    assert why and why[0].startswith("not lifted"), why
+    monkeypatch.setattr(generate, "_object_for", real)
+    rec = generate.demonstrate("thumb_index_middle", np.random.default_rng(rng_args))
+    assert rec is not None and rec.lift_mm > 80.0
+    assert {b.split("_")[0] for b, _ in rec.contacts} >= {"thumb"}
