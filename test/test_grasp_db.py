@@ -100,6 +100,10 @@ def test_time_warps_of_the_model_stay_monotonic(model) -> None:
     assert (h[:, 0] == 0).all()
     d = m.decode(params[:5])
     assert d.shape == (5, m.n_frames, N_DOF) and np.isfinite(d).all()
+    # absurd parameters (a swarm can fly anywhere): still a finite motion, increasing warp
+    wild = np.array([np.full(m.n_params, 60.0), np.full(m.n_params, -60.0)])
+    assert np.isfinite(m.decode(wild)).all()
+    assert (np.diff(m.warp(wild), axis=1) > 0).all()
 
 
 def test_model_reproduces_its_training_motions(model) -> None:
