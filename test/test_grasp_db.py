@@ -245,6 +245,8 @@ def test_train_grasps_quick_is_reproducible(tmp_path) -> None:
     for ra, rb in zip(da, db, strict=True):
         np.testing.assert_array_equal(ra.motion, rb.motion)
         assert ra.contacts == rb.contacts and ra.phases == rb.phases
+    for f in ("database.npz", "closing_thumb_index.npz"):  # the very same files
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes()
     ma, mb = (load_grasp_models(tmp_path / x)["thumb_index"] for x in "ab")
     np.testing.assert_array_equal(ma.p_basis, mb.p_basis)
     np.testing.assert_array_equal(ma.gmm_means, mb.gmm_means)

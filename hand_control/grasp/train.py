@@ -13,10 +13,11 @@
    their reconstruction error on the training motions and, leave-one-out, on demonstrations
    each model was not fitted to.
 
-Same seed, same database and models (every random draw is seeded; the arrays are equal, the
-zip containers' time stamps are not). ``--quick`` builds a small one (4 demonstrations per
-mode, about 2 min) into ``out/grasp_quick`` unless ``--out`` is given, leaving the shipped
-one alone; the shipped one is the default (12 per mode, at most 60 attempts).
+Same seed, same database and model files, byte for byte (every random draw is seeded; numpy
+writes fixed time stamps into the ``.npz`` containers). ``--quick`` builds a small one (4
+demonstrations per mode, about 2 min) into ``out/grasp_quick`` unless ``--out`` is given,
+leaving the shipped one alone; the shipped one is the default (12 per mode, at most 60
+attempts).
 """
 
 from __future__ import annotations
