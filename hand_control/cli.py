@@ -7,7 +7,8 @@
     hand-suite bench NAME [--quick | --smoke] | bench --list
     hand-suite capture [-o DIR] [--clip C] [--seconds S] [--fps F] [--shape-seed N]
     hand-suite capture --rig studio6 [-o DIR] [--seconds S] [--fps F] [--objects box]
-    hand-suite train touch|tracker [ARGS] fit the touch encodings / the tracker's forest
+    hand-suite train touch|tracker|grasps [ARGS]  fit the touch encodings / the tracker's
+        forest / build the grasp database and the closing-phase models
     hand-suite calibrate rig BAG_OR_DIR -o config/rigs/NAME.yaml [--board 7x5:0.05:0.036]
     hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
@@ -226,7 +227,8 @@ def _capture_rig(a: argparse.Namespace) -> int:
     return 0
 
 
-TRAINERS = {"touch": "hand_capture.touch.train", "tracker": "hand_capture.tracking.train"}
+TRAINERS = {"touch": "hand_capture.touch.train", "tracker": "hand_capture.tracking.train",
+            "grasps": "hand_control.grasp.train"}
 
 
 def cmd_train(a: argparse.Namespace) -> int:
@@ -368,7 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="--rig: rate of a pose file without a time column [Hz]")
     cp.set_defaults(func=cmd_capture)
 
-    tr = sub.add_parser("train", help="train a learned component (touch, tracker)")
+    tr = sub.add_parser("train", help="train a learned component (touch, tracker, grasps)")
     tr.add_argument("what")
     tr.add_argument("train_args", nargs=argparse.REMAINDER)
     tr.set_defaults(func=cmd_train)
