@@ -37,7 +37,7 @@ __all__ = ["GraspObject", "SignedDistanceField", "make_object", "object_from_mes
 PRIMITIVE_KINDS: dict[str, tuple[float, ...]] = {
     "box": (0.03, 0.03, 0.03), "sphere": (0.035,), "cylinder": (0.03, 0.06),
     "capsule": (0.025, 0.04), "ellipsoid": (0.04, 0.03, 0.025),
-    "mug": (0.04, 0.05), "bottle": (0.032, 0.09), "plate": (0.07, 0.008),
+    "mug": (0.04, 0.05), "bottle": (0.032, 0.09), "plate": (0.045, 0.012),
     "torus": (0.045, 0.014), "convex": (0.0,), "composite": (0.0,),
 }
 _MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb")
@@ -136,8 +136,9 @@ class GraspObject:
         half_extents: (3,) half size of the bounding box about the origin (max |coord|) [m].
         bottom: height of the lowest point below the centre of mass [m] (> 0).
         hull_only: MuJoCo collides with the convex hull of a non-convex mesh file.
-        ik_proxy: ``(kind, size)`` of the primitive the fingertip-IK substitute plans on
-            (``sim.grasp.plan_grasp``: box / ball / upright stick), or ``None``.
+        ik_proxy: ``(kind, size, centre)`` of the primitive the fingertip-IK substitute plans
+            on (``sim.grasp.plan_grasp``: box / ball / upright stick; centre in the body
+            frame [m]), or ``None``.
         spec: the spec it was made from.
     """
 
@@ -280,21 +281,21 @@ def _parts_for(kind: str, size: tuple[float, ...]) -> tuple[list[_Part], tuple |
     if kind == "box":
         hx, hy, hz = size
         return [_Part(trimesh.creation.box(extents=(2 * hx, 2 * hy, 2 * hz)), "box",
-                      (hx, hy, hz))], ("box", (hx, hy, hz))
+                      (hx, hy, hz))], ("box", (hx, hy, hz), (0.0, 0.0, 0.0))
     if kind == "sphere":
         r = size[0]
         return [_Part(trimesh.creation.icosphere(subdivisions=3, radius=r), "sphere",
-                      (r,))], ("ball", (r,))
+                      (r,))], ("ball", (r,), (0.0, 0.0, 0.0))
     if kind == "cylinder":
-        return [_cyl(*size)], ("stick", tuple(size))
+        return [_cyl(*size)], ("stick", tuple(size), (0.0, 0.0, 0.0))
     if kind == "capsule":
         r, hh = size
         return [_Part(trimesh.creation.capsule(height=2 * hh, radius=r, count=[24, 24]),
-                      "capsule", (r, hh))], ("stick", (r, hh + r))
+                      "capsule", (r, hh))], ("stick", (r, hh + r), (0.0, 0.0, 0.0))
     if kind == "ellipsoid":
         m = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
         m.apply_scale(size)
-        return [_Part(m, "ellipsoid", tuple(size))], ("box", tuple(size))
+        return [_Part(m, "ellipsoid", tuple(size))], ("box", tuple(size), (0.0, 0.0, 0.0))
     if kind == "mug":  # bottom, a tube of wall boxes, a C-shaped handle of capsules on +y
         r, hh = size
         wall = 0.005
@@ -304,7 +305,7 @@ def _parts_for(kind: str, size: tuple[float, ...]) -> tuple[list[_Part], tuple |
         for a, b in (((0, y0, z0), (0, y1, z0)), ((0, y1, z0), (0, y1, -z0)),
                      ((0, y1, -z0), (0, y0, -z0))):
             parts.append(_capsule_between(np.array(a), np.array(b), hr))
-        return parts, ("stick", (r, hh))
+        return parts, ("stick", (r, hh), (0.0, 0.0, 0.0))
     if kind == "bottle":  # body, a shoulder (a truncated cone), neck
         r, hh = size
         body_hh = 0.62 * hh
@@ -315,10 +316,11 @@ def _parts_for(kind: str, size: tuple[float, ...]) -> tuple[list[_Part], tuple |
         pts = np.vstack([ring * r + (0, 0, z0), ring * neck_r + (0, 0, z1 + 1e-3)])
         shoulder = _Part(trimesh.Trimesh(vertices=pts).convex_hull, "mesh")
         return [_cyl(r, body_hh, _tr(z=-hh + body_hh)), shoulder,
-                _cyl(neck_r, neck_hh, _tr(z=hh - neck_hh))], ("stick", (r, hh))
+                _cyl(neck_r, neck_hh, _tr(z=hh - neck_hh))], ("stick", (r, body_hh),
+                                                             (0.0, 0.0, -hh + body_hh))
     if kind == "plate":
         r, hh = size
-        return [_cyl(r, hh, sections=48)], ("box", (r * 0.7, r * 0.7, hh))
+        return [_cyl(r, hh, sections=48)], ("box", (r * 0.7, r * 0.7, hh), (0.0, 0.0, 0.0))
     if kind == "torus":  # a ring lying flat: capsules around the circle
         rr, r = size
         n = 12
@@ -331,7 +333,9 @@ def _parts_for(kind: str, size: tuple[float, ...]) -> tuple[list[_Part], tuple |
         axes[2] = rng.uniform(0.025, 0.045)
         d = rng.normal(size=(40, 3))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        hull = trimesh.Trimesh(vertices=d * axes * rng.uniform(0.8, 1.0, (40, 1))).convex_hull
+        pts = d * axes * rng.uniform(0.8, 1.0, (40, 1))
+        pts[:, 2] = np.maximum(pts[:, 2], -0.6 * axes[2])  # a flat base: it rests, not rolls
+        hull = trimesh.Trimesh(vertices=pts).convex_hull
         return [_Part(hull, "mesh")], None
     if kind == "composite":  # an L of two boxes with a ball on the long one
         rng = np.random.default_rng(int(size[0]))
@@ -433,6 +437,9 @@ def _finish(name: str, parts: list[_Part], own_mesh: trimesh.Trimesh | None, mas
         raise InputError(f"object friction must be in (0, 5], got {friction}")
     com, inertia = _mass_properties(meshes, own_mesh, mass)
     geoms = tuple(p.geom(com) for p in parts)  # before the meshes move to the body frame
+    if ik_proxy is not None:  # its centre in the body frame
+        ik_proxy = (ik_proxy[0], ik_proxy[1],
+                    tuple(float(v) for v in np.asarray(ik_proxy[2]) - com))
     shift = _tr(*(-com))
     for m in meshes:
         m.apply_transform(shift)

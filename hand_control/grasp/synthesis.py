@@ -68,6 +68,8 @@ class SynthesisConfig:
     modes_kept: int = param(1, "without a grip mode: the swarm runs on the modes whose "
                             "prior samples score best (one generation each), this many, then "
                             "on the next ones while none is feasible", lo=1, hi=20)
+    max_modes: int = param(3, "at most this many grip modes get a swarm per run", lo=1,
+                           hi=20)
     eval_frames: int = param(5, "closing frames checked for collisions (the last included)",
                              lo=1, hi=200)
     yaw_range: float = param(1.0, "approach directions within +- this of the preferred one "
@@ -84,7 +86,13 @@ class SynthesisConfig:
                          hi=10)
     torque_limits: bool = param(True, "the feasibility LP bounds the forces by the joint "
                                 "torque limits")
+    friction_margin: float = param(
+        0.7, "the friction cone term (III.9) and the feasibility LP use this fraction of the "
+        "object's friction (a grasp that holds only at the cone's edge slips in practice)",
+        lo=0.05, hi=1.0)
     seed: int = param(0, "random seed of the swarm")
+    reaching_frames: int = param(30, "frames of the synthesised reaching motion (0 = none)",
+                                 lo=0, hi=1000)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -144,6 +152,7 @@ class SynthesisResult:
     pso_ms: float
     lp_ms: float
     ik_ms: float
+    reaching: np.ndarray | None = None
 
     @property
     def grasp_pose(self) -> np.ndarray:
@@ -159,12 +168,17 @@ class SynthesisResult:
     def grasp_plan(self, object_name: str, position: Sequence[float], yaw: float) -> object:
         """The grasp as the simulation's :class:`~hand_control.sim.grasp.GraspPlan` (the
         scenarios' reference plays the closing motion, then holds the grasping pose)."""
+        from hand_control.grasp.database import from_object_frame
         from hand_control.sim.grasp import GraspPlan
 
         wm = self.world_motion(position, yaw)
         pts, nrm = self.world_contacts(position, yaw)
+        reach = None
+        if self.reaching is not None:
+            reach = from_object_frame(self.reaching, position, yaw + self.yaw)
         return GraspPlan(object_name, self.contact_bones, pts, nrm, wm[-1].copy(),
-                         wm[0].copy(), self.residual.copy(), closing=wm, source="synthesis")
+                         wm[0].copy(), self.residual.copy(), closing=wm, source="synthesis",
+                         reaching=reach)
 
     def world_contacts(self, position: Sequence[float], yaw: float
                        ) -> tuple[np.ndarray, np.ndarray]:
@@ -186,9 +200,10 @@ class _Evaluator:
 
     def __init__(self, model: object, obj: GraspObject, geometry: HandGeometry,
                  contacts: ContactPoints, weights: EnergyWeights, control: GraspControl,
-                 eval_frames: int) -> None:
+                 eval_frames: int, mu: float) -> None:
         self.model, self.obj, self.geo, self.contacts = model, obj, geometry, contacts
         self.w, self.control = weights, control
+        self.mu = mu
         self.n = int(model.n_params)
         self.frames = eval_frames
         self.floor = -obj.bottom
@@ -250,7 +265,7 @@ class _Evaluator:
                              w.penetration_penalty, w.penetration_tolerance)  # III.6-7
         e_d = contact_distance_term(self.obj.sdf, con)  # III.8
         eg1, eg2 = grasp_quality_terms(self.obj.sdf, con, self.contacts.is_thumb,
-                                       self.obj.friction)  # III.9
+                                       self.mu)  # III.9
         e_q = w.w1 * eg1 + w.w2 * eg2
         e_p = np.asarray(self.model.neg_log_prior(params), dtype=np.float64)  # III.5
         e_c = np.zeros(len(x))
@@ -292,7 +307,7 @@ def _feasibility(obj: GraspObject, geo: HandGeometry, contacts: ContactPoints, q
     near = np.abs(d) <= cfg.contact_threshold
     if near.sum() < 2:
         return False, "too_few_contacts", surf, -n_out, near
-    cs = ContactSet(surf[near], -n_out[near], obj.friction,
+    cs = ContactSet(surf[near], -n_out[near], obj.friction * cfg.friction_margin,
                     jacp=jac[near] if cfg.torque_limits else None)
     res = dynamic_feasibility(cs, obj.mass, np.zeros(3), GRAVITY,
                               torque_limits=tau_max if cfg.torque_limits else None)
@@ -346,14 +361,15 @@ def model_contacts(model: object) -> ContactPoints:
 
 def synthesize(obj: GraspObject, models: Mapping[str, object],
                control: GraspControl | None = None, config: SynthesisConfig | None = None,
-               weights: EnergyWeights | None = None, geometry: HandGeometry | None = None
-               ) -> SynthesisResult:
+               weights: EnergyWeights | None = None, geometry: HandGeometry | None = None,
+               records: Sequence[object] = ()) -> SynthesisResult:
     """Synthesise the closing motion for ``obj`` (module docstring).
 
     Args:
         models: grip mode -> closing model (``load_grasp_models()``).
         control: grip mode / contact targets / performer (E_c); default: any grip mode.
         weights: eq. (III.4) weights (zero one for the ablations of Fig. III.9).
+        records: the grasp database, for the reaching phase (III.4.2).
 
     Raises:
         InputError: an unknown grip mode, or no models.
@@ -383,7 +399,8 @@ def synthesize(obj: GraspObject, models: Mapping[str, object],
     for mode in modes:
         model = models[mode]
         contacts = model_contacts(model)
-        ev = _Evaluator(model, obj, geo, contacts, weights, control, cfg.eval_frames)
+        ev = _Evaluator(model, obj, geo, contacts, weights, control, cfg.eval_frames,
+                        obj.friction * cfg.friction_margin)
         lo_p, hi_p = model.bounds(3.0)
         lo = np.r_[lo_p, control.approach_yaw - cfg.yaw_range]
         hi = np.r_[hi_p, control.approach_yaw + cfg.yaw_range]
@@ -400,7 +417,7 @@ def synthesize(obj: GraspObject, models: Mapping[str, object],
         pso_s += time.perf_counter() - t1
     for _attempt in range(cfg.retries + 1):
         for k, mode in enumerate(modes):
-            if k >= cfg.modes_kept and best is not None and best[3]:
+            if k >= cfg.max_modes or (k >= cfg.modes_kept and best is not None and best[3]):
                 break
             model, contacts, ev, lo, hi = setups[mode]
             init = np.c_[model.sample(cfg.particles, rng),
@@ -447,6 +464,11 @@ def synthesize(obj: GraspObject, models: Mapping[str, object],
     ramp = _smoothstep(np.linspace(0.0, 1.0, len(motion)))[:, None]
     motion = motion + ramp * (q_ref - motion[-1])[None]
     ik_s = time.perf_counter() - t1
+    reach = None
+    if cfg.reaching_frames:
+        t1 = time.perf_counter()
+        reach = safe_reaching(obj, geo, motion, yaw, records, cfg.reaching_frames)
+        ik_s += time.perf_counter() - t1
     ok2, status2, surf, n_in, near = _feasibility(obj, geo, contacts, q_ref, yaw, cfg, tau)
     if ok and not ok2:  # the refinement moved the contacts: keep the swarm's verdict's reason
         status2 = f"{status2} after refinement"
@@ -456,7 +478,7 @@ def synthesize(obj: GraspObject, models: Mapping[str, object],
         cost=cost, terms={k: float(v[0]) for k, v in terms.items()}, feasible=bool(ok2),
         status=status2 if not ok2 else "optimal", lp_tried=tried,
         synth_ms=(time.perf_counter() - t0) * 1e3, pso_ms=pso_s * 1e3, lp_ms=lp_s * 1e3,
-        ik_ms=ik_s * 1e3)
+        ik_ms=ik_s * 1e3, reaching=reach)
 
 
 # ----------------------------------------------------------------------- reaching, manipulation
@@ -544,6 +566,38 @@ def manipulation_path(records: Sequence[object], start: np.ndarray, target: np.n
     return laplacian_edit(ex + start, start, target)
 
 
+#: start of the reaching motion relative to the first closing frame, object frame (x from the
+#: hand to the object): (back, up) [m], tried in order until the path is collision free
+REACH_STARTS: tuple[tuple[float, float], ...] = (
+    (0.0, 0.06), (0.03, 0.05), (0.05, 0.035), (0.07, 0.02), (0.09, 0.012))
+
+
+def safe_reaching(obj: GraspObject, geo: HandGeometry, closing: np.ndarray, yaw: float,
+                  records: Sequence[object], frames: int = 30) -> np.ndarray:
+    """Reaching (III.4.2) to the first closing frame, object frame: from the first start of
+    :data:`REACH_STARTS` (the grip opened) whose reaching path (:func:`reaching_motion`, the
+    database's nearest example edited by eq. III.17) keeps the hand out of the object and
+    the table (checked through the signed distance field)."""
+    r = rot_z(np.float64(yaw)).T
+    fingers = [i for i in range(11, N_DOF)]  # index .. little: open the grip
+    best, best_hits = None, math.inf
+    for back, up in REACH_STARTS:
+        q0 = closing[0].copy()
+        q0[0:3] += np.array([-back, 0.0, up])
+        q0[fingers] *= 0.5
+        q0 = np.clip(q0, JOINT_LIMITS[:, 0], JOINT_LIMITS[:, 1])
+        path = reaching_motion(records, q0, closing, frames)
+        check = path[np.linspace(0, len(path) - 1, min(len(path), 12)).astype(int)]
+        rot, pos = geo.frames(check)
+        pts = HandGeometry.points(rot, pos, geo.bones, geo.local) @ r
+        hits = float(collision_term(obj.sdf, pts[None], geo.radii, -obj.bottom)[0])
+        if hits < best_hits:
+            best, best_hits = path, hits
+        if hits == 0.0:
+            break
+    return best
+
+
 def with_weights(weights: EnergyWeights, ablation: str) -> EnergyWeights:
     """Fig. III.9's ablations: ``no_collision`` (w_k = 0), ``no_polygon`` (w1 = 0),
     ``no_cone`` (w2 = 0); ``full``: unchanged."""
@@ -575,6 +629,18 @@ def grasp_models() -> dict:
     return _MODELS["shipped"]
 
 
+def grasp_records() -> list:
+    """The shipped grasp database (loaded once per process; empty when missing)."""
+    if "records" not in _MODELS:
+        from hand_control.grasp.database import load_grasp_database
+
+        try:
+            _MODELS["records"] = load_grasp_database()
+        except InputError:
+            _MODELS["records"] = []
+    return _MODELS["records"]
+
+
 def body_yaw(quat_wxyz: Sequence[float]) -> float:
     """Yaw [rad] of a body whose z axis points up (0 for any other orientation: the
     scenarios' upright cylinder, symmetric about its axis)."""
@@ -599,7 +665,7 @@ def plan_in_world(obj: GraspObject, object_name: str, position: Sequence[float],
     control = GraspControl(grip_mode=grip_mode or None,
                            approach_yaw=math.atan2(math.sin(approach), math.cos(approach)))
     res = synthesize(obj, models if models is not None else grasp_models(), control, config,
-                     weights, geometry or _geometry())
+                     weights, geometry or _geometry(), grasp_records())
     return res.grasp_plan(object_name, p, yaw), res
 
 

@@ -108,6 +108,8 @@ class GraspPlan:
         closing: (T, 27) a closing motion from ``q_pregrasp`` to ``q_grasp`` (a synthesised
             grasp, ``hand_control.grasp``), played over the closing phase; ``None``: the
             reference interpolates the two poses.
+        reaching: (M, 27) a reaching motion ending at ``q_pregrasp``, played over the reaching
+            phase (its first frame is the start pose); ``None``: from above, interpolated.
         source: ``"ik"`` (this module) or what made the plan.
     """
 
@@ -120,6 +122,7 @@ class GraspPlan:
     residual: np.ndarray
     closing: np.ndarray | None = None
     source: str = "ik"
+    reaching: np.ndarray | None = None
 
     def contact_set(self, mu: float) -> ContactSet:
         """The planned contacts with friction ``mu`` (for the feasibility LP)."""

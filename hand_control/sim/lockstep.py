@@ -138,9 +138,8 @@ def scenario_plan(spec: ScenarioSpec, world: SimWorld, obj: ObjectSpec,
         raise ConfigError(f"scenario {spec.name}: the fingertip IK substitute has no "
                           f"primitive layout for {spec.object_shape!r}; use grasp_source: "
                           "synthesis")
-    kind, psize = g.ik_proxy
-    rot = _wxyz_matrix(pose.quaternion)
-    centre = pose.position + rot @ (0.5 * (g.mesh.bounds[0] + g.mesh.bounds[1]))
+    kind, psize, offset = g.ik_proxy
+    centre = pose.position + _wxyz_matrix(pose.quaternion) @ np.asarray(offset)
     return plan_grasp(world.model, obj.name, kind, psize, centre, pose.quaternion,
                       depth=spec.grasp_depth, upright_cylinder=kind == "stick")
 

@@ -211,6 +211,8 @@ class Reference:
         self.quat0 = np.asarray(object_quaternion, dtype=np.float64).copy()
         self.q_start = plan.q_pregrasp.copy()
         self.q_start[2] += approach_height
+        if plan.reaching is not None:
+            self.q_start = np.asarray(plan.reaching[0], dtype=np.float64).copy()
         s = spec
         self.t_close0 = s.t_reach
         self.t_settle0 = self.t_close0 + s.t_close
@@ -230,7 +232,8 @@ class Reference:
         """Every sample is finite: true when the start pose, the grasp plan and the object's
         initial pose are (a validated spec; the samples interpolate between them)."""
         return all(bool(np.isfinite(np.asarray(a, dtype=np.float64)).all()) for a in (
-            self.q_start, self.plan.q_pregrasp, self.plan.q_grasp, self.p0, self.quat0))
+            self.q_start, self.plan.q_pregrasp, self.plan.q_grasp, self.p0, self.quat0,
+            *(m for m in (self.plan.closing, self.plan.reaching) if m is not None)))
 
     def precompute(self, dt: float, t0: float = 0.0, steps: int | None = None) -> None:
         """Tabulate the references at the times a simulation stepping by ``dt`` from ``t0``
@@ -269,10 +272,13 @@ class Reference:
         reach = t < self.t_close0
         close = ~reach & (t < self.t_settle0)
         hold = ~(reach | close)
-        a = _smooth_array(t[reach] / s.t_reach)[:, None]
-        q[reach] = (1 - a) * self.q_start + a * plan.q_pregrasp
+        if plan.reaching is not None:
+            q[reach] = self._motion_at(plan.reaching, t[reach] / s.t_reach)
+        else:
+            a = _smooth_array(t[reach] / s.t_reach)[:, None]
+            q[reach] = (1 - a) * self.q_start + a * plan.q_pregrasp
         if plan.closing is not None:
-            q[close] = self._closing_at((t[close] - self.t_close0) / s.t_close)
+            q[close] = self._motion_at(plan.closing, (t[close] - self.t_close0) / s.t_close)
         else:
             a = _smooth_array((t[close] - self.t_close0) / s.t_close)[:, None]
             q[close] = (1 - a) * plan.q_pregrasp + a * plan.q_grasp
@@ -303,10 +309,10 @@ class Reference:
             arr.setflags(write=False)
         return q, pos, quat, phase, grasp
 
-    def _closing_at(self, u: np.ndarray) -> np.ndarray:
-        """The plan's closing motion at phase fractions ``u`` (N,) in [0, 1], (N, 27): linear
-        interpolation between its frames (its own timing, eq. III.3's time warp)."""
-        c = self.plan.closing
+    @staticmethod
+    def _motion_at(c: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """A plan's motion (reaching, closing) at phase fractions ``u`` (N,) in [0, 1],
+        (N, 27): linear interpolation between its frames (its own timing)."""
         x = np.clip(u, 0.0, 1.0) * (len(c) - 1)
         i0 = np.minimum(np.floor(x).astype(np.int64), len(c) - 2)
         a = (x - i0)[:, None]
@@ -342,13 +348,17 @@ class Reference:
     def _sample(self, t: float) -> RefSample:
         s = self.spec
         if t < self.t_close0:
-            a = _smooth(t / s.t_reach)
-            q = (1 - a) * self.q_start + a * self.plan.q_pregrasp
+            if self.plan.reaching is not None:
+                q = self._motion_at(self.plan.reaching, np.array([t / s.t_reach]))[0]
+            else:
+                a = _smooth(t / s.t_reach)
+                q = (1 - a) * self.q_start + a * self.plan.q_pregrasp
             pos, quat = self.p0, self.quat0
             return RefSample("reaching", q, pos.copy(), quat.copy(), False)
         if t < self.t_settle0:
             if self.plan.closing is not None:
-                q = self._closing_at(np.array([(t - self.t_close0) / s.t_close]))[0]
+                q = self._motion_at(self.plan.closing,
+                                    np.array([(t - self.t_close0) / s.t_close]))[0]
             else:
                 a = _smooth((t - self.t_close0) / s.t_close)
                 q = (1 - a) * self.plan.q_pregrasp + a * self.plan.q_grasp
