@@ -37,7 +37,7 @@ __all__ = ["GraspObject", "SignedDistanceField", "make_object", "object_from_mes
 PRIMITIVE_KINDS: dict[str, tuple[float, ...]] = {
     "box": (0.03, 0.03, 0.03), "sphere": (0.035,), "cylinder": (0.03, 0.06),
     "capsule": (0.025, 0.04), "ellipsoid": (0.04, 0.03, 0.025),
-    "mug": (0.04, 0.05), "bottle": (0.032, 0.09), "plate": (0.045, 0.012),
+    "mug": (0.032, 0.045), "bottle": (0.032, 0.09), "plate": (0.045, 0.012),
     "torus": (0.045, 0.014), "convex": (0.0,), "composite": (0.0,),
 }
 _MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb")
