@@ -231,3 +231,26 @@ def test_ik_scenarios_on_a_shape_need_a_primitive_proxy() -> None:
 
     with pytest.raises(ConfigError, match="synthesis"):
         LockstepRunner(ScenarioSpec(object_shape="torus", grasp_source="ik"))
+
+
+def test_teleop_grasps_a_stone_with_the_grasp_synthesised_from_the_operators_hand() -> None:
+    """III.6 offline: the operator's performance was made for lift_box's box; the scene has a
+    convex stone there instead. As closing begins, the grasp is synthesised for the stone from
+    the operator's hand (wrist and approach), and the stone is lifted and carried."""
+    from hand_control.grasp.synthesis import PerformerSynthesizer
+    from hand_control.sim.lockstep import LockstepRunner, scenario_object
+    from hand_control.sim.scenario import load_scenario
+    from hand_control.teleop.clip import performance_for_scenario
+    from hand_control.teleop.offline import run_teleop
+    from hand_control.teleop.phases import Phase
+
+    perf = performance_for_scenario("lift_box")
+    idx = np.arange(0, len(perf.times), 2)  # a 30 fps camera
+    spec = load_scenario("teleop_stone")
+    runner = LockstepRunner(spec, control_every=4)
+    syn = PerformerSynthesizer(scenario_object(spec), runner.obj.name)
+    res = run_teleop(runner, perf.times[idx], perf.poses[idx], synthesizer=syn)
+    assert syn.last is not None and syn.last.feasible
+    order = [int(p) for i, p in enumerate(res.phases) if i == 0 or p != res.phases[i - 1]]
+    assert order[:4] == [Phase.REACHING, Phase.CLOSING, Phase.MANIPULATION, Phase.RELEASING]
+    assert res.max_lift_mm > 70.0 and res.carried_mm > 70.0

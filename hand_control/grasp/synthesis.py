@@ -108,12 +108,22 @@ class GraspControl:
         performer: (n, 27) the performer's tracked closing motion in the object's body frame
             (III.6); E_c is then its difference from the synthesised motion.
         approach_yaw: preferred direction from the hand to the object in the body frame [rad].
+        performer_mode: ``motion``: E_c compares the whole closing motion with the performer's
+            (resampled; squared wrist distance [cm] + squared finger angles [rad]);
+            ``onset``: only the closing motion's first wrist with the performer's latest one
+            [cm] (online, as closing begins: the rest of the closing is yet to come).
     """
 
     grip_mode: str | None = None
     contact_targets: Mapping[str, Sequence[float]] = field(default_factory=dict)
     performer: np.ndarray | None = None
     approach_yaw: float = 0.0
+    performer_mode: str = "motion"
+
+    def __post_init__(self) -> None:
+        if self.performer_mode not in ("motion", "onset"):
+            raise InputError(f"performer_mode must be 'motion' or 'onset', got "
+                             f"{self.performer_mode!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -228,6 +238,8 @@ class _Evaluator:
             i0 = np.minimum(np.floor(s).astype(int), len(perf) - 2)
             f = (s - i0)[:, None]
             self.perf = (1 - f) * perf[i0] + f * perf[i0 + 1]
+            if control.performer_mode == "onset":
+                self.perf = perf[-1:]
 
     def frames_of(self, params: np.ndarray) -> np.ndarray:
         """(P, F, 27) the decoded closing motions (eq. III.3) at F evenly spaced instants of
@@ -273,7 +285,10 @@ class _Evaluator:
         e_c = np.zeros(len(x))
         if len(self.tgt_idx):
             e_c += 1e3 * np.linalg.norm(con[:, self.tgt_idx] - self.tgt, axis=-1).sum(-1)
-        if self.perf is not None:
+        if self.perf is not None and self.control.performer_mode == "onset":
+            root = np.matmul(q[:, 0:1, 0:3], rt)[:, 0]
+            e_c += np.linalg.norm(root - self.perf[0, 0:3], axis=-1) / 0.01  # [cm]
+        elif self.perf is not None:
             root = np.matmul(q[..., 0:3], rt)
             d_root = np.linalg.norm(root - self.perf[None, :, 0:3], axis=-1) / 0.01  # [cm]
             d_fing = np.linalg.norm(q[..., 6:] - self.perf[None, :, 6:], axis=-1)  # [rad]
@@ -705,3 +720,43 @@ def synthesize_for_world(spec: object, obj: object, grasp_object: GraspObject | 
         raise SolverError(f"scenario {spec.name}: no dynamically feasible grasp of "
                           f"{obj.name!r} found ({res.status}, grip {res.grip_mode})")
     return plan
+
+
+class PerformerSynthesizer:
+    """The performance interface's grasp (III.6): as the operator's closing begins, the closing
+    motion synthesised for the object from the operator's hand (its wrist and approach
+    direction in the object's frame as E_c), instead of a grasp planned beforehand.
+
+    Call it with the operator's recent world-frame poses (n, 27) and the object's pose (4, 4)
+    (its body origin at the centre of mass, z up); returns a GraspPlan (world, with the
+    closing motion) or ``None`` when no dynamically feasible grasp was found.
+    """
+
+    def __init__(self, obj: GraspObject, object_name: str = "object",
+                 models: Mapping[str, object] | None = None,
+                 config: SynthesisConfig | None = None, grip_mode: str | None = None) -> None:
+        self.obj, self.name = obj, object_name
+        self.models = models if models is not None else grasp_models()
+        self.config = config or SynthesisConfig(reaching_frames=0)
+        self.grip_mode = grip_mode
+        self.last: SynthesisResult | None = None
+
+    def __call__(self, poses: np.ndarray, object_pose: np.ndarray) -> object | None:
+        from hand_control.grasp.database import to_object_frame
+
+        poses = np.asarray(poses, dtype=np.float64)
+        if poses.ndim != 2 or poses.shape[1] != N_DOF or not np.isfinite(poses).all():
+            raise InputError(f"performer poses must be finite (n, {N_DOF})")
+        com = np.asarray(object_pose, dtype=np.float64)[:3, 3]
+        rot = np.asarray(object_pose, dtype=np.float64)[:3, :3]
+        yaw = math.atan2(rot[1, 0], rot[0, 0])
+        perf = to_object_frame(poses, com, yaw)  # the object's body frame
+        wrist = perf[-1, 0:3]
+        control = GraspControl(grip_mode=self.grip_mode, performer=np.vstack([perf, perf[-1:]]),
+                               approach_yaw=math.atan2(-wrist[1], -wrist[0]),
+                               performer_mode="onset")
+        self.last = synthesize(self.obj, self.models, control, self.config,
+                               geometry=_geometry())
+        if not self.last.feasible:
+            return None
+        return self.last.grasp_plan(self.name, com, yaw)
