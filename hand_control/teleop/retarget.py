@@ -3,9 +3,13 @@
 The dissertation (III.6) notes that tracked fingers miss or penetrate the virtual object, since
 the operator performs without it, and that driving the physics-based controller directly with
 the tracked closing motion fails. It therefore replaces the tracked *closing* motion by a
-grasp synthesised to fit the object (its kinematic synthesis of III.4, a motion database we do
-not have). Our substitute for that synthesis is the grasp planned by fingertip inverse
-kinematics onto the object's surface (:func:`hand_control.sim.grasp.plan_grasp`):
+grasp synthesised to fit the object (its kinematic synthesis of III.4). Given a
+``synthesizer`` (:class:`hand_control.grasp.synthesis.PerformerSynthesizer`), the interface
+does that as closing begins: the closing motion synthesised for the object from the
+operator's hand (wrist and approach direction as the control term) replaces the plan, and its
+closing motion is played as the grip closes. Without one, the grasp is the scenario's plan
+(fingertip inverse kinematics onto the object's surface,
+:func:`hand_control.sim.grasp.plan_grasp`, or a scenario's synthesised grasp):
 
 * reaching, releasing: the target is the tracked hand;
 * closing: the target goes from the tracked hand to the planned grasp (fixed to the object)
