@@ -43,6 +43,7 @@ setup(
         (f"share/{PACKAGE}/data/touch", glob("data/touch/*.npz")),
         (f"share/{PACKAGE}/data/tracker", glob("data/tracker/*.npz")),
         (f"share/{PACKAGE}/data/teleop", glob("data/teleop/*.npz")),
+        (f"share/{PACKAGE}/data/grasp", glob("data/grasp/*.npz") + glob("data/grasp/*.json")),
         (f"share/{PACKAGE}/data/sample_capture", glob("data/sample_capture/*")),
         (f"share/{PACKAGE}/data/sample_rig_capture", glob("data/sample_rig_capture/*")),
     ],

@@ -64,16 +64,22 @@ def _closing_set(n: int, seed: int) -> list[np.ndarray]:
     base0 = np.r_[-0.08, 0.0, 0.05, 0.0, 0.0, 0.0, np.full(N_DOF - 6, 0.1)]
     base1 = base0.copy()
     base1[6:] = 0.9
+    # the poses vary along a few directions (object size, wrist placement, thumb), as grasps
+    # of one grip mode do
+    scale = np.r_[np.full(3, 0.1), np.ones(N_DOF - 3)]
+    modes0 = rng.normal(0, 0.05, (3, N_DOF)) * scale
+    modes1 = rng.normal(0, 0.1, (3, N_DOF)) * scale
+    group = np.r_[np.zeros(6, dtype=int), np.ones(5, dtype=int), np.repeat(np.arange(2, 6), 4)]
     out = []
     for _ in range(n):
-        q0 = base0 + rng.normal(0, 0.05, N_DOF) * np.r_[np.full(3, 0.1), np.ones(N_DOF - 3)]
-        q1 = base1 + rng.normal(0, 0.1, N_DOF) * np.r_[np.full(3, 0.1), np.ones(N_DOF - 3)]
+        z = rng.standard_normal(3)
+        q0, q1 = base0 + z @ modes0, base1 + z @ modes1
         length = int(rng.integers(30, 60))
         u = np.linspace(0, 1, length)[:, None]
         k = rng.uniform(-2, 2)
         g = np.expm1(k * u) / math.expm1(k)
-        lag = rng.uniform(0, 0.2, N_DOF)
-        x = np.clip((g - lag) / (1 - lag), 0, 1) ** rng.uniform(0.7, 1.5, N_DOF)
+        lag = rng.uniform(0, 0.2, 6)[group]  # each finger (and the wrist) on its own time
+        x = np.clip((g - lag) / (1 - lag), 0, 1) ** rng.uniform(0.7, 1.5, 6)[group]
         s = x * x * (3 - 2 * x)
         out.append(q0 + s * (q1 - q0))
     return out
@@ -98,11 +104,13 @@ def test_time_warps_of_the_model_stay_monotonic(model) -> None:
 
 def test_model_reproduces_its_training_motions(model) -> None:
     m, segs = model
-    for s in segs:
-        e = reconstruction_error(m, s)
-        assert e["finger_mean_rad"] < 0.02, e
-        assert e["wrist_mean_m"] < 0.002, e
-        assert e["duration_rel"] < 0.02, e
+    errs = [reconstruction_error(m, s) for s in segs]
+    for e in errs:
+        assert e["finger_mean_rad"] < 0.03, e
+        assert e["wrist_mean_m"] < 0.003, e
+        assert e["duration_rel"] < 0.08, e
+    assert np.mean([e["finger_mean_rad"] for e in errs]) < 0.015
+    assert np.mean([e["duration_rel"] for e in errs]) < 0.02
     # the decoded motion ends in the grasping pose of the demonstration
     p = m.encode(segs[3])
     assert np.abs(m.final_pose(p) - segs[3][-1])[6:].max() < 0.05
@@ -240,3 +248,21 @@ def test_train_grasps_quick_is_reproducible(tmp_path) -> None:
     assert main(args[:-1] + ["6", "--out", str(tmp_path / "c")]) == 0
     dc = load_grasp_database(tmp_path / "c")
     assert not np.array_equal(dc[0].motion, da[0].motion)
+
+
+def test_generator_keeps_only_demonstrations_the_simulation_lifted(monkeypatch) -> None:
+    from hand_control.grasp import generate
+
+    real = generate._object_for
+    # the same draws, but a 2 kg object with the friction of ice: no fingertip grip lifts it
+    monkeypatch.setattr(generate, "_object_for",
+                        lambda mode, rng: real(mode, rng)[:2] + (2.0, 0.05))
+    rng_args = (0, GRIP_MODES.index("thumb_index_middle"), 0)
+    why: list[str] = []
+    assert generate.demonstrate("thumb_index_middle", np.random.default_rng(rng_args),
+                                why=why) is None
+    assert why and why[0].startswith("not lifted"), why
+    monkeypatch.setattr(generate, "_object_for", real)
+    rec = generate.demonstrate("thumb_index_middle", np.random.default_rng(rng_args))
+    assert rec is not None and rec.lift_mm > 80.0
+    assert {b.split("_")[0] for b, _ in rec.contacts} >= {"thumb"}

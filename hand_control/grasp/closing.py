@@ -106,7 +106,10 @@ class ClosingModel:
         object.__setattr__(self, "_inv_chol", inv_chol)
         object.__setattr__(self, "_log_norm",
                            np.log(self.gmm_weights) - 0.5 * (logdet + n * _LOG_2PI))
-        object.__setattr__(self, "_p_flat", self.p_basis.reshape(t * N_DOF, -1))
+        # (M, T*27), C-contiguous: alpha @ it is a plain GEMM (a transposed view of the
+        # (T*27, M) basis makes OpenBLAS take a path 1000x slower on this shape)
+        object.__setattr__(self, "_p_rows",
+                           np.ascontiguousarray(self.p_basis.reshape(t * N_DOF, -1).T))
 
     # ---- sizes -------------------------------------------------------------------------
     @property
@@ -141,7 +144,7 @@ class ClosingModel:
         """eq. (III.1): the motion on the canonical timeline, (T, 27) or (N, T, 27)."""
         p = self._params(params)
         a = p[..., : self.n_alpha]
-        flat = a @ self._p_flat.T  # (..., T*27)
+        flat = a @ self._p_rows  # (..., T*27)
         return self.p0 + flat.reshape(p.shape[:-1] + (self.n_frames, N_DOF))
 
     def warp(self, params: object) -> np.ndarray:
@@ -165,14 +168,23 @@ class ClosingModel:
         ``params`` may also be (N, n_params): then (N, n_frames, 27).
         """
         p = self._params(params)
-        if p.ndim == 2:
-            return np.stack([self.decode(row) for row in p])
-        canon = self.canonical(p)
-        h = self.warp(p)
-        t = self.n_frames
-        s = np.linspace(0.0, h[-1], t)
-        u = np.interp(s, h, np.arange(t, dtype=np.float64))  # canonical time of each sample
-        return warp_motion(canon, u)
+        one = p.ndim == 1
+        p = np.atleast_2d(p)
+        canon = self.canonical(p)  # (N, T, 27)
+        h = self.warp(p)  # (N, T), strictly increasing rows
+        n, t = h.shape
+        s = np.linspace(0.0, 1.0, t)[None, :] * h[:, -1:]  # evenly spaced actual times
+        # the canonical time of each sample, u = H^-1(s), for every row at once: one
+        # searchsorted over the rows laid end to end
+        off = (np.arange(n) * (float(h[:, -1].max()) + 1.0))[:, None]
+        k = np.searchsorted((h + off).ravel(), (s + off).ravel(), side="right").reshape(n, t)
+        k = np.clip(k - np.arange(n)[:, None] * t, 1, t - 1)
+        rows = np.arange(n)[:, None]
+        h0, h1 = h[rows, k - 1], h[rows, k]
+        a = np.clip((s - h0) / (h1 - h0), 0.0, 1.0)[..., None]
+        c0 = canon[rows, k - 1]
+        out = c0 + a * (canon[rows, k] - c0)
+        return out[0] if one else out
 
     def final_pose(self, params: object) -> np.ndarray:
         """The grasping pose (27,) = ``decode(params)[-1]`` (or (N, 27) for (N, n_params));
@@ -235,10 +247,7 @@ class ClosingModel:
         y = ((warped - self.p0) * FEATURE_SCALE).ravel()
         basis = (self.p_basis * FEATURE_SCALE[None, :, None]).reshape(-1, self.n_alpha)
         alpha = np.linalg.lstsq(basis, y, rcond=None)[0] if self.n_alpha else np.zeros(0)
-        z = log_increments(w) - self.b0
-        gamma = (np.linalg.lstsq(self.b_basis, z, rcond=None)[0] if self.n_gamma
-                 else np.zeros(0))
-        return np.r_[alpha, gamma]
+        return np.r_[alpha, warp_params(w, self.b0, self.b_basis)]
 
     # ---- files -------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
@@ -277,6 +286,40 @@ class ClosingModel:
             raise InputError(f"{p} is not a closing model (no {e})") from e
 
 
+def warp_params(w: np.ndarray, b0: np.ndarray, b_basis: np.ndarray, iterations: int = 8
+                ) -> np.ndarray:
+    """The weights ``gamma`` (K,) whose warp ``H(gamma)`` (eq. III.2) is nearest to ``w``
+    (T,): the projection of the log increments, then Gauss-Newton on ``H(gamma) - w`` (the
+    projection alone loses the total duration when components are dropped)."""
+    k = b_basis.shape[1]
+    if k == 0:
+        return np.zeros(0)
+    g = np.linalg.lstsq(b_basis, log_increments(w) - b0, rcond=None)[0]
+    target = np.asarray(w, dtype=np.float64)[1:]
+
+    def resid(gg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        inc = np.exp(np.minimum(b0 + b_basis @ gg, 50.0))
+        return np.cumsum(inc) - target, inc
+
+    r, inc = resid(g)
+    cost = float(r @ r)
+    for _ in range(iterations):
+        jac = np.cumsum(inc[:, None] * b_basis, axis=0)
+        step = np.linalg.lstsq(jac, -r, rcond=None)[0]
+        for _ in range(12):  # halve the step until the fit improves
+            r_new, inc_new = resid(g + step)
+            c_new = float(r_new @ r_new)
+            if c_new < cost:
+                break
+            step = step / 2.0
+        else:
+            break
+        g, r, inc, cost = g + step, r_new, inc_new, c_new
+        if np.abs(step).max() < 1e-8:
+            break
+    return g
+
+
 def _pca(y: np.ndarray, keep: float, max_components: int
          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """PCA of the rows of ``y`` (N, D): ``(mean (D,), unit eigen vectors (D, M), standard
@@ -299,7 +342,8 @@ def _pca(y: np.ndarray, keep: float, max_components: int
 def fit_closing_model(grip_mode: str, segments: Sequence[np.ndarray], fps: float,
                       contacts: tuple[tuple[str, tuple[float, float, float]], ...] = (),
                       keep: float = 0.99, max_alpha: int = 8, max_gamma: int = 4,
-                      max_mixture: int = 3, seed: int = 0) -> ClosingModel:
+                      max_mixture: int = 3, reg_covar: float = 0.3,
+                      seed: int = 0) -> ClosingModel:
     """Fit the closing-phase model of one grip mode to its closing segments.
 
     Args:
@@ -308,6 +352,8 @@ def fit_closing_model(grip_mode: str, segments: Sequence[np.ndarray], fps: float
         keep: fraction of variance the functional PCAs keep (eq. III.1, III.2).
         max_alpha, max_gamma: caps on the numbers of components M and K.
         max_mixture: most Gaussian components; the number is chosen by BIC.
+        reg_covar: added to the mixture's covariance diagonals (the parameters have unit
+            variance per component; a few demonstrations per mode need the regulariser).
 
     Raises:
         SolverError: fewer than 3 segments.
@@ -336,12 +382,12 @@ def fit_closing_model(grip_mode: str, segments: Sequence[np.ndarray], fps: float
     b0, bvecs, bsd = _pca(z, keep, max_gamma)
     b_basis = bvecs * bsd
     alpha = ((y - mean) @ vecs) / np.where(sd > 0, sd, 1.0)
-    gamma = ((z - b0) @ bvecs) / np.where(bsd > 0, bsd, 1.0)
+    gamma = np.array([warp_params(w, b0, b_basis) for w in warps]).reshape(len(warps), -1)
     params = np.hstack([alpha, gamma])
     # the prior pr(alpha, gamma): a Gaussian mixture fitted by EM, components by BIC
     best = None
     for c in range(1, max(1, min(max_mixture, len(segs) // 4)) + 1):
-        gm = GaussianMixture(c, covariance_type="full", reg_covar=1e-2, random_state=seed,
+        gm = GaussianMixture(c, covariance_type="full", reg_covar=reg_covar, random_state=seed,
                              n_init=2).fit(params)
         bic = gm.bic(params)
         if best is None or bic < best[0]:

@@ -120,6 +120,16 @@ class GraspRecord:
         object.__setattr__(self, "motion", m)
 
     @property
+    def reaching(self) -> np.ndarray:
+        """The reaching segment (n, 27): from the start to the first closing frame."""
+        return self.motion[:self.phases[0] + 1]
+
+    @property
+    def manipulation(self) -> np.ndarray:
+        """The manipulation segment (n, 27): from the grasping pose on (lift and hold)."""
+        return self.motion[self.phases[1] - 1:]
+
+    @property
     def closing(self) -> np.ndarray:
         """The closing segment (n, 27)."""
         return self.motion[self.phases[0]:self.phases[1]]

@@ -1,7 +1,7 @@
 """Build the grasp database and fit the closing-phase models: ``data/grasp/``.
 
     hand-suite train grasps [--quick] [--out DIR] [--seed N] [--demos N] [--attempts N]
-                            [--modes MODE ...]
+                            [--modes MODE ...] [--refit]
 
 1. :func:`hand_control.grasp.generate.build_database`: demonstrations of every grip mode,
    each checked in the simulation (the composite controller lifts the object), written to
@@ -9,8 +9,9 @@
    :mod:`hand_control.grasp.database`);
 2. per grip mode, :func:`hand_control.grasp.closing.fit_closing_model` on the closing segments
    (DTW, functional PCA eq. III.1-III.2, GMM prior), written to ``closing_<mode>.npz``;
-3. ``train_report.json``: what was kept, the models' sizes and their reconstruction error on
-   the training motions.
+3. ``train_report.json``: what was kept (and why attempts were rejected), the models' sizes,
+   their reconstruction error on the training motions and, leave-one-out, on demonstrations
+   each model was not fitted to.
 
 Same seed, same database and models (every random draw is seeded; the arrays are equal, the
 zip containers' time stamps are not). ``--quick`` builds a small one (4 demonstrations per
@@ -33,6 +34,7 @@ from hand_control.grasp.database import (
     GRIP_MODES,
     GraspRecord,
     default_grasp_dir,
+    load_grasp_database,
     model_file,
     save_grasp_database,
 )
@@ -90,6 +92,29 @@ def _count(reasons: list[str]) -> dict[str, int]:
     return out
 
 
+def held_out_error(records: list[GraspRecord], seed: int = 0) -> dict[str, float]:
+    """Leave-one-out figures of one grip mode's model: each demonstration encoded / decoded
+    by the model fitted on the others (motions it was not built from): mean finger-angle
+    error [rad], mean wrist error [mm], and the mean ``-ln pr`` of the held-out parameters
+    beside that of the training ones."""
+    fe, we, de, nlp_out, nlp_in = [], [], [], [], []
+    for i, r in enumerate(records):
+        rest = records[:i] + records[i + 1:]
+        if len(rest) < 3:
+            return {}
+        m = fit_closing_model(r.grip_mode, [x.closing for x in rest], r.fps, seed=seed)
+        e = reconstruction_error(m, r.closing)
+        fe.append(e["finger_mean_rad"])
+        we.append(e["wrist_mean_m"] * 1e3)
+        de.append(e["duration_rel"])
+        nlp_out.append(float(m.neg_log_prior(m.encode(r.closing))))
+        nlp_in.append(float(np.mean(m.neg_log_prior(m.train_params))))
+    return {"finger_err_rad": float(np.mean(fe)), "wrist_err_mm": float(np.mean(we)),
+            "duration_err": float(np.mean(de)),
+            "neg_log_prior": float(np.median(nlp_out)),
+            "neg_log_prior_train": float(np.median(nlp_in))}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="hand-suite train grasps", description=__doc__.split(
         "\n")[0])
@@ -98,6 +123,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--demos", type=int, default=None, help="demonstrations per grip mode")
     ap.add_argument("--attempts", type=int, default=None, help="attempts per grip mode")
+    ap.add_argument("--refit", action="store_true",
+                    help="fit the closing models to the database already in --out (no "
+                         "simulation)")
     ap.add_argument("--modes", nargs="+", default=list(GRIP_MODES), choices=GRIP_MODES,
                     metavar="MODE", help="grip modes to build (default: all ten)")
     a = ap.parse_args(argv)
@@ -108,11 +136,15 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     reasons: dict[str, list[str]] = {}
-    records, stats = build_database(cfg, tuple(a.modes),
-                                    progress=lambda s: print(s, file=sys.stderr, flush=True),
-                                    reasons=reasons)
+    if a.refit:
+        records = [r for r in load_grasp_database(out) if r.grip_mode in a.modes]
+        stats = {g: (sum(r.grip_mode == g for r in records), 0) for g in a.modes}
+    else:
+        records, stats = build_database(
+            cfg, tuple(a.modes), progress=lambda s: print(s, file=sys.stderr, flush=True),
+            reasons=reasons)
+        save_grasp_database(records, out / DATABASE_FILE)
     t_db = time.perf_counter() - t0
-    save_grasp_database(records, out / DATABASE_FILE)
     models = fit_models(records, seed=a.seed)
     for g in GRIP_MODES:  # no stale model of a mode this run did not fit
         f = out / model_file(g)
@@ -120,29 +152,58 @@ def main(argv: list[str] | None = None) -> int:
             models[g].save(f)
         elif f.exists() and g in a.modes:
             f.unlink()
-    report = {"seed": a.seed, "demos_per_mode": demos, "attempts_per_mode": attempts,
+    old: dict = {}
+    if a.refit and (out / "train_report.json").is_file():  # the build's own figures stay
+        old = json.loads((out / "train_report.json").read_text())
+        t_db = float(old.get("database_s", t_db))
+        for g in a.modes:
+            o = old.get("modes", {}).get(g, {})
+            stats[g] = (stats[g][0], int(o.get("attempts", 0)))
+            reasons[g] = [k for k, n in o.get("rejected", {}).items() for _ in range(n)]
+    report = {"seed": old.get("seed", a.seed), "demos_per_mode": old.get("demos_per_mode", demos),
+              "attempts_per_mode": old.get("attempts_per_mode", attempts),
               "database_s": round(t_db, 1), "records": len(records), "modes": {}}
-    print(f"{'grip mode':<26}{'kept':>6}{'tries':>6}{'T':>5}{'M':>4}{'K':>4}{'C':>3}"
-          f"{'fing err':>10}{'wrist mm':>10}")
+    print(f"{'grip mode':<24}{'kept':>5}{'tries':>6}{'T':>4}{'M':>3}{'K':>3}{'C':>3}"
+          f"{'fing rad':>9}{'wrist mm':>9}{'dur %':>6}{'LOO rad':>9}{'LOO mm':>8}"
+          f"{'LOO dur':>8}{'-lnp tr':>8}{'-lnp LOO':>9}")
     for g in a.modes:
         kept, tries = stats.get(g, (0, 0))
         row = {"kept": kept, "attempts": tries, "rejected": _count(reasons.get(g, []))}
         if g in models:
             m = models[g]
             errs = [reconstruction_error(m, r.closing) for r in records if r.grip_mode == g]
+            loo = held_out_error([r for r in records if r.grip_mode == g], seed=a.seed)
             row.update(n_frames=m.n_frames, n_alpha=m.n_alpha, n_gamma=m.n_gamma,
                        mixture=len(m.gmm_weights),
                        finger_err_rad=float(np.mean([e["finger_mean_rad"] for e in errs])),
-                       wrist_err_mm=1e3 * float(np.mean([e["wrist_mean_m"] for e in errs])))
-            print(f"{g:<26}{kept:>6}{tries:>6}{m.n_frames:>5}{m.n_alpha:>4}{m.n_gamma:>4}"
-                  f"{len(m.gmm_weights):>3}{row['finger_err_rad']:>10.4f}"
-                  f"{row['wrist_err_mm']:>10.2f}")
+                       wrist_err_mm=1e3 * float(np.mean([e["wrist_mean_m"] for e in errs])),
+                       duration_err=float(np.mean([e["duration_rel"] for e in errs])),
+                       held_out=loo)
+            nan = float("nan")
+            print(f"{g:<24}{kept:>5}{tries:>6}{m.n_frames:>4}{m.n_alpha:>3}{m.n_gamma:>3}"
+                  f"{len(m.gmm_weights):>3}{row['finger_err_rad']:>9.4f}"
+                  f"{row['wrist_err_mm']:>9.2f}{100 * row['duration_err']:>6.1f}"
+                  f"{loo.get('finger_err_rad', nan):>9.4f}"
+                  f"{loo.get('wrist_err_mm', nan):>8.2f}"
+                  f"{100 * loo.get('duration_err', nan):>8.1f}"
+                  f"{loo.get('neg_log_prior_train', nan):>8.1f}"
+                  f"{loo.get('neg_log_prior', nan):>9.1f}")
         else:
-            print(f"{g:<26}{kept:>6}{tries:>6}   (too few demonstrations for a model)")
+            print(f"{g:<24}{kept:>5}{tries:>6}   (too few demonstrations for a model)")
         report["modes"][g] = row
     (out / "train_report.json").write_text(json.dumps(report, indent=1, sort_keys=True) + "\n")
-    print(json.dumps({"train": "grasps", "records": len(records),
-                      "models": len(models), "database_s": round(t_db, 1)}))
+    fitted = [report["modes"][g] for g in a.modes if g in models]
+
+    def _mean(key: str, held: bool = False) -> float | None:
+        v = [(r["held_out"] if held else r).get(key) for r in fitted]
+        v = [x for x in v if x is not None]
+        return round(float(np.mean(v)), 4) if v else None
+
+    print(json.dumps({"train": "grasps", "records": len(records), "models": len(models),
+                      "database_s": round(t_db, 1),
+                      "finger_err_rad": _mean("finger_err_rad"),
+                      "finger_err_rad_heldout": _mean("finger_err_rad", True),
+                      "wrist_err_mm_heldout": _mean("wrist_err_mm", True)}))
     return 0
 
 
