@@ -87,14 +87,23 @@ def test_grasp_quality_prefers_opposite_faces_to_adjacent_ones(cube) -> None:
 def test_feasibility_rejects_two_adjacent_faces_of_a_cube(cube) -> None:
     """Eq. (III.10)-(III.16) on the contacts the synthesis would hand it: surface points and
     inward normals read from the field."""
-    def contacts(points: np.ndarray) -> ContactSet:
+    from hand_control.grasp.synthesis import contact_patches
+
+    def contacts(points: np.ndarray, patch: float = 0.0) -> ContactSet:
         surf, n_out, _ = cube.sdf.closest(points)
-        return ContactSet(surf, -n_out, 0.6)
+        return ContactSet(*contact_patches(surf, -n_out, patch), 0.6) if patch else \
+            ContactSet(surf, -n_out, 0.6)
 
     adjacent = np.array([[-0.026, 0.0, 0.0], [0.0, 0.026, 0.0]])
     opposite = np.array([[-0.026, 0.0, 0.0], [0.026, 0.005, 0.0], [0.026, -0.005, 0.0]])
+    pinch = np.array([[-0.026, 0.01, 0.0], [0.026, 0.01, 0.0]])  # 1 cm beside the centre
     assert not dynamic_feasibility(contacts(adjacent), 0.2, np.zeros(3)).feasible
+    assert not dynamic_feasibility(contacts(adjacent, 0.004), 0.2, np.zeros(3)).feasible
     assert dynamic_feasibility(contacts(opposite), 0.2, np.zeros(3)).feasible
+    # a two-finger pinch off the centre of mass: point contacts cannot hold the torque about
+    # the pinch axis, soft-finger patches (four points each, III.4.1.3) can
+    assert not dynamic_feasibility(contacts(pinch), 0.2, np.zeros(3)).feasible
+    assert dynamic_feasibility(contacts(pinch, 0.004), 0.2, np.zeros(3)).feasible
 
 
 def test_pso_minimises_within_its_box() -> None:

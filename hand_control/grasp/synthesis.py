@@ -80,12 +80,17 @@ class SynthesisConfig:
     grasp_depth: float = param(0.003, "the refined contacts aim this far inside the surface "
                                "(the servos' squeeze) [m]", lo=0.0, hi=0.01)
     refine_iterations: int = param(20, "IK refinement steps (0 = none)", lo=0, hi=500)
-    max_lp: int = param(12, "feasibility LPs tried on the last generation, best first",
+    max_lp: int = param(8, "feasibility LPs tried on the last generation, best first",
                         lo=1, hi=4096)
     retries: int = param(1, "runs of the swarm again when no particle is feasible", lo=0,
                          hi=10)
     torque_limits: bool = param(True, "the feasibility LP bounds the forces by the joint "
                                 "torque limits")
+    patch_radius: float = param(
+        0.0, "each contact a patch of 4 points this far around it in the feasibility LP "
+        "(III.4.1.3: the soft fingertip's contact torque) [m]; 0 = point contacts (with 4 mm "
+        "patches the LP admitted two-finger pinches of a ball and a torus that then slipped "
+        "in the simulation)", lo=0.0, hi=0.02)
     friction_margin: float = param(
         0.7, "the friction cone term (III.9) and the feasibility LP use this fraction of the "
         "object's friction (a grasp that holds only at the cone's edge slips in practice)",
@@ -314,18 +319,39 @@ def _contact_jacobian(geo: HandGeometry, q: np.ndarray, contacts: ContactPoints,
     return p @ r.T, np.einsum("ij,cdj->cid", r, jac)
 
 
+def contact_patches(points: np.ndarray, normals: np.ndarray, radius: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Each contact (K, 3) as a patch of four points ``radius`` around it in its tangent
+    plane (III.4.1.3), with its normal: (4K, 3) points and normals, patch-major."""
+    n = np.asarray(normals, dtype=np.float64)
+    a = np.where(np.abs(n[:, 2:3]) < 0.9, np.array([[0.0, 0.0, 1.0]]),
+                 np.array([[1.0, 0.0, 0.0]]))
+    t1 = np.cross(n, a)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(n, t1)
+    c = np.asarray(points, dtype=np.float64)
+    pts = np.concatenate([c + radius * t1, c - radius * t1, c + radius * t2, c - radius * t2])
+    return pts, np.tile(n, (4, 1))
+
+
 def _feasibility(obj: GraspObject, geo: HandGeometry, contacts: ContactPoints, q: np.ndarray,
                  yaw: float, cfg: SynthesisConfig, tau_max: np.ndarray
                  ) -> tuple[bool, str, np.ndarray, np.ndarray, np.ndarray]:
     """Eq. (III.10)-(III.16) for the grasping pose ``q``: the contacts within reach of the
-    surface push along the inward normals there."""
+    surface push along the inward normals there; with ``patch_radius`` each contact is a
+    patch of four points around it in the tangent plane (III.4.1.3: the soft finger's contact
+    torques), all with the contact's Jacobian."""
     p, jac = _contact_jacobian(geo, q, contacts, rot_z(np.float64(yaw)))
     surf, n_out, d = obj.sdf.closest(p)
     near = np.abs(d) <= cfg.contact_threshold
     if near.sum() < 2:
         return False, "too_few_contacts", surf, -n_out, near
-    cs = ContactSet(surf[near], -n_out[near], obj.friction * cfg.friction_margin,
-                    jacp=jac[near] if cfg.torque_limits else None)
+    pts, nrm, jp = surf[near], -n_out[near], jac[near]
+    if cfg.patch_radius > 0:
+        pts, nrm = contact_patches(pts, nrm, cfg.patch_radius)
+        jp = np.tile(jp, (4, 1, 1))
+    cs = ContactSet(pts, nrm, obj.friction * cfg.friction_margin,
+                    jacp=jp if cfg.torque_limits else None)
     res = dynamic_feasibility(cs, obj.mass, np.zeros(3), GRAVITY,
                               torque_limits=tau_max if cfg.torque_limits else None)
     return bool(res.feasible), res.status, surf, -n_out, near
