@@ -285,3 +285,21 @@ def test_teleop_graph_lifts_a_stone_with_the_grasp_synthesised_from_tracked_inpu
                                             "control/contact_markers"))
     lift = max_lift_mm(positions(data.topics["sim/object_pose"].msgs))
     assert lift > 20.0, (lift, out[-4000:])
+
+
+def test_grasp_command_writes_and_plays_a_grasp(tmp_path, capsys) -> None:
+    """``hand-suite grasp OBJECT -o OUT --play``: the motion file, the lift in simulation."""
+    from hand_control.cli import main
+
+    out = tmp_path / "g.npz"
+    assert main(["grasp", "convex:5", "--mass", "0.15", "-o", str(out), "--play"]) == 0
+    data = np.load(out)
+    assert data["closing"].shape[1] == N_DOF and len(data["reaching"]) > 0
+    assert str(data["grip_mode"]) in (
+        "thumb_index", "thumb_middle", "thumb_ring", "thumb_index_middle", "thumb_middle_ring",
+        "thumb_index_middle_ring", "all_except_index", "all_fingers", "spherical", "power")
+    assert bool(data["feasible"])
+    assert "held 2 s at 10 cm" in capsys.readouterr().out
+    # a bad object is a clear error (exit code 2), not a traceback
+    assert main(["grasp", str(tmp_path / "missing.stl")]) == 2
+    assert "does not exist" in capsys.readouterr().err
