@@ -12,6 +12,7 @@
     hand-suite calibrate rig BAG_OR_DIR -o config/rigs/NAME.yaml [--board 7x5:0.05:0.036]
     hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
+    hand-suite grasp OBJECT [--grip MODE] [-o OUT] [--play]   grasp synthesis (III.4)
     hand-suite demo [--out DIR]          the README's main job
     hand-suite test [PYTEST ARGS]        lint + the test suite (what CI runs)
 """
@@ -403,6 +404,10 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="the main job (README)")
     d.add_argument("--out", default="out/demo")
     d.set_defaults(func=cmd_demo)
+
+    from hand_control.grasp.command import add_parser as add_grasp_parser
+
+    add_grasp_parser(sub)
 
     t = sub.add_parser("test", help="lint and run the tests")
     t.add_argument("pytest_args", nargs=argparse.REMAINDER)
