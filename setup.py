@@ -46,6 +46,7 @@ setup(
         (f"share/{PACKAGE}/data/tracker", glob("data/tracker/*.npz")),
         (f"share/{PACKAGE}/data/teleop", glob("data/teleop/*.npz")),
         (f"share/{PACKAGE}/data/webcam", glob("data/webcam/*.mp4")),
+        (f"share/{PACKAGE}/data/grasp", glob("data/grasp/*.npz") + glob("data/grasp/*.json")),
         (f"share/{PACKAGE}/data/sample_capture", glob("data/sample_capture/*")),
         (f"share/{PACKAGE}/data/sample_rig_capture", glob("data/sample_rig_capture/*")),
     ],

@@ -7,10 +7,12 @@
     hand-suite bench NAME [--quick | --smoke] | bench --list
     hand-suite capture [-o DIR] [--clip C] [--seconds S] [--fps F] [--shape-seed N]
     hand-suite capture --rig studio6 [-o DIR] [--seconds S] [--fps F] [--objects box]
-    hand-suite train touch|tracker [ARGS] fit the touch encodings / the tracker's forest
+    hand-suite train touch|tracker|grasps [ARGS]  fit the touch encodings / the tracker's
+        forest / build the grasp database and the closing-phase models
     hand-suite calibrate rig BAG_OR_DIR -o config/rigs/NAME.yaml [--board 7x5:0.05:0.036]
     hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
+    hand-suite grasp OBJECT [--grip MODE] [-o OUT] [--play]   grasp synthesis (III.4)
     hand-suite demo [--out DIR]          the README's main job
     hand-suite test [PYTEST ARGS]        lint + the test suite (what CI runs)
 """
@@ -226,7 +228,8 @@ def _capture_rig(a: argparse.Namespace) -> int:
     return 0
 
 
-TRAINERS = {"touch": "hand_capture.touch.train", "tracker": "hand_capture.tracking.train"}
+TRAINERS = {"touch": "hand_capture.touch.train", "tracker": "hand_capture.tracking.train",
+            "grasps": "hand_control.grasp.train"}
 
 
 def cmd_train(a: argparse.Namespace) -> int:
@@ -368,7 +371,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="--rig: rate of a pose file without a time column [Hz]")
     cp.set_defaults(func=cmd_capture)
 
-    tr = sub.add_parser("train", help="train a learned component (touch, tracker)")
+    tr = sub.add_parser("train", help="train a learned component (touch, tracker, grasps)")
     tr.add_argument("what")
     tr.add_argument("train_args", nargs=argparse.REMAINDER)
     tr.set_defaults(func=cmd_train)
@@ -401,6 +404,10 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="the main job (README)")
     d.add_argument("--out", default="out/demo")
     d.set_defaults(func=cmd_demo)
+
+    from hand_control.grasp.command import add_parser as add_grasp_parser
+
+    add_grasp_parser(sub)
 
     t = sub.add_parser("test", help="lint and run the tests")
     t.add_argument("pytest_args", nargs=argparse.REMAINDER)

@@ -31,6 +31,9 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                  "feasibility_lp_p50_us", "control_step_p50_us"), ()),
     "executor": (("lean_vs_rclpy_0_subs", "lean_vs_rclpy_25_subs"), ()),
     "fuzz": (("cases", "failures", "msgs_per_s"), ()),
+    "grasp": (("synth_success", "ik_baseline_success", "no_collision_success",
+               "no_polygon_success", "no_cone_success", "synth_ms_p50", "synth_cpu_ms_p50",
+               "lp_feasible_cases"), (pytest.mark.slow,)),  # 5 simulated lifts
     "model": (("fk_lbs_ms", "baseline_fk_lbs_ms", "fk_lbs_speedup", "fk_lbs_batch_speedup",
                "fk_lbs_speedup_vs_naive", "vectorised_max_diff_m", "jacobian_speedup",
                "render_fps", "raycast_fps", "render_speedup_vs_raycast"), ()),

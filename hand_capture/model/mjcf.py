@@ -188,7 +188,39 @@ def finger_torque_limits(model: HandModel | None = None) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 # Scene objects
 # ---------------------------------------------------------------------------------------------
-_KINDS = ("box", "ball", "stick", "cup")
+_KINDS = ("box", "ball", "stick", "cup", "composite")
+_PART_TYPES = ("box", "sphere", "cylinder", "capsule", "ellipsoid", "mesh")
+
+
+@dataclass(frozen=True)
+class GeomPart:
+    """One collision geom of a ``composite`` object, in the object's body frame.
+
+    ``type``: a MuJoCo primitive (``size`` as MuJoCo's, ``pos``, ``quat`` w, x, y, z) or
+    ``mesh`` (``vertices`` flat x, y, z, ..., ``faces`` flat i, j, k, ...; MuJoCo collides
+    with the mesh's convex hull, so a mesh part should be convex). ``volume`` [m^3] splits
+    the object's mass between its parts.
+    """
+
+    type: str
+    size: tuple[float, ...] = ()
+    pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+    vertices: tuple[float, ...] = ()
+    faces: tuple[int, ...] = ()
+    volume: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.type not in _PART_TYPES:
+            raise InputError(f"geom part type must be one of {_PART_TYPES}, got {self.type!r}")
+        if not (math.isfinite(self.volume) and self.volume > 0):
+            raise InputError(f"geom part volume must be > 0 m^3, got {self.volume}")
+        if self.type == "mesh" and (len(self.vertices) < 12 or len(self.vertices) % 3
+                                    or len(self.faces) < 12 or len(self.faces) % 3):
+            raise InputError("a mesh part needs >= 4 vertices and >= 4 faces (flat triples)")
+        vals = (*self.size, *self.pos, *self.quat, *self.vertices)
+        if not all(math.isfinite(v) for v in vals):
+            raise InputError("geom part values must be finite")
 
 
 @dataclass(frozen=True)
@@ -196,7 +228,9 @@ class ObjectSpec:
     """A free rigid object on the table.
 
     size per kind: box ``(hx, hy, hz)`` half extents; ball ``(r,)``; stick ``(r, half_length)``
-    (a cylinder lying along x); cup ``(outer_r, half_height, wall)`` with a handle on +y.
+    (a cylinder lying along x); cup ``(outer_r, half_height, wall)`` with a handle on +y;
+    composite ``(hx, hy, hz)``: the half extents of its bounding box about the body origin,
+    its geoms in ``parts`` (:class:`GeomPart`, e.g. the convex pieces of a mesh).
     ``pos`` is the object centre in the world; ``None`` puts it on the table in front of the
     hand. ``friction`` is the sliding coefficient (it wins over the hand's and the table's).
     """
@@ -209,10 +243,13 @@ class ObjectSpec:
     pos: tuple[float, float, float] | None = None
     euler: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rgba: tuple[float, float, float, float] = (0.3, 0.5, 0.8, 1.0)
+    parts: tuple[GeomPart, ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind not in _KINDS:
             raise InputError(f"object kind must be one of {_KINDS}, got {self.kind!r}")
+        if (self.kind == "composite") != bool(self.parts):
+            raise InputError("a composite object needs its geom parts (and only it has them)")
         d = _OBJECT_DEFAULTS[self.kind]
         size = tuple(float(s) for s in (self.size or d["size"]))
         if len(size) != len(d["size"]) or not all(math.isfinite(s) and s > 0 for s in size):
@@ -235,7 +272,8 @@ class ObjectSpec:
     def half_height(self) -> float:
         """Half of the object's vertical extent when resting in its default orientation."""
         s = self.size
-        return s[2] if self.kind == "box" else s[1] if self.kind == "cup" else s[0]
+        return s[2] if self.kind in ("box", "composite") else s[1] if self.kind == "cup" \
+            else s[0]
 
 
 # Objects of the papers (seed 000: cup, solid ball, long round stick, magic cube); sizes and
@@ -246,10 +284,11 @@ _OBJECT_DEFAULTS: dict[str, dict[str, object]] = {
     "ball": {"size": (0.035,), "mass": 0.15, "friction": 0.8},
     "stick": {"size": (0.015, 0.15), "mass": 0.10, "friction": 0.6},
     "cup": {"size": (0.04, 0.05, 0.004), "mass": 0.30, "friction": 0.5},
+    "composite": {"size": (0.03, 0.03, 0.03), "mass": 0.20, "friction": 0.6},
 }
 # default places on the table, in front of / beside the hand so that nothing touches at "home"
 _DEFAULT_XY = {"box": (0.26, -0.12), "ball": (0.27, 0.02), "stick": (0.15, 0.17),
-               "cup": (0.38, -0.02)}
+               "cup": (0.38, -0.02), "composite": (0.26, -0.12)}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -478,6 +517,11 @@ def _object_xml(obj: ObjectSpec, pos: Sequence[float]) -> tuple[str, np.ndarray]
     elif obj.kind == "stick":
         geoms.append((f'type="cylinder" size="{_f(s[0])} {_f(s[1])}" '
                        'quat="0.7071068 0 0.7071068 0"', math.pi * s[0] ** 2 * 2 * s[1]))
+    elif obj.kind == "composite":
+        for i, part in enumerate(obj.parts):
+            shape = (f'type="mesh" mesh="{obj.name}_mesh{i}"' if part.type == "mesh" else
+                     f'type="{part.type}" size="{_v(part.size)}"')
+            geoms.append((f'{shape} pos="{_v(part.pos)}" quat="{_v(part.quat)}"', part.volume))
     else:  # cup: bottom disc, ring of wall boxes, handle of three capsules
         r, hh, wall = s
         geoms.append((f'type="cylinder" size="{_f(r)} {_f(wall / 2)}" '
@@ -510,6 +554,14 @@ def _object_xml(obj: ObjectSpec, pos: Sequence[float]) -> tuple[str, np.ndarray]
     body.append("    </body>")
     quat = _euler_xyz_quat(obj.euler)
     return "\n".join(body), np.r_[pos, quat]
+
+
+def _mesh_assets(specs: Sequence[ObjectSpec]) -> str:
+    """``<asset>`` with the mesh parts of composite objects (inline vertices and faces)."""
+    meshes = [f'    <mesh name="{o.name}_mesh{i}" vertex="{_v(p.vertices)}" '
+              f'face="{" ".join(str(int(f)) for f in p.faces)}"/>'
+              for o in specs for i, p in enumerate(o.parts) if p.type == "mesh"]
+    return "  <asset>\n" + "\n".join(meshes) + "\n  </asset>" if meshes else ""
 
 
 def _euler_xyz_quat(euler: Sequence[float]) -> np.ndarray:
@@ -572,6 +624,7 @@ def build_scene(objects: Sequence[ObjectSpec | str] = (), shape: HandShape | Non
     <global offwidth="640" offheight="480"/>
   </visual>
 {_hand_defaults()}
+{_mesh_assets(specs)}
   <worldbody>
     <light pos="0 0 1.5" dir="0 0 -1" directional="true"/>
     <geom name="floor" type="plane" size="2 2 0.05" pos="0 0 -0.75" rgba="0.5 0.5 0.5 1"

@@ -12,6 +12,9 @@ Topics:
          target, rigidly following the operator's (smoothed) wrist
     out  control/hand_target (hand_msgs/HandPose, world): the hand's PD target, the tracked
          hand retargeted onto the scenario's planned grasp while closing and manipulating
+         (``grasp_source: synthesis``: onto the grasp synthesised for the object from the
+         operator's hand as closing begins, III.6; the synthesis takes a few hundred ms
+         once per grasp, the hand poses meanwhile wait in the queue)
     out  diagnostics (1 Hz: phase, rejected inputs per topic)
 Inputs pass :mod:`hand_capture.validate` (bad ones are counted and logged); a hand pose stamped
 more than ``future_stamp_tolerance`` (1 s) ahead of the node clock is rejected, and the phase
@@ -57,6 +60,10 @@ class GraspPhaseNodeConfig:
 
     scenario: str = param("lift_box", "scenario file (config/scenarios/<name>.yaml): the "
                           "object and its planned grasp (the same as the sim's)")
+    grasp_source: str = param(
+        "plan", "plan: the scenario's grasp | synthesis: the grasp synthesised for the object "
+        "from the operator's hand as closing begins (dissertation III.6)",
+        choices=("plan", "synthesis"))
     camera_position: tuple[float, ...] = param(
         (0.0, 0.0, 0.0), "camera optical centre in the world [m]")
     camera_rotation: tuple[float, ...] = param(
@@ -78,13 +85,22 @@ class GraspPhaseNode(Node):
         self.cfg = declare_config(self, GraspPhaseNodeConfig)
         phase_cfg = declare_config(self, PhaseConfig, prefix="phase.")
         ui_cfg = declare_config(self, InterfaceConfig)
-        runner = LockstepRunner(load_scenario(self.cfg.scenario))  # the sim's world and plan
+        spec = load_scenario(self.cfg.scenario)
+        runner = LockstepRunner(spec)  # the sim's world and plan
         pose = runner.world.object_pose(runner.obj.name)
         self.object_name = runner.obj.name
+        synthesizer = None
+        if self.cfg.grasp_source == "synthesis":
+            from hand_control.grasp.synthesis import PerformerSynthesizer, primitive_object
+            from hand_control.sim.lockstep import scenario_object
+
+            obj = scenario_object(spec) if spec.object_shape else primitive_object(runner.obj)
+            synthesizer = PerformerSynthesizer(obj, runner.obj.name)
         self.ui = PerformanceInterface(runner.plan.q_grasp,
                                        object_matrix(pose.position, pose.quaternion),
                                        phase_cfg, ui_cfg,
-                                       q_pregrasp=runner.plan.q_pregrasp)
+                                       q_pregrasp=runner.plan.q_pregrasp,
+                                       synthesizer=synthesizer, closing=runner.plan.closing)
         self.R_wc = rotvec_to_matrix(np.array(self.cfg.camera_rotation))
         self.t_wc = np.array(self.cfg.camera_position, dtype=float)
         self.object_T: np.ndarray | None = None

@@ -105,6 +105,12 @@ class GraspPlan:
             hand into the object, world frame at the object's initial pose.
         q_grasp, q_pregrasp: (27,) hand poses (JOINT_NAMES order).
         residual: (F,) IK distance of each fingertip pad to its target [m].
+        closing: (T, 27) a closing motion from ``q_pregrasp`` to ``q_grasp`` (a synthesised
+            grasp, ``hand_control.grasp``), played over the closing phase; ``None``: the
+            reference interpolates the two poses.
+        reaching: (M, 27) a reaching motion ending at ``q_pregrasp``, played over the reaching
+            phase (its first frame is the start pose); ``None``: from above, interpolated.
+        source: ``"ik"`` (this module) or what made the plan.
     """
 
     object_name: str
@@ -114,6 +120,9 @@ class GraspPlan:
     q_grasp: np.ndarray
     q_pregrasp: np.ndarray
     residual: np.ndarray
+    closing: np.ndarray | None = None
+    source: str = "ik"
+    reaching: np.ndarray | None = None
 
     def contact_set(self, mu: float) -> ContactSet:
         """The planned contacts with friction ``mu`` (for the feasibility LP)."""

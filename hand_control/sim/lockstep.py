@@ -38,6 +38,7 @@ from hand_control.control import (
     ControllerNodeConfig,
     joint_gains,
 )
+from hand_control.errors import ConfigError
 from hand_control.sim.config import SimConfig
 from hand_control.sim.contacts import ContactFrame
 from hand_control.sim.grasp import GraspPlan, plan_grasp
@@ -52,10 +53,29 @@ IMPACT_BALL = "impact_ball"
 _DEFAULT_SIZES = {"box": (0.0285, 0.0285, 0.0285), "ball": (0.035,), "cylinder": (0.03, 0.06)}
 
 
+_GRASP_OBJECTS: dict[tuple, object] = {}
+
+
+def scenario_object(spec: ScenarioSpec) -> object:
+    """The :class:`~hand_control.grasp.objects.GraspObject` of a scenario's ``object_shape``
+    (built once per shape, mass and friction: its distance field takes a second)."""
+    from hand_control.grasp.objects import parse_object
+
+    key = (spec.object_shape, spec.object_mass, spec.object_friction)
+    if key not in _GRASP_OBJECTS:
+        _GRASP_OBJECTS[key] = parse_object(spec.object_shape, spec.object_mass,
+                                           spec.object_friction, name="object")
+    return _GRASP_OBJECTS[key]
+
+
 def object_spec(spec: ScenarioSpec) -> tuple[ObjectSpec, tuple[float, ...]]:
     """The MJCF object of a scenario, resting on the table, and its size."""
-    size = tuple(spec.object_size) or _DEFAULT_SIZES[spec.object_kind]
     x, y = spec.object_xy
+    if spec.object_shape:
+        g = scenario_object(spec)
+        o = g.object_spec((x, y), spec.object_yaw)
+        return o, tuple(o.size)
+    size = tuple(spec.object_size) or _DEFAULT_SIZES[spec.object_kind]
     if spec.object_kind == "cylinder":  # the export's "stick" stood on its end
         o = ObjectSpec("stick", name="cylinder", size=size, mass=spec.object_mass,
                        friction=spec.object_friction, pos=(x, y, size[1] + 1e-4),
@@ -94,6 +114,43 @@ def build_world(spec: ScenarioSpec, config: SimConfig | None = None,
     return SimWorld(xml, config), obj, size
 
 
+def scenario_plan(spec: ScenarioSpec, world: SimWorld, obj: ObjectSpec,
+                  size: tuple[float, ...]) -> GraspPlan:
+    """The scenario's grasp: fingertip IK onto the object (or onto an ``object_shape``'s
+    primitive proxy), or grasp synthesis (``grasp_source: synthesis``, dissertation III.4).
+
+    Raises:
+        ConfigError: IK asked for an object without a primitive proxy.
+        SolverError: the IK or the synthesis found no grasp.
+    """
+    pose = world.object_pose(obj.name)
+    if spec.grasp_source == "synthesis":
+        from hand_control.grasp.synthesis import synthesize_for_world
+
+        g = scenario_object(spec) if spec.object_shape else None
+        return synthesize_for_world(spec, obj, g, pose.position, pose.quaternion)
+    if not spec.object_shape:
+        return plan_grasp(world.model, obj.name, obj.kind, size, pose.position,
+                          pose.quaternion, depth=spec.grasp_depth,
+                          upright_cylinder=spec.object_kind == "cylinder")
+    g = scenario_object(spec)
+    if g.ik_proxy is None:
+        raise ConfigError(f"scenario {spec.name}: the fingertip IK substitute has no "
+                          f"primitive layout for {spec.object_shape!r}; use grasp_source: "
+                          "synthesis")
+    kind, psize, offset = g.ik_proxy
+    centre = pose.position + _wxyz_matrix(pose.quaternion) @ np.asarray(offset)
+    return plan_grasp(world.model, obj.name, kind, psize, centre, pose.quaternion,
+                      depth=spec.grasp_depth, upright_cylinder=kind == "stick")
+
+
+def _wxyz_matrix(q: np.ndarray) -> np.ndarray:
+    from hand_capture.model.joints import quat_to_matrix
+
+    w, x, y, z = q
+    return quat_to_matrix((x, y, z, w))
+
+
 @dataclass
 class ControllerSetup:
     """What a controller of a scenario needs, built from the scenario's world (not stepped):
@@ -115,9 +172,7 @@ def controller_setup(spec: ScenarioSpec, sim_config: SimConfig | None = None,
     :class:`ControllerCore` on the world's kinematics (:class:`MujocoKinematics`)."""
     world, obj, size = build_world(spec, sim_config, gains)
     pose = world.object_pose(obj.name)
-    plan = plan or plan_grasp(
-        world.model, obj.name, obj.kind, size, pose.position, pose.quaternion,
-        depth=spec.grasp_depth, upright_cylinder=spec.object_kind == "cylinder")
+    plan = plan or scenario_plan(spec, world, obj, size)
     reference = Reference(spec, plan, pose.position, pose.quaternion)
     body = world.objects[obj.name]["body"]
     core = ControllerCore(
@@ -269,7 +324,7 @@ class LockstepRunner:
             p = self.world.object_pose(self.obj.name).position
             o = self.world.objects[IMPACT_BALL]
             d = self.world.data
-            top = self.size[2] if self.obj.kind == "box" else self.size[0] if \
+            top = self.size[2] if self.obj.kind in ("box", "composite") else self.size[0] if \
                 self.obj.kind == "ball" else self.size[1]
             d.qpos[o["qpos"]:o["qpos"] + 3] = p + np.array([0.0, 0.0, top + s.perturb_height
                                                              + s.perturb_radius])

@@ -51,6 +51,16 @@ class ScenarioSpec:
     object_size: tuple[float, ...] = param(
         (), "box half extents (3) | ball radius (1) | cylinder radius, half height (2) [m]; "
         "empty = the MJCF export's default", lo=0.005, hi=0.2)
+    object_shape: str = param(
+        "", "instead of object_kind: any object, a mesh file or KIND[:sizes] of "
+        "hand_control.grasp.objects (e.g. mug, bottle:0.03,0.08, torus, convex:3)")
+    object_yaw: float = param(0.0, "the object's turn about z on the table [rad]",
+                              lo=-math.pi, hi=math.pi)
+    grasp_source: str = param(
+        "ik", "ik: fingertip IK onto the object (box, ball, cylinder, or an object_shape's "
+        "primitive proxy) | synthesis: grasp synthesis from the grasp database (eq. III.4)",
+        choices=("ik", "synthesis"))
+    grip_mode: str = param("", "grip mode of the synthesis ('' = the best scoring one)")
     object_mass: float = param(0.2, "object mass [kg]", lo=0.005, hi=10.0)
     object_friction: float = param(0.75, "sliding friction of the object (seed 000 sec. 7.2)",
                                    lo=0.001, hi=3.0)
@@ -201,6 +211,8 @@ class Reference:
         self.quat0 = np.asarray(object_quaternion, dtype=np.float64).copy()
         self.q_start = plan.q_pregrasp.copy()
         self.q_start[2] += approach_height
+        if plan.reaching is not None:
+            self.q_start = np.asarray(plan.reaching[0], dtype=np.float64).copy()
         s = spec
         self.t_close0 = s.t_reach
         self.t_settle0 = self.t_close0 + s.t_close
@@ -220,7 +232,8 @@ class Reference:
         """Every sample is finite: true when the start pose, the grasp plan and the object's
         initial pose are (a validated spec; the samples interpolate between them)."""
         return all(bool(np.isfinite(np.asarray(a, dtype=np.float64)).all()) for a in (
-            self.q_start, self.plan.q_pregrasp, self.plan.q_grasp, self.p0, self.quat0))
+            self.q_start, self.plan.q_pregrasp, self.plan.q_grasp, self.p0, self.quat0,
+            *(m for m in (self.plan.closing, self.plan.reaching) if m is not None)))
 
     def precompute(self, dt: float, t0: float = 0.0, steps: int | None = None) -> None:
         """Tabulate the references at the times a simulation stepping by ``dt`` from ``t0``
@@ -259,10 +272,16 @@ class Reference:
         reach = t < self.t_close0
         close = ~reach & (t < self.t_settle0)
         hold = ~(reach | close)
-        a = _smooth_array(t[reach] / s.t_reach)[:, None]
-        q[reach] = (1 - a) * self.q_start + a * plan.q_pregrasp
-        a = _smooth_array((t[close] - self.t_close0) / s.t_close)[:, None]
-        q[close] = (1 - a) * plan.q_pregrasp + a * plan.q_grasp
+        if plan.reaching is not None:
+            q[reach] = self._motion_at(plan.reaching, t[reach] / s.t_reach)
+        else:
+            a = _smooth_array(t[reach] / s.t_reach)[:, None]
+            q[reach] = (1 - a) * self.q_start + a * plan.q_pregrasp
+        if plan.closing is not None:
+            q[close] = self._motion_at(plan.closing, (t[close] - self.t_close0) / s.t_close)
+        else:
+            a = _smooth_array((t[close] - self.t_close0) / s.t_close)[:, None]
+            q[close] = (1 - a) * plan.q_pregrasp + a * plan.q_grasp
         th = t[hold]
         if self._rotates:  # pouring: per-row (rotations), the scalar code itself
             rows = [self._sample(float(ti)) for ti in th.tolist()]
@@ -289,6 +308,15 @@ class Reference:
         for arr in (q, pos, quat, phase, grasp):
             arr.setflags(write=False)
         return q, pos, quat, phase, grasp
+
+    @staticmethod
+    def _motion_at(c: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """A plan's motion (reaching, closing) at phase fractions ``u`` (N,) in [0, 1],
+        (N, 27): linear interpolation between its frames (its own timing)."""
+        x = np.clip(u, 0.0, 1.0) * (len(c) - 1)
+        i0 = np.minimum(np.floor(x).astype(np.int64), len(c) - 2)
+        a = (x - i0)[:, None]
+        return (1 - a) * c[i0] + a * c[i0 + 1]
 
     @property
     def initial_pose(self) -> np.ndarray:
@@ -320,13 +348,20 @@ class Reference:
     def _sample(self, t: float) -> RefSample:
         s = self.spec
         if t < self.t_close0:
-            a = _smooth(t / s.t_reach)
-            q = (1 - a) * self.q_start + a * self.plan.q_pregrasp
+            if self.plan.reaching is not None:
+                q = self._motion_at(self.plan.reaching, np.array([t / s.t_reach]))[0]
+            else:
+                a = _smooth(t / s.t_reach)
+                q = (1 - a) * self.q_start + a * self.plan.q_pregrasp
             pos, quat = self.p0, self.quat0
             return RefSample("reaching", q, pos.copy(), quat.copy(), False)
         if t < self.t_settle0:
-            a = _smooth((t - self.t_close0) / s.t_close)
-            q = (1 - a) * self.plan.q_pregrasp + a * self.plan.q_grasp
+            if self.plan.closing is not None:
+                q = self._motion_at(self.plan.closing,
+                                    np.array([(t - self.t_close0) / s.t_close]))[0]
+            else:
+                a = _smooth((t - self.t_close0) / s.t_close)
+                q = (1 - a) * self.plan.q_pregrasp + a * self.plan.q_grasp
             return RefSample("closing", q, self.p0.copy(), self.quat0.copy(), False)
         pos, quat = self.object_target(t)
         # the wrist follows the object target rigidly (rotation about the object's centre)

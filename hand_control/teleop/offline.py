@@ -13,7 +13,9 @@ without DDS, for tests and offline evaluation of a recorded or generated perform
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -38,11 +40,14 @@ class TeleopResult:
 
 def run_teleop(runner: LockstepRunner, times: np.ndarray, poses: np.ndarray,
                phase_config: PhaseConfig | None = None,
-               config: InterfaceConfig | None = None, model: HandModel | None = None
+               config: InterfaceConfig | None = None, model: HandModel | None = None,
+               synthesizer: Callable[[np.ndarray, np.ndarray], Any] | None = None
                ) -> TeleopResult:
     """Drive ``runner``'s world with world-frame hand ``poses`` (T, 27) at ``times`` (T,) [s].
 
     The simulation starts with the hand at ``poses[0]`` and runs until ``times[-1]``.
+    ``synthesizer``: the grasp synthesised from the operator's hand as closing begins (III.6,
+    :class:`~hand_control.grasp.synthesis.PerformerSynthesizer`) instead of the runner's plan.
     """
     w, core = runner.world, runner.core
     model = model or HandModel()
@@ -54,7 +59,8 @@ def run_teleop(runner: LockstepRunner, times: np.ndarray, poses: np.ndarray,
     op = w.object_pose(name)
     p0 = op.position.copy()
     ui = PerformanceInterface(runner.plan.q_grasp, object_matrix(op.position, op.quaternion),
-                              phase_config, config, model, q_pregrasp=runner.plan.q_pregrasp)
+                              phase_config, config, model, q_pregrasp=runner.plan.q_pregrasp,
+                              synthesizer=synthesizer, closing=runner.plan.closing)
     phases, objs = [], []
     k, dt = 0, w.model.opt.timestep
     n = int(round(times[-1] / dt))

@@ -3,9 +3,13 @@
 The dissertation (III.6) notes that tracked fingers miss or penetrate the virtual object, since
 the operator performs without it, and that driving the physics-based controller directly with
 the tracked closing motion fails. It therefore replaces the tracked *closing* motion by a
-grasp synthesised to fit the object (its kinematic synthesis of III.4, a motion database we do
-not have). Our substitute for that synthesis is the grasp planned by fingertip inverse
-kinematics onto the object's surface (:func:`hand_control.sim.grasp.plan_grasp`):
+grasp synthesised to fit the object (its kinematic synthesis of III.4). Given a
+``synthesizer`` (:class:`hand_control.grasp.synthesis.PerformerSynthesizer`), the interface
+does that as closing begins: the closing motion synthesised for the object from the
+operator's hand (wrist and approach direction as the control term) replaces the plan, and its
+closing motion is played as the grip closes. Without one, the grasp is the scenario's plan
+(fingertip inverse kinematics onto the object's surface,
+:func:`hand_control.sim.grasp.plan_grasp`, or a scenario's synthesised grasp):
 
 * reaching, releasing: the target is the tracked hand;
 * closing: the target goes from the tracked hand to the planned grasp (fixed to the object)
@@ -22,7 +26,10 @@ kinematics onto the object's surface (:func:`hand_control.sim.grasp.plan_grasp`)
 
 from __future__ import annotations
 
+from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -116,19 +123,43 @@ class GraspRetarget:
 
     def __init__(self, q_grasp: np.ndarray, object_pose: np.ndarray,
                  model: HandModel | None = None, q_pregrasp: np.ndarray | None = None,
-                 closing_span: float | None = None) -> None:
+                 closing_span: float | None = None, closing: np.ndarray | None = None
+                 ) -> None:
         self.model = model or HandModel()
-        self.q_grasp = np.array(q_grasp, dtype=np.float64)
-        self.q_pregrasp = self.q_grasp if q_pregrasp is None \
-            else np.array(q_pregrasp, dtype=np.float64)
         self.closing_span = closing_span
-        # the planned wrist in the object's frame: the grasp stays fixed to the object
-        self._wrist_in_object = np.linalg.inv(object_pose) @ pose_matrix(self.q_grasp)
-        self.grip_grasp = float(grip_size(self.model.joint_positions(self.q_grasp)))
+        self.replan(q_grasp, object_pose, q_pregrasp, closing)
         self._phase = Phase.REACHING
         self._grip_open = self.grip_grasp
         self._T_op0 = np.eye(4)
         self._T_plan0 = np.eye(4)
+
+    def replan(self, q_grasp: np.ndarray, object_pose: np.ndarray,
+               q_pregrasp: np.ndarray | None = None, closing: np.ndarray | None = None
+               ) -> None:
+        """Use another grasp (world, for the object at ``object_pose``): e.g. one synthesised
+        for the operator's hand as closing begins (III.6). ``closing``: (T, 27) its closing
+        motion from ``q_pregrasp`` to ``q_grasp``, played as the operator's grip closes."""
+        self.q_grasp = np.array(q_grasp, dtype=np.float64)
+        self.q_pregrasp = self.q_grasp if q_pregrasp is None \
+            else np.array(q_pregrasp, dtype=np.float64)
+        inv = np.linalg.inv(object_pose)
+        # the planned wrists in the object's frame: the grasp stays fixed to the object
+        self._wrist_in_object = inv @ pose_matrix(self.q_grasp)
+        self._closing = None if closing is None else np.array(closing, dtype=np.float64)
+        if self._closing is not None:
+            self.q_pregrasp = self._closing[0].copy()
+            self._closing_wrists = np.array([inv @ pose_matrix(q) for q in self._closing])
+        self.grip_grasp = float(grip_size(self.model.joint_positions(self.q_grasp)))
+
+    def _closing_target(self, u: float, object_pose: np.ndarray) -> np.ndarray:
+        """The closing motion at fraction ``u``, its wrists following the object."""
+        c = self._closing
+        x = min(max(u, 0.0), 1.0) * (len(c) - 1)
+        i = min(int(x), len(c) - 2)
+        a = x - i
+        q = (1 - a) * c[i] + a * c[i + 1]
+        T = _blend(self._closing_wrists[i], self._closing_wrists[i + 1], a)
+        return pose_with_wrist(q, object_pose @ T)
 
     def progress(self, grip: float) -> float:
         """Closing progress in [0, 1] of the operator's grip size [m]."""
@@ -160,6 +191,13 @@ class GraspRetarget:
             self._phase = phase
         if phase == Phase.CLOSING:
             s = self.progress(grip)
+            if self._closing is not None:  # a closing motion: to its start, then play it
+                T_start = object_pose @ self._closing_wrists[0]
+                if s < 0.5:
+                    u = 2.0 * s
+                    q = (1 - u) * np.asarray(q_op, dtype=np.float64) + u * self.q_pregrasp
+                    return pose_with_wrist(q, _blend(T_op, T_start, u))
+                return self._closing_target(2.0 * s - 1.0, object_pose)
             if s < 0.5:  # wrist to the plan's, fingers to the open pre-grasp
                 u = 2.0 * s
                 q = (1 - u) * np.asarray(q_op, dtype=np.float64) + u * self.q_pregrasp
@@ -201,19 +239,31 @@ class PerformanceInterface:
     Args:
         q_grasp: (27,) the planned grasp (world) for the object at ``object_pose`` (4, 4).
         q_pregrasp: (27,) the plan's open pre-grasp (see :class:`GraspRetarget`).
+        synthesizer: ``(recent tracked poses (n, 27) world, object pose (4, 4)) -> plan or
+            None``, called as closing begins: the grasp synthesised for the object from the
+            operator's hand (III.6; ``hand_control.grasp.synthesis.PerformerSynthesizer``)
+            replaces the given one (a plan with ``q_grasp``, ``q_pregrasp``, ``closing``).
+        closing: (T, 27) the given grasp's closing motion (world), if it has one.
     """
 
     def __init__(self, q_grasp: np.ndarray, object_pose: np.ndarray,
                  phase_config: PhaseConfig | None = None,
                  config: InterfaceConfig | None = None, model: HandModel | None = None,
-                 q_pregrasp: np.ndarray | None = None) -> None:
+                 q_pregrasp: np.ndarray | None = None,
+                 synthesizer: Callable[[np.ndarray, np.ndarray], Any] | None = None,
+                 closing: np.ndarray | None = None) -> None:
         self.config = config or InterfaceConfig()
         self.model = model or HandModel()
         self.detector = GraspPhaseDetector(phase_config)
         self.filter = WristFilter(self.config.wrist_cutoff)
         # the progress completes with the closing the detector needs to see a grasp
         self.retarget = GraspRetarget(q_grasp, object_pose, self.model, q_pregrasp,
-                                      closing_span=self.detector.cfg.close_decrease)
+                                      closing_span=self.detector.cfg.close_decrease,
+                                      closing=closing)
+        self.synthesizer = synthesizer
+        self._recent: deque[np.ndarray] = deque(maxlen=15)
+        self._last_phase = Phase.REACHING
+        self.synthesized = 0  # grasps synthesised for the operator's hand
 
     def update(self, t: float, q_op: np.ndarray, object_pose: np.ndarray) -> InterfaceStep:
         """Advance with the operator's pose ``q_op`` (27,) at ``t`` [s] and the object's pose.
@@ -228,4 +278,13 @@ class PerformanceInterface:
         kp = self.model.joint_positions(q)
         grip = float(grip_size(kp))
         up = self.detector.update(t, kp, T_op, object_pose, raw_grip=grip)
+        self._recent.append(pose_with_wrist(q, T_op))
+        if up.phase == Phase.CLOSING and self._last_phase != Phase.CLOSING \
+                and self.synthesizer is not None:
+            # III.6: the closing motion synthesised for the object from the operator's hand
+            plan = self.synthesizer(np.array(self._recent), object_pose)
+            if plan is not None:
+                self.retarget.replan(plan.q_grasp, object_pose, plan.q_pregrasp, plan.closing)
+                self.synthesized += 1
+        self._last_phase = up.phase
         return InterfaceStep(up, self.retarget.target(q, T_op, up.phase, object_pose, grip))
