@@ -303,3 +303,21 @@ def test_grasp_command_writes_and_plays_a_grasp(tmp_path, capsys) -> None:
     # a bad object is a clear error (exit code 2), not a traceback
     assert main(["grasp", str(tmp_path / "missing.stl")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_reaching_and_manipulation_paths_meet_their_ends() -> None:
+    """III.4.2 / III.4.3: the database example nearest to the boundary, edited by III.17."""
+    from hand_control.grasp import load_grasp_database
+    from hand_control.grasp.synthesis import manipulation_path, reaching_motion
+
+    records = load_grasp_database()
+    closing = records[0].closing
+    q0 = closing[0].copy()
+    q0[0:3] += (-0.05, 0.0, 0.04)
+    reach = reaching_motion(records, q0, closing, frames=25)
+    assert reach.shape == (25, N_DOF)
+    assert np.allclose(reach[0], q0, atol=2e-3) and np.allclose(reach[-1], closing[0], atol=2e-3)
+    path = manipulation_path(records, np.zeros(3), np.array([0.0, 0.1, 0.12]), frames=40)
+    assert path.shape == (40, 3)
+    assert np.allclose(path[0], 0.0, atol=2e-3)
+    assert np.allclose(path[-1], [0.0, 0.1, 0.12], atol=2e-3)
