@@ -265,28 +265,6 @@ def test_teleop_grasps_a_stone_with_the_grasp_synthesised_from_the_operators_han
     assert res.max_lift_mm > 70.0 and res.carried_mm > 70.0
 
 
-@pytest.mark.slow
-def test_teleop_graph_lifts_a_stone_with_the_grasp_synthesised_from_tracked_input(
-        tmp_path) -> None:
-    """The teleop graph with the tracker in the loop on config/teleop_stone.yaml: the box's
-    performance (not made for the stone), the grasp synthesised for the stone from the tracked
-    hand as closing begins (III.6); the stone leaves the table (bound as the box's graph test:
-    20 mm; a quiet run lifted it 88 mm)."""
-    from ros_helpers import hand_suite
-
-    from hand_control.report.series import load_bag, max_lift_mm, positions
-
-    p = hand_suite("run", "teleop", "--params", "config/teleop_stone.yaml", "-p",
-                   f"bag_recorder.output:={tmp_path}/bag")
-    out, _ = p.communicate(timeout=300)
-    assert p.returncode == 0, out[-5000:]
-    assert "scenario 'teleop_stone'" in out and "grasp phase: manipulation" in out, out[-5000:]
-    data = load_bag(tmp_path / "bag", skip=("camera/depth/image_raw", "hand/markers",
-                                            "control/contact_markers"))
-    lift = max_lift_mm(positions(data.topics["sim/object_pose"].msgs))
-    assert lift > 20.0, (lift, out[-4000:])
-
-
 def test_grasp_command_writes_and_plays_a_grasp(tmp_path, capsys) -> None:
     """``hand-suite grasp OBJECT -o OUT --play``: the motion file, the lift in simulation."""
     from hand_control.cli import main
