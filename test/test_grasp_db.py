@@ -100,6 +100,10 @@ def test_time_warps_of_the_model_stay_monotonic(model) -> None:
     assert (h[:, 0] == 0).all()
     d = m.decode(params[:5])
     assert d.shape == (5, m.n_frames, N_DOF) and np.isfinite(d).all()
+    # absurd parameters (a swarm can fly anywhere): still a finite motion, increasing warp
+    wild = np.array([np.full(m.n_params, 60.0), np.full(m.n_params, -60.0)])
+    assert np.isfinite(m.decode(wild)).all()
+    assert (np.diff(m.warp(wild), axis=1) > 0).all()
 
 
 def test_model_reproduces_its_training_motions(model) -> None:
@@ -241,6 +245,8 @@ def test_train_grasps_quick_is_reproducible(tmp_path) -> None:
     for ra, rb in zip(da, db, strict=True):
         np.testing.assert_array_equal(ra.motion, rb.motion)
         assert ra.contacts == rb.contacts and ra.phases == rb.phases
+    for f in ("database.npz", "closing_thumb_index.npz"):  # the very same files
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes()
     ma, mb = (load_grasp_models(tmp_path / x)["thumb_index"] for x in "ab")
     np.testing.assert_array_equal(ma.p_basis, mb.p_basis)
     np.testing.assert_array_equal(ma.gmm_means, mb.gmm_means)

@@ -39,6 +39,9 @@ FEATURE_SCALE: np.ndarray = np.r_[np.full(3, 10.0), np.ones(N_DOF - 3)]
 FEATURE_SCALE.setflags(write=False)
 
 _LOG_2PI = math.log(2.0 * math.pi)
+#: log increments of a warp are clipped to this range (no underflow to a zero increment, no
+#: overflow): every decoded warp stays strictly increasing, far outside the data too
+_LOG_INC_RANGE = (-12.0, 12.0)
 
 
 def resample(motion: np.ndarray, n: int) -> np.ndarray:
@@ -152,7 +155,7 @@ class ClosingModel:
         increasing for every parameter vector."""
         p = self._params(params)
         g = p[..., self.n_alpha:]
-        inc = np.exp(self.b0 + g @ self.b_basis.T)
+        inc = np.exp(np.clip(self.b0 + g @ self.b_basis.T, *_LOG_INC_RANGE))
         zeros = np.zeros(p.shape[:-1] + (1,))
         return np.concatenate([zeros, np.cumsum(inc, axis=-1)], axis=-1)
 
@@ -181,7 +184,9 @@ class ClosingModel:
         k = np.clip(k - np.arange(n)[:, None] * t, 1, t - 1)
         rows = np.arange(n)[:, None]
         h0, h1 = h[rows, k - 1], h[rows, k]
-        a = np.clip((s - h0) / (h1 - h0), 0.0, 1.0)[..., None]
+        dh = h1 - h0
+        a = np.clip(np.divide(s - h0, dh, out=np.zeros_like(dh), where=dh > 0), 0.0, 1.0)
+        a = a[..., None]
         c0 = canon[rows, k - 1]
         out = c0 + a * (canon[rows, k] - c0)
         return out[0] if one else out
@@ -298,7 +303,7 @@ def warp_params(w: np.ndarray, b0: np.ndarray, b_basis: np.ndarray, iterations: 
     target = np.asarray(w, dtype=np.float64)[1:]
 
     def resid(gg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        inc = np.exp(np.minimum(b0 + b_basis @ gg, 50.0))
+        inc = np.exp(np.clip(b0 + b_basis @ gg, *_LOG_INC_RANGE))
         return np.cumsum(inc) - target, inc
 
     r, inc = resid(g)

@@ -27,6 +27,7 @@ import numpy as np
 from hand_capture.model.joints import N_DOF, root_angles_from_matrix, root_rotation_matrix
 from hand_capture.paths import data_dir
 from hand_control.errors import InputError
+from hand_control.grasp.closing import ClosingModel
 
 __all__ = ["DATABASE_FILE", "GRIP_CONTACT_FINGERS", "GRIP_MODES", "GraspRecord",
            "default_grasp_dir", "from_object_frame", "load_grasp_database", "load_grasp_models",
@@ -249,7 +250,7 @@ def model_file(grip_mode: str) -> str:
     return f"closing_{grip_mode}.npz"
 
 
-def load_grasp_models(path: str | Path | None = None):  # -> dict[str, ClosingModel]
+def load_grasp_models(path: str | Path | None = None) -> dict[str, ClosingModel]:
     """The closing-phase model of every grip mode found in ``path`` (a folder of
     ``closing_<mode>.npz``; default: the shipped ``data/grasp``), by grip mode, in
     :data:`GRIP_MODES` order.
@@ -257,8 +258,6 @@ def load_grasp_models(path: str | Path | None = None):  # -> dict[str, ClosingMo
     Raises:
         InputError: no model in the folder (run ``hand-suite train grasps``).
     """
-    from hand_control.grasp.closing import ClosingModel
-
     d = Path(path) if path is not None else default_grasp_dir()
     models = {g: ClosingModel.load(d / model_file(g)) for g in GRIP_MODES
               if (d / model_file(g)).is_file()}

@@ -13,9 +13,11 @@
    their reconstruction error on the training motions and, leave-one-out, on demonstrations
    each model was not fitted to.
 
-Same seed, same database and models (every random draw is seeded; the arrays are equal, the
-zip containers' time stamps are not). ``--quick`` builds a small one (4 demonstrations per
-mode) in a few minutes; the shipped one is the default (12 per mode, at most 60 attempts).
+Same seed, same database and model files, byte for byte (every random draw is seeded; numpy
+writes fixed time stamps into the ``.npz`` containers). ``--quick`` builds a small one (4
+demonstrations per mode, about 2 min) into ``out/grasp_quick`` unless ``--out`` is given,
+leaving the shipped one alone; the shipped one is the default (12 per mode, at most 60
+attempts).
 """
 
 from __future__ import annotations
@@ -118,8 +120,10 @@ def held_out_error(records: list[GraspRecord], seed: int = 0) -> dict[str, float
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="hand-suite train grasps", description=__doc__.split(
         "\n")[0])
-    ap.add_argument("--quick", action="store_true", help="a small database (4 per mode)")
-    ap.add_argument("--out", type=Path, default=None, help="output folder (data/grasp)")
+    ap.add_argument("--quick", action="store_true",
+                    help="a small database (4 per mode), by default into out/grasp_quick")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="output folder (default: the shipped data/grasp)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--demos", type=int, default=None, help="demonstrations per grip mode")
     ap.add_argument("--attempts", type=int, default=None, help="attempts per grip mode")
@@ -132,7 +136,9 @@ def main(argv: list[str] | None = None) -> int:
     demos = a.demos or (4 if a.quick else 12)
     attempts = a.attempts or 5 * demos
     cfg = GenConfig(demos_per_mode=demos, max_attempts=attempts, seed=a.seed)
-    out = a.out or default_grasp_dir()
+    # --quick builds a small database: it never replaces the shipped one unless --out says so
+    out = a.out or (Path("out") / "grasp_quick" if a.quick else default_grasp_dir())
+    print(f"writing {out}", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     reasons: dict[str, list[str]] = {}
