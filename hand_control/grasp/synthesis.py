@@ -763,7 +763,9 @@ class PerformerSynthesizer:
                  config: SynthesisConfig | None = None, grip_mode: str | None = None) -> None:
         self.obj, self.name = obj, object_name
         self.models = models if models is not None else grasp_models()
-        self.config = config or SynthesisConfig(reaching_frames=0)
+        # online, inside the closing phase: no reaching motion, no second run (the tracked
+        # poses wait while it runs; a smaller swarm found no feasible grasp of teleop_stone)
+        self.config = config or SynthesisConfig(retries=0, reaching_frames=0)
         self.grip_mode = grip_mode
         self.last: SynthesisResult | None = None
 

@@ -216,6 +216,10 @@ class InterfaceConfig:
 
     wrist_cutoff: float = param(3.0, "low-pass cutoff of the operator's wrist [Hz]; 0 = off",
                                 lo=0.0, hi=100.0)
+    synthesis_lead: float = param(
+        0.04, "with a grasp synthesiser: the grasp is synthesised once the palm comes within "
+        "the closing distance (phase.reach_distance) plus this of the object [m], so it is "
+        "ready when closing begins", lo=0.0, hi=0.5)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -240,9 +244,11 @@ class PerformanceInterface:
         q_grasp: (27,) the planned grasp (world) for the object at ``object_pose`` (4, 4).
         q_pregrasp: (27,) the plan's open pre-grasp (see :class:`GraspRetarget`).
         synthesizer: ``(recent tracked poses (n, 27) world, object pose (4, 4)) -> plan or
-            None``, called as closing begins: the grasp synthesised for the object from the
-            operator's hand (III.6; ``hand_control.grasp.synthesis.PerformerSynthesizer``)
-            replaces the given one (a plan with ``q_grasp``, ``q_pregrasp``, ``closing``).
+            None``, called once per approach as the palm comes within ``reach_distance +
+            synthesis_lead`` of the object (or as closing begins): the grasp synthesised for
+            the object from the operator's hand (III.6;
+            ``hand_control.grasp.synthesis.PerformerSynthesizer``) replaces the given one (a
+            plan with ``q_grasp``, ``q_pregrasp``, ``closing``).
         closing: (T, 27) the given grasp's closing motion (world), if it has one.
     """
 
@@ -263,6 +269,7 @@ class PerformanceInterface:
         self.synthesizer = synthesizer
         self._recent: deque[np.ndarray] = deque(maxlen=15)
         self._last_phase = Phase.REACHING
+        self._planned = False
         self.synthesized = 0  # grasps synthesised for the operator's hand
 
     def update(self, t: float, q_op: np.ndarray, object_pose: np.ndarray) -> InterfaceStep:
@@ -279,12 +286,19 @@ class PerformanceInterface:
         grip = float(grip_size(kp))
         up = self.detector.update(t, kp, T_op, object_pose, raw_grip=grip)
         self._recent.append(pose_with_wrist(q, T_op))
-        if up.phase == Phase.CLOSING and self._last_phase != Phase.CLOSING \
-                and self.synthesizer is not None:
-            # III.6: the closing motion synthesised for the object from the operator's hand
-            plan = self.synthesizer(np.array(self._recent), object_pose)
-            if plan is not None:
-                self.retarget.replan(plan.q_grasp, object_pose, plan.q_pregrasp, plan.closing)
-                self.synthesized += 1
+        if self.synthesizer is not None:
+            if up.phase == Phase.REACHING and self._last_phase != Phase.REACHING:
+                self._planned = False  # a new approach: a new grasp
+            near = up.distance < self.detector.cfg.reach_distance + self.config.synthesis_lead
+            if not self._planned and (up.phase == Phase.CLOSING or (
+                    up.phase == Phase.REACHING and near)):
+                # III.6: the closing motion synthesised for the object from the operator's
+                # hand, as the hand comes near (ready when closing begins)
+                self._planned = True
+                plan = self.synthesizer(np.array(self._recent), object_pose)
+                if plan is not None:
+                    self.retarget.replan(plan.q_grasp, object_pose, plan.q_pregrasp,
+                                         plan.closing)
+                    self.synthesized += 1
         self._last_phase = up.phase
         return InterfaceStep(up, self.retarget.target(q, T_op, up.phase, object_pose, grip))
