@@ -42,8 +42,8 @@ from hand_capture.errors import BagError, ConfigError, InputError
 from hand_capture.model.joints import ARTICULATED_JOINTS, JOINT_NAMES
 from hand_control.physcap.capture import CapturedObject, PhysCapConfig, PhysCapResult
 
-__all__ = ["OUTPUT_TOPICS", "RESULT_FORMAT", "ResultFiles", "read_result", "result_files",
-           "results_equal", "write_result", "write_result_bag", "write_result_npz"]
+__all__ = ["OUTPUT_TOPICS", "RESULT_FORMAT", "ResultFiles", "read_result", "replay_match",
+           "result_files", "results_equal", "write_result", "write_result_bag", "write_result_npz"]
 
 RESULT_FORMAT = "hand_suite.physcap.result/1"
 #: topic -> message type of a result bag
@@ -270,3 +270,39 @@ def write_result(result: PhysCapResult, root: str | Path) -> ResultFiles:
         {"kind": o.kind, "size": [float(s) for s in o.size], "mass": float(o.mass),
          "friction": float(o.friction), "mesh": o.mesh}, sort_keys=False))
     return files
+
+
+def replay_match(result: PhysCapResult, tolerance_m: float = 1e-3, *,
+                 mass: float | None = None, friction: float | None = None) -> dict[str, Any]:
+    """Re-simulate a saved result's control (its PD and object targets, from its first
+    state) and compare the motion with the saved one (``hand-suite physcap replay``).
+
+    Args:
+        result: a result (e.g. from :func:`read_result`).
+        tolerance_m: the largest object position / hand root deviation of a match [m].
+        mass, friction: replay with another object mass [kg] / friction (retargeting).
+
+    Returns:
+        ``object_max_dev_mm``, ``hand_root_max_dev_mm``, ``finger_max_dev_rad``,
+        ``object_final_dev_mm``, ``diverged`` (bool), ``match`` (bool), ``steps``.
+    """
+    from hand_control.physcap.optimise import replay_control
+
+    hand, obj, ok = replay_control(result.obj, result.hand_q[0], result.object_pose[0],
+                                   result.targets, result.object_targets, result.config,
+                                   mass=mass, friction=friction)
+    fin = np.isfinite(obj).all(axis=1) & np.isfinite(hand).all(axis=1)
+    n = int(fin.sum())
+    d_obj = np.linalg.norm(obj[fin, :3] - result.object_pose[fin, :3], axis=1)
+    d_root = np.linalg.norm(hand[fin, :3] - result.hand_q[fin, :3], axis=1)
+    d_fing = np.abs(hand[fin, 6:] - result.hand_q[fin, 6:])
+    diverged = not bool(np.all(ok)) or n < len(obj)
+    out = {"steps": int(len(result.targets)),
+           "object_max_dev_mm": float(d_obj.max() * 1e3) if n else float("nan"),
+           "object_final_dev_mm": float(d_obj[-1] * 1e3) if n else float("nan"),
+           "hand_root_max_dev_mm": float(d_root.max() * 1e3) if n else float("nan"),
+           "finger_max_dev_rad": float(d_fing.max()) if n else float("nan"),
+           "diverged": diverged}
+    out["match"] = bool(not diverged and out["object_max_dev_mm"] <= tolerance_m * 1e3
+                        and out["hand_root_max_dev_mm"] <= tolerance_m * 1e3)
+    return out
