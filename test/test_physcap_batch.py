@@ -394,3 +394,12 @@ def test_cli_run_info_replay(archive, tmp_path, capsys):
     # the output folder is never written over
     assert main(["physcap", "run", str(archive), "-o", str(out), "--workers", "0",
                  "--config", str(cfg), "--no-progress"]) == 2
+
+
+def test_unreachable_scheduler_is_a_clear_error(archive, tmp_path, capsys):
+    from hand_control.cli import main
+
+    rc = main(["physcap", "run", str(archive), "-o", str(tmp_path / "o"), "--scheduler",
+               "tcp://127.0.0.1:1", "--connect-timeout", "1", "--no-progress"])
+    assert rc == 2
+    assert "cannot start Dask on tcp://127.0.0.1:1" in capsys.readouterr().err

@@ -459,10 +459,10 @@ def _run_dask(jobs: dict[str, CaptureJob], frames: dict[str, int],
                 batch_done = ac.next_batch(block=False) if ac.has_ready() else []
                 for fut in batch_done:
                     name = futures[fut]
-                    if fut.status == "finished":
+                    try:  # (a task its dead worker lost is recomputed: result() waits)
                         o = fut.result()
-                    else:  # the task raised outside process_capture or its worker died
-                        exc = fut.exception()
+                    except Exception as exc:  # raised outside process_capture, or every
+                        # worker that tried it died (KilledWorker)
                         o = CaptureOutcome(name, "failed", f"{type(exc).__name__}: {exc}",
                                            seed=jobs[name].seeded_config.seed)
                     outcomes[name] = _finish(o, out, batch.write)
@@ -513,8 +513,12 @@ def measure_dask_speedup(captures: Sequence[Capture | str | Path], config: PhysC
 
     Returns:
         ``dask_1w_s``, ``dask_2w_s`` [s], ``dask_speedup_2w`` (1-worker time / 2-worker
-        time), ``dask_identical`` (bool), ``dask_captures``, ``dask_failed`` (names).
+        time), ``dask_identical`` (bool), ``dask_captures``, ``dask_failed`` (names),
+        ``dask_1w_task_s`` / ``dask_2w_task_s`` (sum of the tasks' own wall times [s]: when
+        the 2-worker sum grows, the workers shared CPUs with other load), ``load_avg_1min``
+        (this machine's load when the measurement began).
     """
+    import os
     import shutil
     import tempfile
 
@@ -525,6 +529,7 @@ def measure_dask_speedup(captures: Sequence[Capture | str | Path], config: PhysC
     if len(items) < 2:
         raise InputError("measure_dask_speedup needs at least 2 captures")
     tmp = Path(tempfile.mkdtemp(prefix="physcap_dask_", dir=workdir))
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     try:
         arch = tmp / "archive"
         arch.mkdir()
@@ -553,6 +558,9 @@ def measure_dask_speedup(captures: Sequence[Capture | str | Path], config: PhysC
         return {"dask_1w_s": times[1], "dask_2w_s": times[2],
                 "dask_speedup_2w": times[1] / times[2] if times[2] > 0 else None,
                 "dask_identical": bool(identical), "dask_captures": len(entries),
-                "dask_failed": [o.name for o in results[2].outcomes if not o.ok]}
+                "dask_failed": [o.name for o in results[2].outcomes if not o.ok],
+                "dask_1w_task_s": sum(o.seconds for o in results[1].outcomes),
+                "dask_2w_task_s": sum(o.seconds for o in results[2].outcomes),
+                "load_avg_1min": load}
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

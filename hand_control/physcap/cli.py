@@ -33,6 +33,8 @@ def add_parser(sub: Any) -> None:
     r.add_argument("--threads-per-worker", type=int, default=1)
     r.add_argument("--scheduler", default="", help="existing Dask scheduler, e.g. "
                    "tcp://HOST:8786 (the archive must be at the same path on its workers)")
+    r.add_argument("--connect-timeout", type=float, default=30.0,
+                   help="seconds to wait for --scheduler")
     r.add_argument("--quick", action="store_true",
                    help=f"{QUICK_SAMPLES} samples per step instead of the paper's 1500")
     r.add_argument("--object", default=None, metavar="FILE",
@@ -97,7 +99,8 @@ def _run(a: argparse.Namespace) -> int:
 
     cfg = _config(a)
     batch = BatchConfig(workers=a.workers, threads_per_worker=a.threads_per_worker,
-                        scheduler=a.scheduler, progress=not a.no_progress)
+                        scheduler=a.scheduler, progress=not a.no_progress,
+                        connect_timeout=a.connect_timeout)
     arch = ArchiveConfig() if a.min_frames is None else ArchiveConfig(min_frames=a.min_frames)
     old = signal.signal(signal.SIGTERM, _on_sigterm)  # a kill closes the cluster like Ctrl-C
     try:
