@@ -249,6 +249,12 @@ class PhysCapConfig:
                               "configurations", lo=0, hi=12)
     seed_fraction: float = param(0.75, "share of the samples drawn around contact seeds "
                                  "(the rest around the reference)", lo=0.0, hi=1.0)
+    smoothing: int = param(2, "the sampling centres come from the reference averaged over "
+                           "+-this many frames (a tracker's per-frame jitter shakes a grasp "
+                           "loose); the cost uses the capture as it is", lo=0, hi=20)
+    carry_fraction: float = param(0.5, "share of the samples centred on the reference plus "
+                                  "their parent's correction of the previous step (at half "
+                                  "width): a correction found once is kept", lo=0.0, hi=1.0)
     success_tolerance: float = param(0.03, "the object reaches its goal when its final "
                                      "position is this close to the capture's [m]", lo=0.001)
     drop_tolerance: float = param(0.03, "the object counts as dropped when it falls this "
