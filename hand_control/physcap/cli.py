@@ -1,0 +1,171 @@
+"""``hand-suite physcap run | info | replay`` (registered by :mod:`hand_control.cli`).
+
+    hand-suite physcap run ARCHIVE_DIR -o OUT [--workers N | --scheduler tcp://HOST:8786]
+                           [--quick] [--object FILE] [--config FILE] [--samples N] [--seed S]
+    hand-suite physcap info ARCHIVE_DIR | RESULT_DIR | FILE.npz
+    hand-suite physcap replay RESULT_DIR [--tolerance-mm MM]
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+from hand_capture.errors import InputError
+
+#: ``--quick``: fewer samples per step (the bench's quick setting for the batch)
+QUICK_SAMPLES, QUICK_KEEP = 200, 40
+
+
+def add_parser(sub: Any) -> None:
+    """Add the ``physcap`` command to the ``hand-suite`` sub-parsers."""
+    ph = sub.add_parser("physcap", help="physics-based capture: optimise captures (batch on "
+                        "Dask), inspect, replay")
+    act = ph.add_subparsers(dest="physcap_action", required=True)
+    r = act.add_parser("run", help="optimise every capture of an archive folder")
+    r.add_argument("archive", help="folder of captures (*.npz, bag folders, *.mcap)")
+    r.add_argument("-o", "--output", required=True, help="results folder (one per capture)")
+    r.add_argument("--workers", type=int, default=2,
+                   help="local Dask worker processes (0 = serial in this process)")
+    r.add_argument("--threads-per-worker", type=int, default=1)
+    r.add_argument("--scheduler", default="", help="existing Dask scheduler, e.g. "
+                   "tcp://HOST:8786 (the archive must be at the same path on its workers)")
+    r.add_argument("--connect-timeout", type=float, default=30.0,
+                   help="seconds to wait for --scheduler")
+    r.add_argument("--quick", action="store_true",
+                   help=f"{QUICK_SAMPLES} samples per step instead of the paper's 1500")
+    r.add_argument("--object", default=None, metavar="FILE",
+                   help="object properties (YAML) for bags without a sidecar or metadata")
+    r.add_argument("--config", default=None, metavar="FILE",
+                   help="PhysCapConfig keys (flat YAML mapping)")
+    r.add_argument("--samples", type=int, default=None, help="samples per step")
+    r.add_argument("--seed", type=int, default=None, help="base seed (per capture: derived "
+                   "from it and the capture's name)")
+    r.add_argument("--min-frames", type=int, default=None, help="fewest frames a capture "
+                   "may have")
+    r.add_argument("--no-progress", action="store_true", help="no progress bars")
+    i = act.add_parser("info", help="list an archive (status of every capture) or show a "
+                       "result or capture file")
+    i.add_argument("path")
+    i.add_argument("--object", default=None, metavar="FILE")
+    rp = act.add_parser("replay", help="re-simulate a saved result's control and compare")
+    rp.add_argument("result", help="result folder (or its result.npz)")
+    rp.add_argument("--tolerance-mm", type=float, default=1.0,
+                    help="largest object / hand root deviation that counts as a match [mm]")
+    ph.set_defaults(func=cmd_physcap)
+
+
+def cmd_physcap(a: argparse.Namespace) -> int:
+    return {"run": _run, "info": _info, "replay": _replay}[a.physcap_action](a)
+
+
+def _config(a: argparse.Namespace) -> Any:
+    from hand_capture.config import from_mapping, load_yaml
+    from hand_control.physcap.capture import PhysCapConfig
+
+    values: dict[str, Any] = {}
+    if a.config:
+        values = dict(load_yaml(a.config) or {})
+    cfg = from_mapping(PhysCapConfig, values)
+    if a.quick:
+        cfg = replace(cfg, n_samples=min(cfg.n_samples, QUICK_SAMPLES),
+                      n_keep=min(cfg.n_keep, QUICK_KEEP))
+    if a.samples is not None:
+        cfg = replace(cfg, n_samples=a.samples, n_keep=min(cfg.n_keep, a.samples))
+    if a.seed is not None:
+        cfg = replace(cfg, seed=a.seed)
+    return cfg
+
+
+def _default_object(path: str | None) -> Any:
+    if not path:
+        return None
+    from hand_control.physcap.archive import load_object_yaml
+
+    return load_object_yaml(path)
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _run(a: argparse.Namespace) -> int:
+    from hand_capture.bench import json_line, print_table
+    from hand_control.physcap.archive import ArchiveConfig
+    from hand_control.physcap.batch import TABLE_HEADERS, BatchConfig, run_archive
+
+    cfg = _config(a)
+    batch = BatchConfig(workers=a.workers, threads_per_worker=a.threads_per_worker,
+                        scheduler=a.scheduler, progress=not a.no_progress,
+                        connect_timeout=a.connect_timeout)
+    arch = ArchiveConfig() if a.min_frames is None else ArchiveConfig(min_frames=a.min_frames)
+    old = signal.signal(signal.SIGTERM, _on_sigterm)  # a kill closes the cluster like Ctrl-C
+    try:
+        res = run_archive(a.archive, a.output, cfg, batch,
+                          default_object=_default_object(a.object), archive=arch)
+    except KeyboardInterrupt:
+        print(f"hand-suite physcap run: interrupted; the results finished so far are in "
+              f"{a.output} (summary.json)")
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    print_table(f"physcap run: {len(res.ok)} of {len(res.outcomes)} captures optimised "
+                f"({res.mode}, {cfg.n_samples} samples per step, {res.wall_s:.1f} s)",
+                TABLE_HEADERS, res.table_rows())
+    print(json_line({"physcap": "run", **res.figures()}))
+    return 0 if not res.failed else 1
+
+
+def _info(a: argparse.Namespace) -> int:
+    from hand_capture.bench import print_table
+    from hand_control.physcap.archive import list_archive
+
+    p = Path(a.path)
+    if p.is_dir() and not (p / "result.npz").exists():
+        entries = list_archive(p, _default_object(a.object))
+        print_table(f"archive {p}: {sum(e.ok for e in entries)} of {len(entries)} captures "
+                    f"usable", ["capture", "kind", "status", "frames", "duration [s]",
+                                "object", "object from", "reason"],
+                    [[e.name, e.kind, e.status, e.frames, e.duration_s, e.object_kind,
+                      e.object_source, e.reason] for e in entries])
+        return 0 if all(e.ok for e in entries) else 1
+    if p.is_dir() or _npz_format(p).startswith("hand_suite.physcap.result"):
+        from hand_control.physcap.output import read_result
+
+        r = read_result(p)
+        s = r.summary()
+        cfg = s.pop("config")
+        for k, v in s.items():
+            print(f"{k:16s} {v:.4g}" if isinstance(v, float) else f"{k:16s} {v}")
+        print(f"{'object':16s} {asdict(r.obj)}")
+        print(f"{'config':16s} " + ", ".join(f"{k}={v}" for k, v in cfg.items()))
+        return 0
+    from hand_control.physcap.capture import load_capture_npz
+
+    c = load_capture_npz(p)
+    print(f"capture {c.name}: {c.n_frames} frames, {c.duration:.3f} s, object "
+          f"{asdict(c.obj)}, keypoints {'yes' if c.keypoints is not None else 'no'}")
+    return 0
+
+
+def _npz_format(path: Path) -> str:
+    import numpy as np
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return str(z["format"]) if "format" in z.files else ""
+    except (OSError, ValueError, EOFError) as e:
+        raise InputError(f"{path}: not a readable npz ({e})") from e
+
+
+def _replay(a: argparse.Namespace) -> int:
+    from hand_control.physcap.output import read_result, replay_match
+
+    r = read_result(a.result)
+    m = replay_match(r, tolerance_m=a.tolerance_mm * 1e-3)
+    for k, v in m.items():
+        print(f"{k:28s} {v:.4g}" if isinstance(v, float) else f"{k:28s} {v}")
+    return 0 if m["match"] else 1
