@@ -90,6 +90,17 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
                 ["capture", "split", "method", "success", "object_err_mm", "hand_err_mm",
                  "ref_object_err_mm", "ref_hand_err_mm", "s_per_frame"], rows)
 
+    # samples simulated by 2 threads (own MjData + controller each) against 1
+    threads: dict[str, Any] = {}
+    if not smoke:
+        c = caps[0][1].capture
+        short = type(c)(c.name, c.times[:8], c.hand_q[:8], c.object_pose[:8], c.obj)
+        t1 = optimise_capture(short, PhysCapConfig(n_samples=32, n_keep=8)).frame_seconds.sum()
+        t2 = optimise_capture(short, PhysCapConfig(n_samples=32, n_keep=8, n_threads=2)
+                              ).frame_seconds.sum()
+        threads = {"threads2_speedup": float(t1 / t2)}
+        print(f"\n2 threads vs 1: {t1:.2f} s / {t2:.2f} s = {t1 / t2:.2f}x (7 steps, 32 samples)")
+
     # fewer / more samples: the same result? (contact sampling, the in-distribution captures)
     sweep: dict[str, Any] = {}
     if not (quick or smoke):
@@ -173,6 +184,6 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         "heldout_object_err_mm": mean("contact", "obj", "heldout"),
         "random_object_err_mm": mean("random", "obj"),
         "retarget_success": float(np.mean(ok)), "retarget_cases": len(ok),
-        "low_friction_slipped": bool(not slip.success), **sweep,
+        "low_friction_slipped": bool(not slip.success), **sweep, **threads,
         **{k: v for k, v in dask.items() if k.startswith("dask_")},
     }

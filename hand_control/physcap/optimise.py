@@ -30,6 +30,7 @@ import mujoco
 import numpy as np
 
 from hand_capture.model.hand import HandModel
+from hand_capture.model.skeleton import BONE_NAMES
 from hand_control.control import ControllerCore, ControllerNodeConfig
 from hand_control.errors import SimulationError
 from hand_control.physcap.capture import (
@@ -158,7 +159,7 @@ class _Targets:
         return True
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False)
 class Segment:
     """The outcome of simulating one step: the end state and what it shows."""
 
@@ -204,7 +205,7 @@ class SegmentSimulator:
         self._qp_warm = getattr(self.core.controller.qp, "_passive", None)
         self.hand_geom = np.zeros(m.ngeom, dtype=bool)
         hand_bodies = {int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n))
-                       for n in ("palm",)} | set(range(1, 17))
+                       for n in BONE_NAMES}
         self.hand_geom[[g for g in range(m.ngeom) if int(m.geom_bodyid[g]) in hand_bodies]] \
             = True
         self.obj_geom = np.zeros(m.ngeom, dtype=bool)
@@ -369,7 +370,7 @@ class _Search:
             segs = [s for f in futs for s in f.result()]
         q_ref = self.centre_q[step + 1]
         for s, c in zip(segs, controls, strict=True):
-            object.__setattr__(s, "q_offset", c[0] - q_ref)
+            s.q_offset = c[0] - q_ref
         ok = np.array([s.ok for s in segs])
         costs = np.full(n, np.inf)
         if ok.any():
