@@ -248,3 +248,9 @@ def test_mesh_object_collides_as_its_principal_box(tmp_path):
     assert world.model.body_mass[world.objects["object"]["body"]] == pytest.approx(0.1)
     with pytest.raises(CaptureError, match="cannot read mesh"):
         mesh_principal_frame(tmp_path / "missing.stl")
+
+
+def test_capture_with_foreign_keypoints_is_refused():
+    c = _capture(keypoints=np.zeros((3, 5, 3)))
+    with pytest.raises(CaptureError, match="21 keypoints"):
+        optimise_capture(c, PhysCapConfig(n_samples=2, n_keep=1))

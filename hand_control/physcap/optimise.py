@@ -30,12 +30,13 @@ import mujoco
 import numpy as np
 
 from hand_capture.model.hand import HandModel
-from hand_capture.model.skeleton import BONE_NAMES
+from hand_capture.model.skeleton import BONE_NAMES, N_KEYPOINTS
 from hand_control.control import ControllerCore, ControllerNodeConfig
 from hand_control.errors import SimulationError
 from hand_control.physcap.capture import (
     Capture,
     CapturedObject,
+    CaptureError,
     PhysCapConfig,
     PhysCapResult,
 )
@@ -402,6 +403,13 @@ def _goal_figures(config: PhysCapConfig, obj_sim: np.ndarray, obj_ref: np.ndarra
 def optimise(capture: Capture, config: PhysCapConfig, progress: Any = None) -> PhysCapResult:
     """:func:`hand_control.physcap.capture.optimise_capture` (see there)."""
     times, ref_q, ref_obj, kp = resample_capture(capture, config.step)
+    if kp is not None and kp.shape[1] != N_KEYPOINTS:
+        raise CaptureError(f"capture {capture.name!r}: the cost compares the model's "
+                           f"{N_KEYPOINTS} keypoints (KEYPOINT_NAMES), the capture has "
+                           f"{kp.shape[1]}")
+    if len(times) < 2:
+        raise CaptureError(f"capture {capture.name!r} is shorter than one step "
+                           f"({config.step} s)")
     kp_obs = _hand_model().joint_positions(ref_q) if kp is None else kp
     search = _Search(capture.obj, ref_q, ref_obj, kp_obs, config)
     try:
