@@ -289,6 +289,7 @@ class _Search:
         po[:, 3:7] /= np.linalg.norm(po[:, 3:7], axis=1, keepdims=True)
         # servo lag: the wrist's centres lead by `lead` frames of the reference's velocity
         self.centre_q[1:, 0:3] += config.lead * np.diff(self.centre_q[:, 0:3], axis=0)
+        po[1:, 0:3] += config.object_lead * np.diff(po[:, 0:3], axis=0)
         self.centre_obj = po
         self.sims = [SegmentSimulator(obj, ref_q[0], ref_obj[0], config)
                      for _ in range(config.n_threads)]
