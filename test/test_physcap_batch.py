@@ -55,7 +55,8 @@ def _motion(n: int = 12, rate: float = 20.0) -> tuple[np.ndarray, np.ndarray, np
 
 def _write_bag(path: Path, t: np.ndarray, q: np.ndarray, op: np.ndarray | None,
                hand_topic: str = "/hand/pose", obj_topic: str = "/object/pose_truth",
-               frame: str = "world", custom: dict | None = None, obj_every: int = 1) -> Path:
+               frame: str = "world", custom: dict | None = None, obj_every: int = 1,
+               left: np.ndarray | None = None) -> Path:
     """A capture bag as the multi-view tracker / the studio record it."""
     from hand_capture.posemsg import fill_pose_msg
 
@@ -81,9 +82,13 @@ def _write_bag(path: Path, t: np.ndarray, q: np.ndarray, op: np.ndarray | None,
                 wrist_pose=pose(position=point(x=0.0, y=0.0, z=0.0),
                                 orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0)),
                 confidence=1.0, status=1, source="test")
-            fill_pose_msg(hp, q[k])
-            hp.positions = np.asarray(hp.positions)
-            w.write(hand_topic, t_ns, bytes(store.serialize_cdr(hp, "hand_msgs/msg/HandPose")))
+            for side, qs in (("left", left), ("right", q)):
+                if qs is None:
+                    continue
+                fill_pose_msg(hp, qs[k], side=side)
+                hp.positions = np.asarray(hp.positions)
+                w.write(hand_topic, t_ns,
+                        bytes(store.serialize_cdr(hp, "hand_msgs/msg/HandPose")))
             if op is not None and k % obj_every == 0:
                 p = op[k]
                 ps = T["geometry_msgs/msg/PoseStamped"](header=header, pose=pose(
@@ -128,6 +133,18 @@ def test_bag_capture_reads_hand_object_and_sidecar_object(tmp_path):
     np.testing.assert_allclose(cap.hand_q, q, atol=1e-6)
     np.testing.assert_allclose(cap.object_pose, op, atol=1e-9)
     assert cap.obj == CapturedObject("box", (0.02, 0.02, 0.02), 0.15, 0.8)
+
+
+def test_bag_with_two_hands_gives_the_chosen_one(tmp_path):
+    t, q, op = _motion()
+    left = q.copy()
+    left[:, 1] += 0.3
+    bag = _write_bag(tmp_path / "two", t, q, op, left=left, hand_topic="/hand/pose_truth")
+    _sidecar(bag, BOX)
+    right, _ = read_capture_bag(bag)
+    np.testing.assert_allclose(right.hand_q, q, atol=1e-6)
+    other, _ = read_capture_bag(bag, config=ArchiveConfig(hand="left"))
+    np.testing.assert_allclose(other.hand_q, left, atol=1e-6)
 
 
 def test_bag_object_from_metadata_and_object_poses_interpolated(tmp_path):

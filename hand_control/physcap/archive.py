@@ -7,7 +7,8 @@ An archive is a directory; every entry at its top level is one capture:
 * ``NAME/`` (a rosbag2 directory with ``metadata.yaml``) or ``NAME.mcap`` (one MCAP file): a
   recorded capture. Topics read (leading slash optional):
 
-  - hand: ``hand/pose`` (hand_msgs/HandPose, world frame), else ``hand/pose_truth``;
+  - hand: ``hand/pose`` (hand_msgs/HandPose, world frame), else ``hand/pose_truth``; the
+    messages of one hand (``ArchiveConfig.hand``, by ``handedness``: right by default);
   - object: ``object/pose``, else ``object/pose_truth`` (geometry_msgs/PoseStamped, world;
     the object's body frame); with several objects ``object/NAME/pose[_truth]`` where NAME is
     the ``name`` of the object properties;
@@ -59,6 +60,7 @@ import numpy as np
 from hand_capture.config import from_mapping, load_yaml, param, validate
 from hand_capture.errors import BagError, ConfigError, InputError
 from hand_capture.model.joints import matrix_to_quat, quat_to_matrix
+from hand_capture.posemsg import HAND_LEFT, HAND_RIGHT
 from hand_control.physcap.capture import (
     Capture,
     CapturedObject,
@@ -116,6 +118,8 @@ class ArchiveConfig:
     """How an archive is read and what a usable capture needs."""
 
     min_frames: int = param(5, "fewest frames a capture may have", lo=2, hi=1_000_000)
+    hand: str = param("right", "which hand of a bag (HandPose.handedness) is captured",
+                      choices=("right", "left"))
     touch_distance: float = param(
         0.12, "bags without object poses: the object moves with the hand root once the root "
         "has come this close to it (else it stays at rest) [m]", lo=0.0, hi=1.0)
@@ -406,6 +410,7 @@ def read_capture_bag(path: str | Path, default_object: ObjectProperties | None =
     hand_msgs: dict[str, list[Any]] = {}
     obj_msgs: dict[str, list[Any]] = {}
     kp_msgs: list[Any] = []
+    side = HAND_RIGHT if config.hand == "right" else HAND_LEFT
     try:
         with BagReader(path) as r:
             topics = {t.lstrip("/"): t for t in r.topics}
@@ -417,16 +422,21 @@ def read_capture_bag(path: str | Path, default_object: ObjectProperties | None =
             for m in r.messages():
                 topic = m.topic.lstrip("/")
                 if topic in HAND_TOPICS:
-                    hand_msgs.setdefault(topic, []).append(r.check(m))
+                    msg = r.check(m)
+                    if int(msg.handedness) == side:
+                        hand_msgs.setdefault(topic, []).append(msg)
                 elif topic in wanted_obj:
                     obj_msgs.setdefault(topic, []).append(r.check(m))
                 elif topic == KEYPOINT_TOPIC:
-                    kp_msgs.append(r.check(m))
+                    msg = r.check(m)
+                    if int(msg.handedness) == side:
+                        kp_msgs.append(msg)
     except BagError as e:
         raise CorruptCaptureError(name, str(e)) from e
     hand_topic = next((t for t in HAND_TOPICS if hand_msgs.get(t)), None)
     if hand_topic is None:
-        raise IncompleteCaptureError(name, f"no hand poses (none of {list(HAND_TOPICS)})")
+        raise IncompleteCaptureError(name, f"no {config.hand} hand poses (none on "
+                                     f"{list(HAND_TOPICS)})")
     hands = hand_msgs[hand_topic]
     t_hand = np.array([_stamp_ns(m.header) for m in hands], dtype=np.int64)
     order = np.argsort(t_hand, kind="stable")
@@ -464,6 +474,9 @@ def read_capture_bag(path: str | Path, default_object: ObjectProperties | None =
             name, f"no object poses (none of {list(wanted_obj)}) and no object 'pose' in "
             f"its properties ({source if source != 'default' else '--object'})")
     keypoints = _keypoints(kp_msgs, t_hand)
+    if keypoints is not None and obj.camera_pose:
+        c = np.asarray(obj.camera_pose, dtype=float)
+        keypoints = keypoints @ quat_to_matrix(np.r_[c[4:7], c[3]]).T + c[:3]
     if len(t_hand) < config.min_frames:
         raise IncompleteCaptureError(name, f"{len(t_hand)} frames with object poses, fewer "
                                      f"than the {config.min_frames} a capture needs")

@@ -111,7 +111,8 @@ class CaptureJob:
     def from_entry(cls, entry: ArchiveEntry, config: PhysCapConfig,
                    default_object: ObjectProperties | None = None,
                    archive: ArchiveConfig | None = None, optimiser: str = "") -> CaptureJob:
-        return cls(entry.name, str(entry.path), entry.kind, config, default_object,
+        return cls(entry.name, str(Path(entry.path).resolve()), entry.kind, config,
+                   default_object,
                    archive or ArchiveConfig(), optimiser)
 
     @property

@@ -46,6 +46,8 @@ def add_parser(sub: Any) -> None:
                    "from it and the capture's name)")
     r.add_argument("--min-frames", type=int, default=None, help="fewest frames a capture "
                    "may have")
+    r.add_argument("--hand", default="right", choices=["right", "left"],
+                   help="which hand of a bag is captured")
     r.add_argument("--no-progress", action="store_true", help="no progress bars")
     i = act.add_parser("info", help="list an archive (status of every capture) or show a "
                        "result or capture file")
@@ -101,7 +103,8 @@ def _run(a: argparse.Namespace) -> int:
     batch = BatchConfig(workers=a.workers, threads_per_worker=a.threads_per_worker,
                         scheduler=a.scheduler, progress=not a.no_progress,
                         connect_timeout=a.connect_timeout)
-    arch = ArchiveConfig() if a.min_frames is None else ArchiveConfig(min_frames=a.min_frames)
+    arch = ArchiveConfig(hand=a.hand, **({} if a.min_frames is None
+                                         else {"min_frames": a.min_frames}))
     old = signal.signal(signal.SIGTERM, _on_sigterm)  # a kill closes the cluster like Ctrl-C
     try:
         res = run_archive(a.archive, a.output, cfg, batch,
