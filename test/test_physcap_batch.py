@@ -349,6 +349,12 @@ def _check_batch(res, out: Path) -> None:
     for name in ("take_a", "take_b", "take_c"):
         assert (out / name / "result.npz").exists() and (out / name / "bag").is_dir()
     assert not (out / "no_mesh").exists()
+    # the simulated grasp's contact forces are in the bag (take_c holds the object)
+    from hand_control.report.series import contact_force_sum, load_bag
+
+    data = load_bag(out / "take_c" / "bag")
+    assert len(data.topics["sim/contacts"].msgs) == 6
+    assert contact_force_sum(data.topics["sim/contacts"].msgs).max() > 0.5  # [N]
 
 
 def test_dask_cluster_of_two_processes_gives_the_serial_results(archive, tmp_path):

@@ -20,6 +20,8 @@ topic                                 type                            content
 ``/control/joint_command``            hand_msgs/JointCommand          PD targets (T - 1)
 ``/control/object_target``            geometry_msgs/PoseStamped       object target (T - 1)
 ``/control/virtual_wrench``           geometry_msgs/WrenchStamped     virtual wrench (T - 1)
+``/sim/contacts``                     hand_msgs/ContactArray          hand-object contacts and
+                                                                      forces (T - 1, replayed)
 ``/physcap/reference/hand_pose``      hand_msgs/HandPose              the capture (T)
 ``/physcap/reference/object_pose``    geometry_msgs/PoseStamped       the capture (T)
 ====================================  ==============================  =========================
@@ -42,8 +44,9 @@ from hand_capture.errors import BagError, ConfigError, InputError
 from hand_capture.model.joints import ARTICULATED_JOINTS, JOINT_NAMES
 from hand_control.physcap.capture import CapturedObject, PhysCapConfig, PhysCapResult
 
-__all__ = ["OUTPUT_TOPICS", "RESULT_FORMAT", "ResultFiles", "read_result", "replay_match",
-           "result_files", "results_equal", "write_result", "write_result_bag", "write_result_npz"]
+__all__ = ["OUTPUT_TOPICS", "RESULT_FORMAT", "ResultFiles", "read_result", "replay_contacts",
+           "replay_match", "result_files", "results_equal", "write_result", "write_result_bag",
+           "write_result_npz"]
 
 RESULT_FORMAT = "hand_suite.physcap.result/1"
 #: topic -> message type of a result bag
@@ -55,6 +58,7 @@ OUTPUT_TOPICS = {
     "/control/joint_command": "hand_msgs/msg/JointCommand",
     "/control/object_target": "geometry_msgs/msg/PoseStamped",
     "/control/virtual_wrench": "geometry_msgs/msg/WrenchStamped",
+    "/sim/contacts": "hand_msgs/msg/ContactArray",
     "/physcap/reference/hand_pose": "hand_msgs/msg/HandPose",
     "/physcap/reference/object_pose": "geometry_msgs/msg/PoseStamped",
 }
@@ -188,9 +192,46 @@ def _hand_pose(store: Any, header: Any, q: np.ndarray, status: str, source: str)
     return msg
 
 
+def replay_contacts(result: PhysCapResult) -> list[Any]:
+    """The hand-object contacts (:class:`~hand_control.sim.contacts.ContactFrame`, world
+    frame, forces the hand applies) at the end of each control step, from simulating the
+    result's control again from its first state (the optimiser's simulator: the same
+    motion). Stops at a divergence. Length <= T - 1."""
+    from hand_control.physcap.optimise import SegmentSimulator
+    from hand_control.physcap.world import OBJECT_NAME
+
+    cfg = result.config
+    sim = SegmentSimulator(result.obj, result.hand_q[0], result.object_pose[0], cfg)
+    n = int(round(cfg.step / cfg.timestep))
+    state = sim.initial_state
+    out = []
+    for qt, ot in zip(np.asarray(result.targets, float),
+                      np.asarray(result.object_targets, float), strict=True):
+        seg = sim.run(state, qt, ot, n)
+        if not seg.ok:
+            break
+        state = seg.state
+        out.append(sim.world.contacts(OBJECT_NAME))
+    return out
+
+
+def _contact_array(store: Any, header: Any, cf: Any) -> Any:
+    T = store.types
+    vec, point = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Point"]
+    contacts = [T["hand_msgs/msg/Contact"](
+        body1=cf.body1[k], body2=cf.body2[k], point=point(*map(float, cf.points[k])),
+        normal=vec(*map(float, cf.normals[k])), penetration=float(cf.penetration[k]),
+        force=vec(*map(float, cf.forces[k])), torsional_torque=float(cf.torsional[k]),
+        friction=float(cf.friction[k])) for k in range(len(cf))]
+    return T["hand_msgs/msg/ContactArray"](header=header, contacts=contacts)
+
+
 def write_result_bag(result: PhysCapResult, path: str | Path, *, storage: str = "mcap",
-                     t0_ns: int = T0_NS) -> int:
+                     t0_ns: int = T0_NS, contacts: list[Any] | None = None) -> int:
     """The result as a bag (module docstring for the topics); returns the message count.
+
+    Args:
+        contacts: the contacts of each step (:func:`replay_contacts`, computed when None).
 
     Raises:
         BagError: ``path`` exists or cannot be written.
@@ -211,6 +252,8 @@ def write_result_bag(result: PhysCapResult, path: str | Path, *, storage: str = 
         vel[0] = vel[1]
     names = list(JOINT_NAMES)
     art = [JOINT_NAMES.index(j) for j in ARTICULATED_JOINTS]
+    if contacts is None:
+        contacts = replay_contacts(result)
     w = BagWriter(path, storage=storage, flush_period=1.0)
     try:
         for topic, msgtype in OUTPUT_TOPICS.items():
@@ -234,6 +277,8 @@ def write_result_bag(result: PhysCapResult, path: str | Path, *, storage: str = 
                            "capture"))
             put("/physcap/reference/object_pose", t_ns,
                 _pose_stamped(store, header, np.asarray(result.reference_object[k])))
+            if 0 < k <= len(contacts):  # contacts at the end of step k - 1, i.e. at frame k
+                put("/sim/contacts", t_ns, _contact_array(store, header, contacts[k - 1]))
             if k >= len(result.targets):
                 continue
             # control of step k (frame k -> k + 1), stamped at its start
