@@ -426,3 +426,15 @@ def test_unreachable_scheduler_is_a_clear_error(archive, tmp_path, capsys):
                "tcp://127.0.0.1:1", "--connect-timeout", "1", "--no-progress"])
     assert rc == 2
     assert "cannot start Dask on tcp://127.0.0.1:1" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # two local clusters (1 and 2 worker processes), one after the other
+def test_measure_dask_speedup_runs_both_clusters_on_the_same_captures(archive):
+    from hand_control.physcap.batch import measure_dask_speedup
+
+    files = [archive / "take_a.npz", archive / "take_b.npz"]
+    fig = measure_dask_speedup(files, TINY, quick=True)
+    assert fig["dask_captures"] == 2 and fig["dask_failed"] == []
+    assert fig["dask_identical"] is True
+    assert fig["dask_1w_s"] > 0 and fig["dask_2w_s"] > 0
+    assert fig["dask_speedup_2w"] == pytest.approx(fig["dask_1w_s"] / fig["dask_2w_s"])

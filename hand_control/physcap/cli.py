@@ -127,7 +127,7 @@ def _info(a: argparse.Namespace) -> int:
     from hand_control.physcap.archive import list_archive
 
     p = Path(a.path)
-    if p.is_dir() and not (p / "result.npz").exists():
+    if p.is_dir() and not (p / "result.npz").exists() and not (p / "metadata.yaml").exists():
         entries = list_archive(p, _default_object(a.object))
         print_table(f"archive {p}: {sum(e.ok for e in entries)} of {len(entries)} captures "
                     f"usable", ["capture", "kind", "status", "frames", "duration [s]",
@@ -135,7 +135,8 @@ def _info(a: argparse.Namespace) -> int:
                     [[e.name, e.kind, e.status, e.frames, e.duration_s, e.object_kind,
                       e.object_source, e.reason] for e in entries])
         return 0 if all(e.ok for e in entries) else 1
-    if p.is_dir() or _npz_format(p).startswith("hand_suite.physcap.result"):
+    if (p / "result.npz").exists() or (
+            p.suffix == ".npz" and _npz_format(p).startswith("hand_suite.physcap.result")):
         from hand_control.physcap.output import read_result
 
         r = read_result(p)
@@ -146,11 +147,16 @@ def _info(a: argparse.Namespace) -> int:
         print(f"{'object':16s} {asdict(r.obj)}")
         print(f"{'config':16s} " + ", ".join(f"{k}={v}" for k, v in cfg.items()))
         return 0
+    from hand_control.physcap.archive import read_capture_bag
     from hand_control.physcap.capture import load_capture_npz
 
-    c = load_capture_npz(p)
+    if p.suffix == ".npz":
+        c, source = load_capture_npz(p), "npz"
+    else:  # a bag: what the archive would read from it
+        c, source = read_capture_bag(p, _default_object(a.object))
     print(f"capture {c.name}: {c.n_frames} frames, {c.duration:.3f} s, object "
-          f"{asdict(c.obj)}, keypoints {'yes' if c.keypoints is not None else 'no'}")
+          f"{asdict(c.obj)} (from {source}), keypoints "
+          f"{'yes' if c.keypoints is not None else 'no'}")
     return 0
 
 
