@@ -401,8 +401,12 @@ def run_batch(entries: Sequence[ArchiveEntry], config: PhysCapConfig,
     try:
         if mode == "serial":
             for name, job in jobs.items():
-                o = process_capture(job, lambda d, t, n=name: bars.frame_progress(
-                    n, d, t, frames[n]))
+
+                def progress(done: int, total: int, name: str = name) -> None:
+                    bars.frame_progress(name, done, total, frames[name])
+                    bars.refresh()
+
+                o = process_capture(job, progress)
                 outcomes[name] = _finish(o, out, batch.write)
                 bars.capture_done(name, frames[name])
         else:
