@@ -438,3 +438,62 @@ def test_measure_dask_speedup_runs_both_clusters_on_the_same_captures(archive):
     assert fig["dask_identical"] is True
     assert fig["dask_1w_s"] > 0 and fig["dask_2w_s"] > 0
     assert fig["dask_speedup_2w"] == pytest.approx(fig["dask_1w_s"] / fig["dask_2w_s"])
+
+
+_SLOW_OPTIMISER = '''
+import time
+from hand_control.physcap.capture import optimise_capture
+
+def optimise(capture, config, progress=None):
+    while capture.name == "endless":  # until the batch is interrupted
+        time.sleep(0.05)
+    return optimise_capture(capture, config, progress=progress)
+'''
+
+
+def test_interrupt_cancels_the_tasks_and_stops_the_cluster(archive, tmp_path):
+    """SIGINT (Ctrl-C) during a Dask run: exit status 130, the finished capture written, the
+    endless one cancelled in summary.json, and every worker process of the local cluster
+    gone."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import psutil
+
+    (tmp_path / "slowopt.py").write_text(_SLOW_OPTIMISER)
+    arch = tmp_path / "arch"
+    arch.mkdir()
+    for name in ("endless", "take_a"):
+        (arch / f"{name}.npz").write_bytes((archive / "take_a.npz").read_bytes())
+    out = tmp_path / "out"
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), str(tmp_path)])}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from hand_control.cli import main; "
+         "sys.exit(main(sys.argv[1:]))", "physcap", "run", str(arch), "-o", str(out),
+         "--workers", "2", "--samples", "8", "--optimiser", "slowopt:optimise",
+         "--no-progress"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (out / "take_a").exists():  # the fast capture finished (written whole)
+            assert proc.poll() is None, proc.stdout.read()
+            assert time.monotonic() < deadline, "take_a never finished"
+            time.sleep(0.2)
+        workers = psutil.Process(proc.pid).children(recursive=True)
+        assert workers  # the local cluster's processes
+        proc.send_signal(signal.SIGINT)
+        text, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, text
+    assert "interrupted" in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] is True and summary["ok"] == 1
+    assert summary["not_ok"]["endless"].startswith("cancelled")
+    gone, alive = psutil.wait_procs(workers, timeout=60)
+    assert not alive, [p.cmdline() for p in alive]

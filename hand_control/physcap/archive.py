@@ -3,7 +3,8 @@
 An archive is a directory; every entry at its top level is one capture:
 
 * ``NAME.npz``: a :class:`~hand_control.physcap.capture.Capture` saved with
-  ``save_capture_npz`` (object properties inside).
+  ``save_capture_npz`` (object properties inside). In an archive a capture is called by its
+  file's (or bag's) name, whatever name it was saved with.
 * ``NAME/`` (a rosbag2 directory with ``metadata.yaml``) or ``NAME.mcap`` (one MCAP file): a
   recorded capture. Topics read (leading slash optional):
 
@@ -307,6 +308,8 @@ def _load_npz(path: Path, name: str, config: ArchiveConfig) -> Capture:
         cap = load_capture_npz(path)
     except CaptureError as e:
         raise IncompleteCaptureError(name, str(e)) from e
+    if cap.name != name:  # the file's name is the capture's name in an archive
+        cap = replace(cap, name=name)
     _check_capture(cap, name, config)
     return cap
 

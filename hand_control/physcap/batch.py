@@ -356,15 +356,30 @@ class _Bars:
         self.captures.close()
 
 
-def _finish(outcome: CaptureOutcome, out_dir: Path | None, write: bool) -> CaptureOutcome:
-    if write and out_dir is not None and outcome.ok and outcome.result is not None:
-        from hand_control.physcap.output import write_result
+def _finish(outcome: CaptureOutcome, out_dir: Path | None, write: bool) -> None:
+    """Write an ok outcome's result into ``out_dir/NAME``: built in a hidden folder and
+    renamed when complete, so the folder never holds half a result (Ctrl-C while writing:
+    the outcome becomes cancelled). Updates ``outcome`` in place."""
+    if not (write and out_dir is not None and outcome.ok and outcome.result is not None):
+        return
+    import shutil
 
-        try:
-            outcome.output = str(write_result(outcome.result, out_dir / outcome.name).root)
-        except HandSuiteError as e:
-            outcome.status, outcome.reason = "failed", f"writing the result: {e}"
-    return outcome
+    from hand_control.physcap.output import write_result
+
+    final = out_dir / outcome.name
+    tmp = out_dir / f".{outcome.name}.partial"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        write_result(outcome.result, tmp)
+        tmp.rename(final)
+        outcome.output = str(final)
+    except HandSuiteError as e:
+        outcome.status, outcome.reason = "failed", f"writing the result: {e}"
+    except BaseException:
+        outcome.status, outcome.reason = "cancelled", "interrupted while writing its result"
+        raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def run_batch(entries: Sequence[ArchiveEntry], config: PhysCapConfig,
@@ -406,8 +421,8 @@ def run_batch(entries: Sequence[ArchiveEntry], config: PhysCapConfig,
                     bars.frame_progress(name, done, total, frames[name])
                     bars.refresh()
 
-                o = process_capture(job, progress)
-                outcomes[name] = _finish(o, out, batch.write)
+                o = outcomes[name] = process_capture(job, progress)
+                _finish(o, out, batch.write)
                 bars.capture_done(name, frames[name])
         else:
             _run_dask(jobs, frames, outcomes, bars, out, batch)
@@ -470,7 +485,8 @@ def _run_dask(jobs: dict[str, CaptureJob], frames: dict[str, int],
                         # worker that tried it died (KilledWorker)
                         o = CaptureOutcome(name, "failed", f"{type(exc).__name__}: {exc}",
                                            seed=jobs[name].seeded_config.seed)
-                    outcomes[name] = _finish(o, out, batch.write)
+                    outcomes[name] = o
+                    _finish(o, out, batch.write)
                     bars.capture_done(name, frames[name])
                 if not batch_done:
                     bars.refresh()

@@ -48,6 +48,9 @@ def add_parser(sub: Any) -> None:
                    "may have")
     r.add_argument("--hand", default="right", choices=["right", "left"],
                    help="which hand of a bag is captured")
+    r.add_argument("--optimiser", default="", metavar="MODULE:FUNCTION",
+                   help="another optimiser with optimise_capture's signature, importable "
+                   "on the workers (default: the suite's)")
     r.add_argument("--no-progress", action="store_true", help="no progress bars")
     i = act.add_parser("info", help="list an archive (status of every capture) or show a "
                        "result or capture file")
@@ -108,7 +111,8 @@ def _run(a: argparse.Namespace) -> int:
     old = signal.signal(signal.SIGTERM, _on_sigterm)  # a kill closes the cluster like Ctrl-C
     try:
         res = run_archive(a.archive, a.output, cfg, batch,
-                          default_object=_default_object(a.object), archive=arch)
+                          default_object=_default_object(a.object), archive=arch,
+                          optimiser=a.optimiser)
     except KeyboardInterrupt:
         print(f"hand-suite physcap run: interrupted; the results finished so far are in "
               f"{a.output} (summary.json)")
