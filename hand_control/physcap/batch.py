@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from hand_capture.config import param, validate
-from hand_capture.errors import HandSuiteError, InputError
+from hand_capture.errors import ConfigError, HandSuiteError, InputError
 from hand_control.physcap.archive import (
     ArchiveCaptureError,
     ArchiveConfig,
@@ -82,7 +82,7 @@ class BatchConfig:
         validate(self)
         if self.scheduler and not self.scheduler.startswith(("tcp://", "tls://", "inproc://",
                                                               "ucx://", "ws://", "wss://")):
-            raise InputError(f"BatchConfig.scheduler {self.scheduler!r} is not a scheduler "
+            raise ConfigError(f"BatchConfig.scheduler {self.scheduler!r} is not a scheduler "
                              f"address like tcp://HOST:8786")
 
 
