@@ -56,7 +56,7 @@ def _motion(n: int = 12, rate: float = 20.0) -> tuple[np.ndarray, np.ndarray, np
 def _write_bag(path: Path, t: np.ndarray, q: np.ndarray, op: np.ndarray | None,
                hand_topic: str = "/hand/pose", obj_topic: str = "/object/pose_truth",
                frame: str = "world", custom: dict | None = None, obj_every: int = 1,
-               left: np.ndarray | None = None) -> Path:
+               left: np.ndarray | None = None, lost: tuple[int, ...] = ()) -> Path:
     """A capture bag as the multi-view tracker / the studio record it."""
     from hand_capture.posemsg import fill_pose_msg
 
@@ -85,7 +85,8 @@ def _write_bag(path: Path, t: np.ndarray, q: np.ndarray, op: np.ndarray | None,
             for side, qs in (("left", left), ("right", q)):
                 if qs is None:
                     continue
-                fill_pose_msg(hp, qs[k], side=side)
+                fill_pose_msg(hp, qs[k], side=side,
+                              status="lost" if k in lost else "tracking")
                 hp.positions = np.asarray(hp.positions)
                 w.write(hand_topic, t_ns,
                         bytes(store.serialize_cdr(hp, "hand_msgs/msg/HandPose")))
@@ -145,6 +146,16 @@ def test_bag_with_two_hands_gives_the_chosen_one(tmp_path):
     np.testing.assert_allclose(right.hand_q, q, atol=1e-6)
     other, _ = read_capture_bag(bag, config=ArchiveConfig(hand="left"))
     np.testing.assert_allclose(other.hand_q, left, atol=1e-6)
+
+
+def test_frames_of_a_lost_tracker_are_dropped(tmp_path):
+    t, q, op = _motion()
+    bag = _write_bag(tmp_path / "lost", t, q, op, lost=(4, 5))
+    _sidecar(bag, BOX)
+    cap, _ = read_capture_bag(bag)
+    keep = [k for k in range(len(t)) if k not in (4, 5)]
+    np.testing.assert_allclose(cap.times, t[keep], atol=1e-9)
+    np.testing.assert_allclose(cap.hand_q, q[keep], atol=1e-6)
 
 
 def test_bag_object_from_metadata_and_object_poses_interpolated(tmp_path):

@@ -9,7 +9,8 @@ An archive is a directory; every entry at its top level is one capture:
   recorded capture. Topics read (leading slash optional):
 
   - hand: ``hand/pose`` (hand_msgs/HandPose, world frame), else ``hand/pose_truth``; the
-    messages of one hand (``ArchiveConfig.hand``, by ``handedness``: right by default);
+    messages of one hand (``ArchiveConfig.hand``, by ``handedness``: right by default),
+    without those of status LOST (a stale pose);
   - object: ``object/pose``, else ``object/pose_truth`` (geometry_msgs/PoseStamped, world;
     the object's body frame); with several objects ``object/NAME/pose[_truth]`` where NAME is
     the ``name`` of the object properties;
@@ -61,7 +62,7 @@ import numpy as np
 from hand_capture.config import from_mapping, load_yaml, param, validate
 from hand_capture.errors import BagError, ConfigError, InputError
 from hand_capture.model.joints import matrix_to_quat, quat_to_matrix
-from hand_capture.posemsg import HAND_LEFT, HAND_RIGHT
+from hand_capture.posemsg import HAND_LEFT, HAND_RIGHT, STATUS
 from hand_control.physcap.capture import (
     Capture,
     CapturedObject,
@@ -425,8 +426,8 @@ def read_capture_bag(path: str | Path, default_object: ObjectProperties | None =
             for m in r.messages():
                 topic = m.topic.lstrip("/")
                 if topic in HAND_TOPICS:
-                    msg = r.check(m)
-                    if int(msg.handedness) == side:
+                    msg = r.check(m)  # a lost tracker repeats a stale pose: not a frame
+                    if int(msg.handedness) == side and int(msg.status) != STATUS["lost"]:
                         hand_msgs.setdefault(topic, []).append(msg)
                 elif topic in wanted_obj:
                     obj_msgs.setdefault(topic, []).append(r.check(m))
