@@ -425,9 +425,21 @@ def test_cli_run_info_replay(archive, tmp_path, capsys):
     assert "match" in text and "True" in text
     assert main(["physcap", "info", str(archive)]) == 1
     assert "broken" in capsys.readouterr().out
-    # the output folder is never written over
-    assert main(["physcap", "run", str(archive), "-o", str(out), "--workers", "0",
-                 "--config", str(cfg), "--no-progress"]) == 2
+    # the output folder is never written over ...
+    run = ["physcap", "run", str(archive), "-o", str(out), "--workers", "0", "--config",
+           str(cfg), "--no-progress"]
+    before = (out / "take_a" / "result.npz").stat().st_mtime_ns
+    assert main(run) == 2
+    assert "--resume" in capsys.readouterr().err
+    # ... but --resume keeps its results and optimises only the others
+    assert main([*run, "--resume"]) == 1
+    fig = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert fig["kept"] == 3 and fig["ok"] == 0 and set(fig["not_ok"]) == {
+        "broken", "hand_only", "no_mesh"}
+    assert (out / "take_a" / "result.npz").stat().st_mtime_ns == before
+    # results made with other settings are not mixed in
+    assert main([*run, "--resume", "--seed", "12"]) == 2
+    assert "other settings (seed=" in capsys.readouterr().err
 
 
 def test_unreachable_scheduler_is_a_clear_error(archive, tmp_path, capsys):

@@ -75,6 +75,8 @@ class BatchConfig:
                            "empty = start a local cluster")
     progress: bool = param(True, "tqdm bars over captures and frames (stderr)")
     write: bool = param(True, "write each result (npz + bag) under the output folder")
+    resume: bool = param(False, "keep the results an earlier run (e.g. interrupted) left in "
+                         "the output folder and optimise only the other captures")
     connect_timeout: float = param(30.0, "seconds to wait for --scheduler", lo=1.0,
                                    hi=3600.0)
 
@@ -286,7 +288,8 @@ class BatchResult:
 
     @property
     def failed(self) -> list[CaptureOutcome]:
-        return [o for o in self.outcomes if not o.ok]
+        """Captures without a result (kept ones, status ``kept``, have one)."""
+        return [o for o in self.outcomes if o.status not in ("ok", "kept")]
 
     def figures(self) -> dict[str, Any]:
         """JSON-ready summary (the CLI's last line)."""
@@ -296,6 +299,7 @@ class BatchResult:
         res = [o.result for o in ok if o.result is not None]
         return {
             "captures": len(self.outcomes), "ok": len(ok),
+            "kept": sum(o.status == "kept" for o in self.outcomes),
             "not_ok": {o.name: f"{o.status}: {o.reason}" for o in self.failed},
             "frames": frames, "wall_s": self.wall_s,
             "s_per_frame": task_s / frames if frames else None,
@@ -382,6 +386,29 @@ def _finish(outcome: CaptureOutcome, out_dir: Path | None, write: bool) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def _kept(folder: Path, name: str, config: PhysCapConfig) -> CaptureOutcome:
+    """The outcome of a result an earlier run left (``--resume``): refused when it was made
+    with other settings (all but ``n_threads``) or this capture's seed."""
+    from dataclasses import asdict
+
+    from hand_control.physcap.output import read_result
+
+    try:
+        old = read_result(folder)
+    except InputError as e:
+        raise InputError(f"--resume: {folder} is not a finished result ({e}); move it away"
+                         ) from e
+    want = asdict(replace(config, seed=capture_seed(config.seed, name), n_threads=1))
+    have = asdict(replace(old.config, n_threads=1))
+    if want != have:
+        diff = sorted(k for k in want if want[k] != have.get(k))
+        raise InputError(f"--resume: the result in {folder} was made with other settings "
+                         f"({', '.join(f'{k}={have.get(k)}' for k in diff)}); use another "
+                         f"output folder")
+    return CaptureOutcome(name, "kept", "result of an earlier run (--resume)",
+                          int(old.times.shape[0]), 0.0, want["seed"], output=str(folder))
+
+
 def run_batch(entries: Sequence[ArchiveEntry], config: PhysCapConfig,
               out_dir: str | Path | None = None, batch: BatchConfig | None = None, *,
               default_object: ObjectProperties | None = None,
@@ -397,17 +424,20 @@ def run_batch(entries: Sequence[ArchiveEntry], config: PhysCapConfig,
     out = Path(out_dir) if out_dir is not None else None
     if out is not None and batch.write:
         out.mkdir(parents=True, exist_ok=True)
-        taken = [e.name for e in entries if e.ok and (out / e.name).exists()]
-        if taken:
-            raise InputError(f"{out} already holds results for {taken}; choose another "
-                             f"output folder or move them away")
-    jobs = {e.name: CaptureJob.from_entry(e, config, default_object, archive, optimiser)
-            for e in entries if e.ok}
+    taken = ([e.name for e in entries if e.ok and (out / e.name).exists()]
+             if out is not None and batch.write else [])
+    if taken and not batch.resume:
+        raise InputError(f"{out} already holds results for {taken}; choose another output "
+                         f"folder, move them away, or keep them with --resume")
     outcomes: dict[str, CaptureOutcome] = {
         e.name: CaptureOutcome(e.name, e.status, e.reason,
                                seed=capture_seed(config.seed, e.name))
         for e in entries if not e.ok}
-    frames = {e.name: e.frames for e in entries if e.ok}
+    for name in taken:
+        outcomes[name] = _kept(out / name, name, config)
+    jobs = {e.name: CaptureJob.from_entry(e, config, default_object, archive, optimiser)
+            for e in entries if e.ok and e.name not in outcomes}
+    frames = {e.name: e.frames for e in entries if e.name in jobs}
     bars = _Bars(batch.progress, len(jobs), sum(frames.values()))
     t0 = time.perf_counter()
     interrupted = False

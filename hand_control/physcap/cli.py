@@ -46,6 +46,8 @@ def add_parser(sub: Any) -> None:
                    "from it and the capture's name)")
     r.add_argument("--min-frames", type=int, default=None, help="fewest frames a capture "
                    "may have")
+    r.add_argument("--resume", action="store_true", help="keep the results already in "
+                   "OUT (an interrupted run) and optimise the other captures")
     r.add_argument("--hand", default="right", choices=["right", "left"],
                    help="which hand of a bag is captured")
     r.add_argument("--optimiser", default="", metavar="MODULE:FUNCTION",
@@ -105,7 +107,7 @@ def _run(a: argparse.Namespace) -> int:
     cfg = _config(a)
     batch = BatchConfig(workers=a.workers, threads_per_worker=a.threads_per_worker,
                         scheduler=a.scheduler, progress=not a.no_progress,
-                        connect_timeout=a.connect_timeout)
+                        connect_timeout=a.connect_timeout, resume=a.resume)
     arch = ArchiveConfig(hand=a.hand, **({} if a.min_frames is None
                                          else {"min_frames": a.min_frames}))
     old = signal.signal(signal.SIGTERM, _on_sigterm)  # a kill closes the cluster like Ctrl-C
@@ -115,7 +117,7 @@ def _run(a: argparse.Namespace) -> int:
                           optimiser=a.optimiser)
     except KeyboardInterrupt:
         print(f"hand-suite physcap run: interrupted; the results finished so far are in "
-              f"{a.output} (summary.json)")
+              f"{a.output} (summary.json); the same command with --resume continues")
         return 130
     finally:
         signal.signal(signal.SIGTERM, old)
