@@ -425,6 +425,8 @@ def test_cli_run_info_replay(archive, tmp_path, capsys):
     assert "match" in text and "True" in text
     assert main(["physcap", "info", str(archive)]) == 1
     assert "broken" in capsys.readouterr().out
+    assert main(["physcap", "info", str(out)]) == 0  # the run's summary
+    assert "3 optimised" in capsys.readouterr().out
     # the output folder is never written over ...
     run = ["physcap", "run", str(archive), "-o", str(out), "--workers", "0", "--config",
            str(cfg), "--no-progress"]

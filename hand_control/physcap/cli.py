@@ -133,6 +133,19 @@ def _info(a: argparse.Namespace) -> int:
     from hand_control.physcap.archive import list_archive
 
     p = Path(a.path)
+    if (p / "summary.json").is_file():  # the output folder of a run
+        import json
+
+        s = json.loads((p / "summary.json").read_text())
+        rows = [[c["name"], c["status"], c["frames"], c["seconds"],
+                 c.get("summary", {}).get("success", ""),
+                 c.get("summary", {}).get("final_error_mm", ""), c["output"] or c["reason"]]
+                for c in s.get("captures_detail", [])]
+        print_table(f"physcap run {p}: {s['ok']} optimised, {s.get('kept', 0)} kept of "
+                    f"{s['captures']} ({s['mode']}{', interrupted' if s['interrupted'] else ''})",
+                    ["capture", "status", "frames", "seconds", "success",
+                     "final object err [mm]", "output / reason"], rows)
+        return 0
     if p.is_dir() and not (p / "result.npz").exists() and not (p / "metadata.yaml").exists():
         entries = list_archive(p, _default_object(a.object))
         print_table(f"archive {p}: {sum(e.ok for e in entries)} of {len(entries)} captures "
