@@ -522,3 +522,16 @@ def test_interrupt_cancels_the_tasks_and_stops_the_cluster(archive, tmp_path):
     assert summary["not_ok"]["endless"].startswith("cancelled")
     gone, alive = psutil.wait_procs(workers, timeout=60)
     assert not alive, [p.cmdline() for p in alive]
+
+
+def test_a_scheduler_without_workers_is_a_clear_error(archive, tmp_path):
+    from distributed import LocalCluster
+
+    from hand_capture.errors import HandSuiteError
+    from hand_control.physcap.batch import BatchConfig, run_archive
+
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=None) as cluster:
+        with pytest.raises(HandSuiteError, match="no Dask worker joined"):
+            run_archive(archive, tmp_path / "o", TINY,
+                        BatchConfig(scheduler=cluster.scheduler_address, progress=False,
+                                    connect_timeout=1.0))

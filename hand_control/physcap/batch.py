@@ -493,6 +493,7 @@ def _run_dask(jobs: dict[str, CaptureJob], frames: dict[str, int],
         return
     with dask_client(batch.workers, batch.scheduler, batch.threads_per_worker,
                      batch.connect_timeout) as client:
+        _ready(client, batch)
 
         def on_event(event: Any) -> None:
             _, msg = event
@@ -529,6 +530,28 @@ def _run_dask(jobs: dict[str, CaptureJob], frames: dict[str, int],
                 client.unsubscribe_topic(FRAME_TOPIC)
             except Exception:  # the client may be gone already (Ctrl-C): nothing to undo
                 pass
+
+
+def _ready(client: Any, batch: BatchConfig) -> None:
+    """At least one worker, and every worker can import the optimiser (imports done before
+    the first task, so its time is the optimisation's).
+
+    Raises:
+        HandSuiteError: no worker joined within ``connect_timeout``, or a worker cannot
+            import hand_suite's optimiser (not installed there).
+    """
+    where = batch.scheduler or "the local cluster"
+    try:
+        client.wait_for_workers(1, timeout=batch.connect_timeout)
+    except (TimeoutError, OSError) as e:
+        raise HandSuiteError(f"no Dask worker joined {where} within "
+                             f"{batch.connect_timeout:g} s ({type(e).__name__})") from e
+    try:
+        client.run(_warm_worker)
+    except Exception as e:  # ModuleNotFoundError on the worker, unpickling errors, ...
+        raise HandSuiteError(f"the workers of {where} cannot load hand_suite's optimiser "
+                             f"({type(e).__name__}: {e}); install the same hand_suite on "
+                             f"every worker") from e
 
 
 def run_archive(archive_dir: str | Path, out_dir: str | Path | None, config: PhysCapConfig,
