@@ -252,6 +252,9 @@ class PhysCapConfig:
     smoothing: int = param(2, "the sampling centres come from the reference averaged over "
                            "+-this many frames (a tracker's per-frame jitter shakes a grasp "
                            "loose); the cost uses the capture as it is", lo=0, hi=20)
+    lead: float = param(1.0, "the wrist position's sampling centres lead the (smoothed) "
+                        "reference by this many frames of its velocity: the root servos lag "
+                        "their targets (about 0.1 s)", lo=0.0, hi=5.0)
     carry_fraction: float = param(0.5, "share of the samples centred on the reference plus "
                                   "their parent's correction of the previous step (at half "
                                   "width): a correction found once is kept", lo=0.0, hi=1.0)

@@ -198,6 +198,10 @@ class SegmentSimulator:
             object_inertia=float(m.body_inertia[self.body].min()),
             control_period=config.control_every * config.timestep)
         self.views = w.object_state_views(OBJECT_NAME)
+        # the contact QP warm-starts from its last active set: cleared at the start of every
+        # step, so that a step's outcome depends only on its state and control (a replay
+        # reproduces the optimised motion bit for bit, whatever was simulated before)
+        self._qp_warm = getattr(self.core.controller.qp, "_passive", None)
         self.hand_geom = np.zeros(m.ngeom, dtype=bool)
         hand_bodies = {int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n))
                        for n in ("palm",)} | set(range(1, 17))
@@ -231,6 +235,8 @@ class SegmentSimulator:
         m, d, w, core = self.m, self.d, self.world, self.core
         mujoco.mj_setState(m, d, state, _STATE)
         mujoco.mj_forward(m, d)
+        if self._qp_warm is not None:
+            self._qp_warm.clear()
         self.ref.q_target = q_target
         self.ref.object_position = object_target[0:3]
         self.ref.object_quaternion = object_target[3:7]
@@ -279,6 +285,8 @@ class _Search:
                 po[i, 3:7] *= -1.0
         po = smooth_reference(po, config.smoothing)
         po[:, 3:7] /= np.linalg.norm(po[:, 3:7], axis=1, keepdims=True)
+        # servo lag: the wrist's centres lead by `lead` frames of the reference's velocity
+        self.centre_q[1:, 0:3] += config.lead * np.diff(self.centre_q[:, 0:3], axis=0)
         self.centre_obj = po
         self.sims = [SegmentSimulator(obj, ref_q[0], ref_obj[0], config)
                      for _ in range(config.n_threads)]
