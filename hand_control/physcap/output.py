@@ -236,7 +236,7 @@ def write_result_bag(result: PhysCapResult, path: str | Path, *, storage: str = 
     Raises:
         BagError: ``path`` exists or cannot be written.
     """
-    from hand_capture.bag import BagWriter, default_typestore
+    from hand_capture.bag import BagWriter, default_typestore, make_qos
 
     path = Path(path)
     if path.exists():
@@ -257,7 +257,7 @@ def write_result_bag(result: PhysCapResult, path: str | Path, *, storage: str = 
     w = BagWriter(path, storage=storage, flush_period=1.0)
     try:
         for topic, msgtype in OUTPUT_TOPICS.items():
-            w.add_topic(topic, msgtype)
+            w.add_topic(topic, msgtype, qos=[make_qos(reliable=True)])
 
         def put(topic: str, t_ns: int, msg: Any) -> None:
             w.write(topic, t_ns, bytes(store.serialize_cdr(msg, OUTPUT_TOPICS[topic])))
