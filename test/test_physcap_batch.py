@@ -535,3 +535,11 @@ def test_a_scheduler_without_workers_is_a_clear_error(archive, tmp_path):
             run_archive(archive, tmp_path / "o", TINY,
                         BatchConfig(scheduler=cluster.scheduler_address, progress=False,
                                     connect_timeout=1.0))
+
+
+def test_a_capture_missing_where_the_task_runs_is_named(tmp_path):
+    from hand_control.physcap.batch import CaptureJob, process_capture
+
+    job = CaptureJob("gone", str(tmp_path / "gone.npz"), "npz", TINY)
+    out = process_capture(job)
+    assert out.status == "failed" and "same path on every worker" in out.reason

@@ -171,6 +171,12 @@ def process_capture(job: CaptureJob, progress: ProgressFn | None = None,
     cfg = job.seeded_config
     t0 = time.perf_counter()
     frames = 0
+    if not Path(job.path).exists():  # e.g. a worker of a cluster without the shared folder
+        import socket
+
+        return CaptureOutcome(job.name, "failed", f"{job.path} not found on "
+                              f"{socket.gethostname()}: the archive must be at the same path "
+                              f"on every worker (a shared file system)", 0, 0.0, cfg.seed)
     try:
         optimise = optimise or _optimiser(job.optimiser)
         entry = ArchiveEntry(job.name, Path(job.path), job.kind, "ok")
