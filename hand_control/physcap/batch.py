@@ -17,8 +17,11 @@
   that dies is reported the same way).
 * Progress: one tqdm bar over captures and one over frames; workers report frames as
   worker events (``physcap-frames``, throttled) that the client subscribes to.
-* Ctrl-C cancels the pending tasks and closes the client and the local cluster; the results
-  written so far stay.
+* Ctrl-C (or SIGTERM in the CLI) cancels the pending tasks and closes the client and the
+  local cluster; the results written so far stay (each result folder appears only when
+  complete) and ``--resume`` continues with the others.
+* Before the first task the client waits for a worker and has every worker import the
+  optimiser, so a cluster without workers or without hand_suite is a clear error.
 
 By default a :class:`distributed.LocalCluster` with worker *processes* (one thread each) is
 started; ``--workers 0`` runs serially in this process (the same code path per capture).
@@ -54,8 +57,6 @@ from hand_control.physcap.capture import Capture, PhysCapConfig, PhysCapResult
 __all__ = ["BatchConfig", "BatchResult", "CaptureJob", "CaptureOutcome", "capture_seed",
            "dask_client", "measure_dask_speedup", "process_capture", "run_archive",
            "run_batch"]
-
-log = logging.getLogger(__name__)
 
 #: worker event topic of frame progress
 FRAME_TOPIC = "physcap-frames"
@@ -235,12 +236,8 @@ def _warm_worker() -> str:
     """Import the optimiser's modules on a worker (before a timed run)."""
     import importlib
 
-    for mod in ("hand_control.physcap.capture", "hand_control.physcap.archive", "mujoco"):
+    for mod in ("mujoco", "hand_control.physcap.archive", "hand_control.physcap.optimise"):
         importlib.import_module(mod)
-    try:
-        importlib.import_module("hand_control.physcap.optimise")
-    except ImportError:
-        pass
     return "ok"
 
 
