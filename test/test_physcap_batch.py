@@ -300,6 +300,25 @@ def test_result_bag_feeds_the_report(tmp_path):
     assert rep.numbers["object_max_lift_mm"] == pytest.approx(50.0, abs=0.5)
 
 
+def test_capture_bag_round_trip(tmp_path):
+    from hand_control.physcap.output import write_capture_bag
+
+    c = _npz_capture(tmp_path / "c.npz", "c")
+    bag = write_capture_bag(c, tmp_path / "arch" / "take")
+    assert (tmp_path / "arch" / "take.object.yaml").is_file()
+    (entry,) = list_archive(tmp_path / "arch")
+    assert entry.ok and entry.object_source == "sidecar"
+    back = load_entry(entry)
+    assert back.name == "take" and back.obj == c.obj
+    np.testing.assert_allclose(back.times, c.times, atol=1e-9)
+    np.testing.assert_allclose(back.hand_q, c.hand_q, atol=1e-6)
+    np.testing.assert_allclose(back.object_pose, c.object_pose, atol=1e-9)
+    from hand_capture.errors import BagError
+
+    with pytest.raises(BagError, match="exists"):
+        write_capture_bag(c, bag)
+
+
 def test_read_result_refuses_other_files(tmp_path):
     from hand_capture.errors import InputError
 
@@ -543,3 +562,15 @@ def test_a_capture_missing_where_the_task_runs_is_named(tmp_path):
     job = CaptureJob("gone", str(tmp_path / "gone.npz"), "npz", TINY)
     out = process_capture(job)
     assert out.status == "failed" and "same path on every worker" in out.reason
+
+
+def test_cli_sample_writes_a_usable_archive(tmp_path, capsys):
+    from hand_control.cli import main
+
+    arch = tmp_path / "arch"
+    assert main(["physcap", "sample", str(arch), "--scenarios", "lift_box,lift_ball"]) == 0
+    assert (arch / "lift_box.npz").is_file() and (arch / "lift_ball").is_dir()
+    entries = {e.name: e for e in list_archive(arch)}
+    assert {n: (e.status, e.kind) for n, e in entries.items()} == {
+        "lift_box": ("ok", "npz"), "lift_ball": ("ok", "bag")}
+    assert main(["physcap", "sample", str(arch), "--scenarios", "lift_box"]) == 2

@@ -2,7 +2,8 @@
 
     hand-suite physcap run ARCHIVE_DIR -o OUT [--workers N | --scheduler tcp://HOST:8786]
                            [--quick] [--object FILE] [--config FILE] [--samples N] [--seed S]
-    hand-suite physcap info ARCHIVE_DIR | RESULT_DIR | FILE.npz
+    hand-suite physcap info ARCHIVE_DIR | OUT | RESULT_DIR | FILE.npz | BAG
+    hand-suite physcap sample ARCHIVE_DIR [--scenarios lift_box,...] [--corruption tracker]
     hand-suite physcap replay RESULT_DIR [--tolerance-mm MM]
 """
 
@@ -62,11 +63,41 @@ def add_parser(sub: Any) -> None:
     rp.add_argument("result", help="result folder (or its result.npz)")
     rp.add_argument("--tolerance-mm", type=float, default=1.0,
                     help="largest object / hand root deviation that counts as a match [mm]")
+    sm = act.add_parser("sample", help="write a sample archive: simulated scenario "
+                        "captures corrupted like a tracker (npz files and one bag)")
+    sm.add_argument("output", help="archive folder to create")
+    sm.add_argument("--scenarios", default="lift_box,lift_cylinder,lift_ball",
+                    help="comma-separated config/scenarios names (the last one as a bag)")
+    sm.add_argument("--corruption", default="tracker", choices=["tracker", "drift"])
+    sm.add_argument("--seed", type=int, default=0, help="corruption seed")
     ph.set_defaults(func=cmd_physcap)
 
 
 def cmd_physcap(a: argparse.Namespace) -> int:
-    return {"run": _run, "info": _info, "replay": _replay}[a.physcap_action](a)
+    return {"run": _run, "info": _info, "replay": _replay,
+            "sample": _sample}[a.physcap_action](a)
+
+
+def _sample(a: argparse.Namespace) -> int:
+    from hand_control.physcap.capture import save_capture_npz
+    from hand_control.physcap.output import write_capture_bag
+    from hand_control.physcap.synth import corrupt, scenario_capture
+    from hand_control.sim.scenario import load_scenario
+
+    out = Path(a.output)
+    names = [n for n in a.scenarios.split(",") if n]
+    if not names:
+        raise InputError("--scenarios names no scenario")
+    taken = [n for n in names if (out / f"{n}.npz").exists() or (out / n).exists()]
+    if taken:
+        raise InputError(f"{out} already holds {taken}; choose another folder")
+    out.mkdir(parents=True, exist_ok=True)
+    for i, name in enumerate(names):
+        cap = corrupt(scenario_capture(load_scenario(name)), a.corruption, a.seed + i).capture
+        path = (write_capture_bag(cap, out / name) if i == len(names) - 1 and len(names) > 1
+                else save_capture_npz(cap, out / f"{name}.npz"))
+        print(f"wrote {path} ({cap.n_frames} frames, {a.corruption} corruption)")
+    return 0
 
 
 def _config(a: argparse.Namespace) -> Any:

@@ -42,11 +42,16 @@ import numpy as np
 from hand_capture.config import from_mapping
 from hand_capture.errors import BagError, ConfigError, InputError
 from hand_capture.model.joints import ARTICULATED_JOINTS, JOINT_NAMES
-from hand_control.physcap.capture import CapturedObject, PhysCapConfig, PhysCapResult
+from hand_control.physcap.capture import (
+    Capture,
+    CapturedObject,
+    PhysCapConfig,
+    PhysCapResult,
+)
 
 __all__ = ["OUTPUT_TOPICS", "RESULT_FORMAT", "ResultFiles", "read_result", "replay_contacts",
-           "replay_match", "result_files", "results_equal", "write_result", "write_result_bag",
-           "write_result_npz"]
+           "replay_match", "result_files", "results_equal", "write_capture_bag", "write_result",
+           "write_result_bag", "write_result_npz"]
 
 RESULT_FORMAT = "hand_suite.physcap.result/1"
 #: topic -> message type of a result bag
@@ -298,22 +303,60 @@ def write_result_bag(result: PhysCapResult, path: str | Path, *, storage: str = 
     return w.count
 
 
+def _object_yaml(obj: CapturedObject) -> str:
+    import yaml
+
+    return yaml.safe_dump({"kind": obj.kind, "size": [float(v) for v in obj.size],
+                           "mass": float(obj.mass), "friction": float(obj.friction),
+                           "mesh": obj.mesh}, sort_keys=False)
+
+
+def write_capture_bag(capture: Capture, path: str | Path, *, t0_ns: int = T0_NS) -> Path:
+    """A capture as the archive reads a recorded one: ``/hand/pose`` (HandPose) and
+    ``/object/pose`` (PoseStamped), world frame, plus its object in ``NAME.object.yaml``
+    next to the bag (:mod:`hand_control.physcap.archive`); returns the bag's path.
+
+    Raises:
+        BagError: ``path`` exists.
+    """
+    from hand_capture.bag import BagWriter, default_typestore, make_qos
+
+    path = Path(path)
+    if path.exists():
+        raise BagError(f"{path} exists; a capture bag is never overwritten")
+    store = default_typestore()
+    T = store.types
+    topics = {"/hand/pose": "hand_msgs/msg/HandPose",
+              "/object/pose": "geometry_msgs/msg/PoseStamped"}
+    w = BagWriter(path, storage="mcap", flush_period=1.0)
+    try:
+        for topic, msgtype in topics.items():
+            w.add_topic(topic, msgtype, qos=[make_qos(reliable=True)])
+        for k, t in enumerate(np.asarray(capture.times, dtype=float)):
+            t_ns = t0_ns + int(round(t * 1e9))
+            header = T["std_msgs/msg/Header"](stamp=_stamp(store, t_ns), frame_id="world")
+            w.write("/hand/pose", t_ns, bytes(store.serialize_cdr(
+                _hand_pose(store, header, capture.hand_q[k], "tracking", "capture"),
+                topics["/hand/pose"])))
+            w.write("/object/pose", t_ns, bytes(store.serialize_cdr(
+                _pose_stamped(store, header, capture.object_pose[k]), topics["/object/pose"])))
+    finally:
+        w.close()
+    path.with_name(path.name + ".object.yaml").write_text(_object_yaml(capture.obj))
+    return path
+
+
 def write_result(result: PhysCapResult, root: str | Path) -> ResultFiles:
     """``root/result.npz``, ``root/bag`` and its object sidecar (module docstring).
 
     Raises:
         BagError: ``root/bag`` exists already.
     """
-    import yaml
-
     files = result_files(root)
     files.root.mkdir(parents=True, exist_ok=True)
     write_result_npz(result, files.npz)
     write_result_bag(result, files.bag)
-    o = result.obj
-    files.sidecar.write_text(yaml.safe_dump(
-        {"kind": o.kind, "size": [float(s) for s in o.size], "mass": float(o.mass),
-         "friction": float(o.friction), "mesh": o.mesh}, sort_keys=False))
+    files.sidecar.write_text(_object_yaml(result.obj))
     return files
 
 
