@@ -227,3 +227,30 @@ def test_retarget_to_new_object_and_slip_at_low_friction(lift_capture, optimised
     slip = retarget(optimised, None, friction=0.03)
     assert not slip.success and slip.dropped
     assert slip.lift_m < 0.03   # the object slips out instead of rising
+
+
+def test_mesh_object_collides_as_its_principal_box(tmp_path):
+    import trimesh
+
+    from hand_control.physcap.world import build_capture_world, mesh_principal_frame
+
+    path = tmp_path / "bar.stl"
+    trimesh.creation.box(extents=(0.06, 0.04, 0.02)).export(path)
+    com, axes, half = mesh_principal_frame(path)
+    np.testing.assert_allclose(com, 0.0, atol=1e-9)
+    np.testing.assert_allclose(np.sort(half), [0.01, 0.02, 0.03], atol=1e-9)
+    assert np.linalg.det(axes) == pytest.approx(1.0)
+    obj = CapturedObject("mesh", mass=0.1, friction=0.5, mesh=str(path))
+    world, _ = build_capture_world(obj, np.r_[0.0, 0.0, 0.25, np.zeros(24)],
+                                   np.array([0.12, 0.0, 0.0101, 1.0, 0.0, 0.0, 0.0]))
+    g = int(world.objects["object"]["geoms"][0])
+    np.testing.assert_allclose(np.sort(world.model.geom_size[g]), [0.01, 0.02, 0.03])
+    assert world.model.body_mass[world.objects["object"]["body"]] == pytest.approx(0.1)
+    with pytest.raises(CaptureError, match="cannot read mesh"):
+        mesh_principal_frame(tmp_path / "missing.stl")
+
+
+def test_capture_with_foreign_keypoints_is_refused():
+    c = _capture(keypoints=np.zeros((3, 5, 3)))
+    with pytest.raises(CaptureError, match="21 keypoints"):
+        optimise_capture(c, PhysCapConfig(n_samples=2, n_keep=1))

@@ -90,23 +90,36 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
                 ["capture", "split", "method", "success", "object_err_mm", "hand_err_mm",
                  "ref_object_err_mm", "ref_hand_err_mm", "s_per_frame"], rows)
 
+    # samples simulated by 2 threads (own MjData + controller each) against 1
+    threads: dict[str, Any] = {}
+    if not smoke:
+        c = caps[0][1].capture
+        short = type(c)(c.name, c.times[:8], c.hand_q[:8], c.object_pose[:8], c.obj)
+        t1 = optimise_capture(short, PhysCapConfig(n_samples=32, n_keep=8)).frame_seconds.sum()
+        t2 = optimise_capture(short, PhysCapConfig(n_samples=32, n_keep=8, n_threads=2)
+                              ).frame_seconds.sum()
+        threads = {"threads2_speedup": float(t1 / t2)}
+        print(f"\n2 threads vs 1: {t1:.2f} s / {t2:.2f} s = {t1 / t2:.2f}x (7 steps, 32 samples)")
+
     # fewer / more samples: the same result? (contact sampling, the in-distribution captures)
     sweep: dict[str, Any] = {}
     if not (quick or smoke):
         sw_rows = []
         ins = [sc for split, sc in caps if split == "in"][:4]
-        for m in (16, 64):
+        for method, m in (("contact", 16), ("random", 16), ("contact", 64)):
             ok, errs = [], []
             for sc in ins:
-                r = optimise_capture(sc.capture, PhysCapConfig(n_samples=m, n_keep=m // 4))
+                r = optimise_capture(sc.capture, PhysCapConfig(
+                    n_samples=m, n_keep=m // 4, **_METHODS[method]))
                 ok.append(r.success)
                 errs.append(_errors(model, sc.truth, r.hand_q, r.object_pose)[0])
-            sweep[f"contact_success_{m}"] = float(np.mean(ok))
-            sweep[f"object_err_mm_{m}"] = float(np.mean(errs))
-            sw_rows.append([m, float(np.mean(ok)), float(np.mean(errs))])
-        base = [p for p in per["contact"] if p["split"] == "in"][:4]
-        sw_rows.insert(1, [n, float(np.mean([p["success"] for p in base])),
-                           float(np.mean([p["obj"] for p in base]))])
+            sweep[f"{method}_success_{m}"] = float(np.mean(ok))
+            sweep[f"{method}_object_err_mm_{m}"] = float(np.mean(errs))
+            sw_rows.append([method, m, float(np.mean(ok)), float(np.mean(errs))])
+        for method in ("contact", "random"):
+            base = [p for p in per[method] if p["split"] == "in"][:4]
+            sw_rows.append([method, n, float(np.mean([p["success"] for p in base])),
+                            float(np.mean([p["obj"] for p in base]))])
         # the paper's 1500 samples per step: the time per frame, on the first 4 frames
         sc = ins[0]
         c = sc.capture
@@ -114,7 +127,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         r = optimise_capture(short, PhysCapConfig(n_samples=1500, n_keep=150))
         sweep["s_per_frame_1500"] = r.s_per_frame
         print_table("samples per step (contact sampling, 4 in-distribution captures)",
-                    ["samples", "success", "object_err_mm"], sw_rows)
+                    ["sampling", "samples", "success", "object_err_mm"], sw_rows)
         print(f"1500 samples per step (seed 000's default): {r.s_per_frame:.2f} s per frame")
 
     def rate(method: str, split: str | None = None) -> float:
@@ -173,6 +186,6 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         "heldout_object_err_mm": mean("contact", "obj", "heldout"),
         "random_object_err_mm": mean("random", "obj"),
         "retarget_success": float(np.mean(ok)), "retarget_cases": len(ok),
-        "low_friction_slipped": bool(not slip.success), **sweep,
+        "low_friction_slipped": bool(not slip.success), **sweep, **threads,
         **{k: v for k, v in dask.items() if k.startswith("dask_")},
     }

@@ -255,6 +255,8 @@ class PhysCapConfig:
     lead: float = param(1.0, "the wrist position's sampling centres lead the (smoothed) "
                         "reference by this many frames of its velocity: the root servos lag "
                         "their targets (about 0.1 s)", lo=0.0, hi=5.0)
+    object_lead: float = param(0.0, "the same lead for the object's target position (the "
+                               "virtual wrench's servo lags too)", lo=0.0, hi=5.0)
     carry_fraction: float = param(0.5, "share of the samples centred on the reference plus "
                                   "their parent's correction of the previous step (at half "
                                   "width): a correction found once is kept", lo=0.0, hi=1.0)

@@ -30,11 +30,13 @@ import mujoco
 import numpy as np
 
 from hand_capture.model.hand import HandModel
+from hand_capture.model.skeleton import BONE_NAMES, N_KEYPOINTS
 from hand_control.control import ControllerCore, ControllerNodeConfig
 from hand_control.errors import SimulationError
 from hand_control.physcap.capture import (
     Capture,
     CapturedObject,
+    CaptureError,
     PhysCapConfig,
     PhysCapResult,
 )
@@ -158,7 +160,7 @@ class _Targets:
         return True
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False)
 class Segment:
     """The outcome of simulating one step: the end state and what it shows."""
 
@@ -204,7 +206,7 @@ class SegmentSimulator:
         self._qp_warm = getattr(self.core.controller.qp, "_passive", None)
         self.hand_geom = np.zeros(m.ngeom, dtype=bool)
         hand_bodies = {int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n))
-                       for n in ("palm",)} | set(range(1, 17))
+                       for n in BONE_NAMES}
         self.hand_geom[[g for g in range(m.ngeom) if int(m.geom_bodyid[g]) in hand_bodies]] \
             = True
         self.obj_geom = np.zeros(m.ngeom, dtype=bool)
@@ -287,6 +289,7 @@ class _Search:
         po[:, 3:7] /= np.linalg.norm(po[:, 3:7], axis=1, keepdims=True)
         # servo lag: the wrist's centres lead by `lead` frames of the reference's velocity
         self.centre_q[1:, 0:3] += config.lead * np.diff(self.centre_q[:, 0:3], axis=0)
+        po[1:, 0:3] += config.object_lead * np.diff(po[:, 0:3], axis=0)
         self.centre_obj = po
         self.sims = [SegmentSimulator(obj, ref_q[0], ref_obj[0], config)
                      for _ in range(config.n_threads)]
@@ -369,7 +372,7 @@ class _Search:
             segs = [s for f in futs for s in f.result()]
         q_ref = self.centre_q[step + 1]
         for s, c in zip(segs, controls, strict=True):
-            object.__setattr__(s, "q_offset", c[0] - q_ref)
+            s.q_offset = c[0] - q_ref
         ok = np.array([s.ok for s in segs])
         costs = np.full(n, np.inf)
         if ok.any():
@@ -401,6 +404,13 @@ def _goal_figures(config: PhysCapConfig, obj_sim: np.ndarray, obj_ref: np.ndarra
 def optimise(capture: Capture, config: PhysCapConfig, progress: Any = None) -> PhysCapResult:
     """:func:`hand_control.physcap.capture.optimise_capture` (see there)."""
     times, ref_q, ref_obj, kp = resample_capture(capture, config.step)
+    if kp is not None and kp.shape[1] != N_KEYPOINTS:
+        raise CaptureError(f"capture {capture.name!r}: the cost compares the model's "
+                           f"{N_KEYPOINTS} keypoints (KEYPOINT_NAMES), the capture has "
+                           f"{kp.shape[1]}")
+    if len(times) < 2:
+        raise CaptureError(f"capture {capture.name!r} is shorter than one step "
+                           f"({config.step} s)")
     kp_obs = _hand_model().joint_positions(ref_q) if kp is None else kp
     search = _Search(capture.obj, ref_q, ref_obj, kp_obs, config)
     try:
