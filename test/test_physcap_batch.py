@@ -482,6 +482,8 @@ def test_measure_dask_speedup_runs_both_clusters_on_the_same_captures(archive):
     assert fig["dask_identical"] is True
     assert fig["dask_1w_s"] > 0 and fig["dask_2w_s"] > 0
     assert fig["dask_speedup_2w"] == pytest.approx(fig["dask_1w_s"] / fig["dask_2w_s"])
+    assert fig["dask_task_time_ratio"] == pytest.approx(
+        fig["dask_2w_task_s"] / fig["dask_1w_task_s"])
 
 
 _SLOW_OPTIMISER = '''

@@ -591,9 +591,10 @@ def measure_dask_speedup(captures: Sequence[Capture | str | Path], config: PhysC
     Returns:
         ``dask_1w_s``, ``dask_2w_s`` [s], ``dask_speedup_2w`` (1-worker time / 2-worker
         time), ``dask_identical`` (bool), ``dask_captures``, ``dask_failed`` (names),
-        ``dask_1w_task_s`` / ``dask_2w_task_s`` (sum of the tasks' own wall times [s]: when
-        the 2-worker sum grows, the workers shared CPUs with other load), ``load_avg_1min``
-        (this machine's load when the measurement began).
+        ``dask_1w_task_s`` / ``dask_2w_task_s`` (sum of the tasks' own wall times [s]) and
+        ``dask_task_time_ratio`` (their ratio: 1 = each of 2 workers as fast as a lone one, 2
+        = the two shared one worker's CPU, e.g. on a loaded host), ``load_avg_1min`` (this
+        machine's load when the measurement began).
     """
     import os
     import shutil
@@ -628,6 +629,7 @@ def measure_dask_speedup(captures: Sequence[Capture | str | Path], config: PhysC
                 outs = client.gather(futs)
                 times[n] = time.perf_counter() - t0
                 results[n] = BatchResult(list(outs), times[n], f"local {n}")
+        task_s = {n: sum(o.seconds for o in results[n].outcomes) for n in (1, 2)}
         a = {o.name: o for o in results[1].outcomes}
         identical = all(o.ok and a[o.name].ok and not results_equal(a[o.name].result,
                                                                   o.result)
@@ -636,8 +638,8 @@ def measure_dask_speedup(captures: Sequence[Capture | str | Path], config: PhysC
                 "dask_speedup_2w": times[1] / times[2] if times[2] > 0 else None,
                 "dask_identical": bool(identical), "dask_captures": len(entries),
                 "dask_failed": [o.name for o in results[2].outcomes if not o.ok],
-                "dask_1w_task_s": sum(o.seconds for o in results[1].outcomes),
-                "dask_2w_task_s": sum(o.seconds for o in results[2].outcomes),
+                "dask_1w_task_s": task_s[1], "dask_2w_task_s": task_s[2],
+                "dask_task_time_ratio": task_s[2] / task_s[1] if task_s[1] > 0 else None,
                 "load_avg_1min": load}
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
