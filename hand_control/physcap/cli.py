@@ -2,6 +2,7 @@
 
     hand-suite physcap run ARCHIVE_DIR -o OUT [--workers N | --scheduler tcp://HOST:8786]
                            [--quick] [--object FILE] [--config FILE] [--samples N] [--seed S]
+                           [--resume] [--hand left] [--no-progress]
     hand-suite physcap info ARCHIVE_DIR | OUT | RESULT_DIR | FILE.npz | BAG
     hand-suite physcap sample ARCHIVE_DIR [--scenarios lift_box,...] [--corruption tracker]
     hand-suite physcap replay RESULT_DIR [--tolerance-mm MM]
@@ -17,7 +18,7 @@ from typing import Any
 
 from hand_capture.errors import InputError
 
-#: ``--quick``: fewer samples per step (the bench's quick setting for the batch)
+#: ``--quick``: samples per step and samples kept (the default is the paper's 1500 and 150)
 QUICK_SAMPLES, QUICK_KEEP = 200, 40
 
 
