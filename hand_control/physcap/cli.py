@@ -1,4 +1,4 @@
-"""``hand-suite physcap run | info | replay`` (registered by :mod:`hand_control.cli`).
+"""``hand-suite physcap run | info | sample | replay`` (registered by :mod:`hand_control.cli`).
 
     hand-suite physcap run ARCHIVE_DIR -o OUT [--workers N | --scheduler tcp://HOST:8786]
                            [--quick] [--object FILE] [--config FILE] [--samples N] [--seed S]
