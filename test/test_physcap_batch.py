@@ -227,12 +227,16 @@ def test_archive_names_corrupt_and_incomplete_captures(tmp_path):
              obj_mass=np.array(0.2), obj_friction=np.array(0.7))
     (arch / "zip_npz.npz").write_bytes((arch / "good_npz.npz").read_bytes()[:200])
     (arch / "notes.txt").write_text("not a capture")
+    # a bag as one MCAP file (as the mcap tools write them)
+    single = _write_bag(tmp_path / "single_src", t, q, op)
+    (arch / "single.mcap").write_bytes(next(single.glob("*.mcap")).read_bytes())
+    _sidecar(arch / "single.mcap", BOX)
 
     entries = {e.name: e for e in list_archive(arch)}
     assert sorted(entries) == ["crc_bag", "cut_bag", "good_bag", "good_npz", "nan_bag",
-                               "nan_npz", "no_object", "short", "zip_npz"]
+                               "nan_npz", "no_object", "short", "single", "zip_npz"]
     status = {n: e.status for n, e in entries.items()}
-    assert status == {"good_npz": "ok", "good_bag": "ok", "crc_bag": "corrupt",
+    assert status == {"good_npz": "ok", "good_bag": "ok", "single": "ok", "crc_bag": "corrupt",
                       "cut_bag": "corrupt", "zip_npz": "corrupt", "no_object": "incomplete",
                       "short": "incomplete", "nan_bag": "incomplete", "nan_npz": "incomplete"}
     assert "CRC" in entries["crc_bag"].reason
@@ -317,6 +321,9 @@ def test_capture_bag_round_trip(tmp_path):
 
     with pytest.raises(BagError, match="exists"):
         write_capture_bag(c, bag)
+    # one capture (a bag or a file) is an archive of one
+    assert [e.name for e in list_archive(bag)] == ["take"]
+    assert [e.name for e in list_archive(tmp_path / "c.npz")] == ["c"]
 
 
 def test_read_result_refuses_other_files(tmp_path):

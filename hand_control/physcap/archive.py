@@ -236,18 +236,25 @@ def _entry_name(path: Path) -> str:
 
 def list_archive(directory: str | Path, default_object: ObjectProperties | None = None,
                  config: ArchiveConfig | None = None) -> list[ArchiveEntry]:
-    """Every capture at the top level of ``directory``, validated, sorted by name.
+    """Every capture at the top level of ``directory``, validated, sorted by name (or the one
+    capture ``directory`` is: an ``.npz``, a bag folder or an ``.mcap`` file).
 
     Each capture is read completely (bags: CRCs and every message); one that cannot be used
     gets status ``corrupt`` or ``incomplete`` with its reason instead of an exception.
 
     Raises:
-        InputError: ``directory`` is not a directory, or two captures share a name.
+        InputError: ``directory`` is neither a directory nor a capture, or two captures share
+            a name.
     """
     root = Path(directory)
-    if not root.is_dir():
-        raise InputError(f"archive {root} is not a directory")
     config = config or ArchiveConfig()
+    if root.is_file() or (root / "metadata.yaml").is_file():  # one capture
+        kind = _entry_kind(root)
+        if kind is None:
+            raise InputError(f"{root} is not a capture (.npz, .mcap or a bag folder)")
+        return [inspect_entry(root, kind, default_object, config)]
+    if not root.is_dir():
+        raise InputError(f"archive {root} is neither a directory nor a capture file")
     entries: list[ArchiveEntry] = []
     seen: dict[str, Path] = {}
     for path in sorted(root.iterdir()):

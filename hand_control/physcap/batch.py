@@ -564,7 +564,8 @@ def run_archive(archive_dir: str | Path, out_dir: str | Path | None, config: Phy
     """:func:`list_archive` then :func:`run_batch` (what ``hand-suite physcap run`` does).
 
     Raises:
-        InputError: ``archive_dir`` is not a directory, holds no capture, or is ``out_dir``.
+        InputError: ``archive_dir`` is neither a directory nor a capture, holds no capture,
+            or is ``out_dir``.
     """
     if out_dir is not None and Path(out_dir).resolve() == Path(archive_dir).resolve():
         raise InputError("the output folder must not be the archive itself")

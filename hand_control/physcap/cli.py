@@ -28,7 +28,8 @@ def add_parser(sub: Any) -> None:
                         "Dask), inspect, replay")
     act = ph.add_subparsers(dest="physcap_action", required=True)
     r = act.add_parser("run", help="optimise every capture of an archive folder")
-    r.add_argument("archive", help="folder of captures (*.npz, bag folders, *.mcap)")
+    r.add_argument("archive", help="folder of captures (*.npz, bag folders, *.mcap), or "
+                   "one capture")
     r.add_argument("-o", "--output", required=True, help="results folder (one per capture)")
     r.add_argument("--workers", type=int, default=2,
                    help="local Dask worker processes (0 = serial in this process)")
