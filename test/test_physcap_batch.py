@@ -405,7 +405,7 @@ def test_dask_cluster_of_two_processes_gives_the_serial_results(archive, tmp_pat
                          BatchConfig(workers=0, progress=False))
     _check_batch(serial, tmp_path / "serial")
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:
+                      dashboard_address=":0") as cluster:
         assert len(cluster.workers) == 2
         dask = run_archive(archive, tmp_path / "dask", TINY,
                            BatchConfig(scheduler=cluster.scheduler_address, progress=False))
@@ -558,7 +558,7 @@ def test_a_scheduler_without_workers_is_a_clear_error(archive, tmp_path):
     from hand_capture.errors import HandSuiteError
     from hand_control.physcap.batch import BatchConfig, run_archive
 
-    with LocalCluster(n_workers=0, processes=True, dashboard_address=None) as cluster:
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=":0") as cluster:
         with pytest.raises(HandSuiteError, match="no Dask worker joined"):
             run_archive(archive, tmp_path / "o", TINY,
                         BatchConfig(scheduler=cluster.scheduler_address, progress=False,

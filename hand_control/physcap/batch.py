@@ -257,9 +257,11 @@ def dask_client(workers: int = 2, scheduler: str = "", threads_per_worker: int =
         if scheduler:
             client = Client(scheduler, timeout=connect_timeout)
         else:
+            # ":0": the scheduler's HTTP routes (and a dashboard, with bokeh) on a free port,
+            # so clusters of other runs on this machine never collide on 8787
             cluster = LocalCluster(n_workers=max(1, workers),
                                    threads_per_worker=threads_per_worker, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
+                                   dashboard_address=":0", silence_logs=logging.ERROR)
             client = Client(cluster)
     except (OSError, TimeoutError) as e:
         if cluster is not None:
