@@ -404,11 +404,13 @@ def test_dask_cluster_of_two_processes_gives_the_serial_results(archive, tmp_pat
     serial = run_archive(archive, tmp_path / "serial", TINY,
                          BatchConfig(workers=0, progress=False))
     _check_batch(serial, tmp_path / "serial")
+    sched_file = tmp_path / "scheduler.json"  # as dask-jobqueue / dask-mpi clusters give it
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=":0") as cluster:
+                      dashboard_address=":0",
+                      scheduler_kwargs={"scheduler_file": str(sched_file)}) as cluster:
         assert len(cluster.workers) == 2
         dask = run_archive(archive, tmp_path / "dask", TINY,
-                           BatchConfig(scheduler=cluster.scheduler_address, progress=False))
+                           BatchConfig(scheduler=str(sched_file), progress=False))
     _check_batch(dask, tmp_path / "dask")
     assert all(o.worker.startswith("tcp://") for o in dask.ok)
     by_name = {o.name: o for o in serial.outcomes}

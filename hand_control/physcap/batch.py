@@ -72,7 +72,9 @@ class BatchConfig:
                          hi=256)
     threads_per_worker: int = param(1, "threads of each local worker (tasks at once)",
                                     lo=1, hi=64)
-    scheduler: str = param("", "address of an existing Dask scheduler (tcp://HOST:8786); "
+    scheduler: str = param("", "address of an existing Dask scheduler (tcp://HOST:8786), or "
+                           "its scheduler file (*.json, as 'dask scheduler --scheduler-file' "
+                           "and dask-jobqueue / dask-mpi write it); "
                            "empty = start a local cluster")
     progress: bool = param(True, "tqdm bars over captures and frames (stderr)")
     write: bool = param(True, "write each result (npz + bag) under the output folder")
@@ -83,10 +85,12 @@ class BatchConfig:
 
     def __post_init__(self) -> None:
         validate(self)
-        if self.scheduler and not self.scheduler.startswith(("tcp://", "tls://", "inproc://",
-                                                              "ucx://", "ws://", "wss://")):
-            raise ConfigError(f"BatchConfig.scheduler {self.scheduler!r} is not a scheduler "
-                             f"address like tcp://HOST:8786")
+        if self.scheduler and not self.scheduler.endswith(".json") and \
+                not self.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://",
+                                               "ws://", "wss://")):
+            raise ConfigError(f"BatchConfig.scheduler {self.scheduler!r} is neither a "
+                              f"scheduler address like tcp://HOST:8786 nor a scheduler file "
+                              f"(*.json)")
 
 
 def capture_seed(base_seed: int, name: str) -> int:
@@ -254,7 +258,11 @@ def dask_client(workers: int = 2, scheduler: str = "", threads_per_worker: int =
 
     cluster = None
     try:
-        if scheduler:
+        if scheduler.endswith(".json"):
+            if not Path(scheduler).is_file():
+                raise HandSuiteError(f"scheduler file {scheduler} not found")
+            client = Client(scheduler_file=scheduler, timeout=connect_timeout)
+        elif scheduler:
             client = Client(scheduler, timeout=connect_timeout)
         else:
             # ":0": the scheduler's HTTP routes (and a dashboard, with bokeh) on a free port,

@@ -35,7 +35,8 @@ def add_parser(sub: Any) -> None:
                    help="local Dask worker processes (0 = serial in this process)")
     r.add_argument("--threads-per-worker", type=int, default=1)
     r.add_argument("--scheduler", default="", help="existing Dask scheduler, e.g. "
-                   "tcp://HOST:8786 (the archive must be at the same path on its workers)")
+                   "tcp://HOST:8786, or its scheduler file (*.json); the archive must be at "
+                   "the same path on its workers")
     r.add_argument("--connect-timeout", type=float, default=30.0,
                    help="seconds to wait for --scheduler")
     r.add_argument("--quick", action="store_true",
