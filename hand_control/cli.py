@@ -12,7 +12,7 @@
     hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
     hand-suite physcap run ARCHIVE -o OUT [--workers N | --scheduler tcp://HOST:8786] [--quick]
-    hand-suite physcap info PATH | physcap replay RESULT   physics capture (batch on Dask)
+    hand-suite physcap info PATH | sample DIR | replay RESULT   physics capture (Dask batch)
     hand-suite demo [--out DIR]          the README's main job
     hand-suite test [PYTEST ARGS]        lint + the test suite (what CI runs)
 """

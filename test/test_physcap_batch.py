@@ -55,7 +55,8 @@ def _motion(n: int = 12, rate: float = 20.0) -> tuple[np.ndarray, np.ndarray, np
 
 def _write_bag(path: Path, t: np.ndarray, q: np.ndarray, op: np.ndarray | None,
                hand_topic: str = "/hand/pose", obj_topic: str = "/object/pose_truth",
-               frame: str = "world", custom: dict | None = None, obj_every: int = 1) -> Path:
+               frame: str = "world", custom: dict | None = None, obj_every: int = 1,
+               left: np.ndarray | None = None, lost: tuple[int, ...] = ()) -> Path:
     """A capture bag as the multi-view tracker / the studio record it."""
     from hand_capture.posemsg import fill_pose_msg
 
@@ -81,9 +82,14 @@ def _write_bag(path: Path, t: np.ndarray, q: np.ndarray, op: np.ndarray | None,
                 wrist_pose=pose(position=point(x=0.0, y=0.0, z=0.0),
                                 orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0)),
                 confidence=1.0, status=1, source="test")
-            fill_pose_msg(hp, q[k])
-            hp.positions = np.asarray(hp.positions)
-            w.write(hand_topic, t_ns, bytes(store.serialize_cdr(hp, "hand_msgs/msg/HandPose")))
+            for side, qs in (("left", left), ("right", q)):
+                if qs is None:
+                    continue
+                fill_pose_msg(hp, qs[k], side=side,
+                              status="lost" if k in lost else "tracking")
+                hp.positions = np.asarray(hp.positions)
+                w.write(hand_topic, t_ns,
+                        bytes(store.serialize_cdr(hp, "hand_msgs/msg/HandPose")))
             if op is not None and k % obj_every == 0:
                 p = op[k]
                 ps = T["geometry_msgs/msg/PoseStamped"](header=header, pose=pose(
@@ -128,6 +134,28 @@ def test_bag_capture_reads_hand_object_and_sidecar_object(tmp_path):
     np.testing.assert_allclose(cap.hand_q, q, atol=1e-6)
     np.testing.assert_allclose(cap.object_pose, op, atol=1e-9)
     assert cap.obj == CapturedObject("box", (0.02, 0.02, 0.02), 0.15, 0.8)
+
+
+def test_bag_with_two_hands_gives_the_chosen_one(tmp_path):
+    t, q, op = _motion()
+    left = q.copy()
+    left[:, 1] += 0.3
+    bag = _write_bag(tmp_path / "two", t, q, op, left=left, hand_topic="/hand/pose_truth")
+    _sidecar(bag, BOX)
+    right, _ = read_capture_bag(bag)
+    np.testing.assert_allclose(right.hand_q, q, atol=1e-6)
+    other, _ = read_capture_bag(bag, config=ArchiveConfig(hand="left"))
+    np.testing.assert_allclose(other.hand_q, left, atol=1e-6)
+
+
+def test_frames_of_a_lost_tracker_are_dropped(tmp_path):
+    t, q, op = _motion()
+    bag = _write_bag(tmp_path / "lost", t, q, op, lost=(4, 5))
+    _sidecar(bag, BOX)
+    cap, _ = read_capture_bag(bag)
+    keep = [k for k in range(len(t)) if k not in (4, 5)]
+    np.testing.assert_allclose(cap.times, t[keep], atol=1e-9)
+    np.testing.assert_allclose(cap.hand_q, q[keep], atol=1e-6)
 
 
 def test_bag_object_from_metadata_and_object_poses_interpolated(tmp_path):
@@ -199,12 +227,16 @@ def test_archive_names_corrupt_and_incomplete_captures(tmp_path):
              obj_mass=np.array(0.2), obj_friction=np.array(0.7))
     (arch / "zip_npz.npz").write_bytes((arch / "good_npz.npz").read_bytes()[:200])
     (arch / "notes.txt").write_text("not a capture")
+    # a bag as one MCAP file (as the mcap tools write them)
+    single = _write_bag(tmp_path / "single_src", t, q, op)
+    (arch / "single.mcap").write_bytes(next(single.glob("*.mcap")).read_bytes())
+    _sidecar(arch / "single.mcap", BOX)
 
     entries = {e.name: e for e in list_archive(arch)}
     assert sorted(entries) == ["crc_bag", "cut_bag", "good_bag", "good_npz", "nan_bag",
-                               "nan_npz", "no_object", "short", "zip_npz"]
+                               "nan_npz", "no_object", "short", "single", "zip_npz"]
     status = {n: e.status for n, e in entries.items()}
-    assert status == {"good_npz": "ok", "good_bag": "ok", "crc_bag": "corrupt",
+    assert status == {"good_npz": "ok", "good_bag": "ok", "single": "ok", "crc_bag": "corrupt",
                       "cut_bag": "corrupt", "zip_npz": "corrupt", "no_object": "incomplete",
                       "short": "incomplete", "nan_bag": "incomplete", "nan_npz": "incomplete"}
     assert "CRC" in entries["crc_bag"].reason
@@ -272,6 +304,28 @@ def test_result_bag_feeds_the_report(tmp_path):
     assert rep.numbers["object_max_lift_mm"] == pytest.approx(50.0, abs=0.5)
 
 
+def test_capture_bag_round_trip(tmp_path):
+    from hand_control.physcap.output import write_capture_bag
+
+    c = _npz_capture(tmp_path / "c.npz", "c")
+    bag = write_capture_bag(c, tmp_path / "arch" / "take")
+    assert (tmp_path / "arch" / "take.object.yaml").is_file()
+    (entry,) = list_archive(tmp_path / "arch")
+    assert entry.ok and entry.object_source == "sidecar"
+    back = load_entry(entry)
+    assert back.name == "take" and back.obj == c.obj
+    np.testing.assert_allclose(back.times, c.times, atol=1e-9)
+    np.testing.assert_allclose(back.hand_q, c.hand_q, atol=1e-6)
+    np.testing.assert_allclose(back.object_pose, c.object_pose, atol=1e-9)
+    from hand_capture.errors import BagError
+
+    with pytest.raises(BagError, match="exists"):
+        write_capture_bag(c, bag)
+    # one capture (a bag or a file) is an archive of one
+    assert [e.name for e in list_archive(bag)] == ["take"]
+    assert [e.name for e in list_archive(tmp_path / "c.npz")] == ["c"]
+
+
 def test_read_result_refuses_other_files(tmp_path):
     from hand_capture.errors import InputError
 
@@ -332,6 +386,12 @@ def _check_batch(res, out: Path) -> None:
     for name in ("take_a", "take_b", "take_c"):
         assert (out / name / "result.npz").exists() and (out / name / "bag").is_dir()
     assert not (out / "no_mesh").exists()
+    # the simulated grasp's contact forces are in the bag (take_c holds the object)
+    from hand_control.report.series import contact_force_sum, load_bag
+
+    data = load_bag(out / "take_c" / "bag")
+    assert len(data.topics["sim/contacts"].msgs) == 6
+    assert contact_force_sum(data.topics["sim/contacts"].msgs).max() > 0.5  # [N]
 
 
 def test_dask_cluster_of_two_processes_gives_the_serial_results(archive, tmp_path):
@@ -344,11 +404,13 @@ def test_dask_cluster_of_two_processes_gives_the_serial_results(archive, tmp_pat
     serial = run_archive(archive, tmp_path / "serial", TINY,
                          BatchConfig(workers=0, progress=False))
     _check_batch(serial, tmp_path / "serial")
+    sched_file = tmp_path / "scheduler.json"  # as dask-jobqueue / dask-mpi clusters give it
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster:
+                      dashboard_address=":0",
+                      scheduler_kwargs={"scheduler_file": str(sched_file)}) as cluster:
         assert len(cluster.workers) == 2
         dask = run_archive(archive, tmp_path / "dask", TINY,
-                           BatchConfig(scheduler=cluster.scheduler_address, progress=False))
+                           BatchConfig(scheduler=str(sched_file), progress=False))
     _check_batch(dask, tmp_path / "dask")
     assert all(o.worker.startswith("tcp://") for o in dask.ok)
     by_name = {o.name: o for o in serial.outcomes}
@@ -391,9 +453,23 @@ def test_cli_run_info_replay(archive, tmp_path, capsys):
     assert "match" in text and "True" in text
     assert main(["physcap", "info", str(archive)]) == 1
     assert "broken" in capsys.readouterr().out
-    # the output folder is never written over
-    assert main(["physcap", "run", str(archive), "-o", str(out), "--workers", "0",
-                 "--config", str(cfg), "--no-progress"]) == 2
+    assert main(["physcap", "info", str(out)]) == 0  # the run's summary
+    assert "3 optimised" in capsys.readouterr().out
+    # the output folder is never written over ...
+    run = ["physcap", "run", str(archive), "-o", str(out), "--workers", "0", "--config",
+           str(cfg), "--no-progress"]
+    before = (out / "take_a" / "result.npz").stat().st_mtime_ns
+    assert main(run) == 2
+    assert "--resume" in capsys.readouterr().err
+    # ... but --resume keeps its results and optimises only the others
+    assert main([*run, "--resume"]) == 1
+    fig = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert fig["kept"] == 3 and fig["ok"] == 0 and set(fig["not_ok"]) == {
+        "broken", "hand_only", "no_mesh"}
+    assert (out / "take_a" / "result.npz").stat().st_mtime_ns == before
+    # results made with other settings are not mixed in
+    assert main([*run, "--resume", "--seed", "12"]) == 2
+    assert "other settings (seed=" in capsys.readouterr().err
 
 
 def test_unreachable_scheduler_is_a_clear_error(archive, tmp_path, capsys):
@@ -403,3 +479,109 @@ def test_unreachable_scheduler_is_a_clear_error(archive, tmp_path, capsys):
                "tcp://127.0.0.1:1", "--connect-timeout", "1", "--no-progress"])
     assert rc == 2
     assert "cannot start Dask on tcp://127.0.0.1:1" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # two local clusters (1 and 2 worker processes), one after the other
+def test_measure_dask_speedup_runs_both_clusters_on_the_same_captures(archive):
+    from hand_control.physcap.batch import measure_dask_speedup
+
+    files = [archive / "take_a.npz", archive / "take_b.npz"]
+    fig = measure_dask_speedup(files, TINY, quick=True)
+    assert fig["dask_captures"] == 2 and fig["dask_failed"] == []
+    assert fig["dask_identical"] is True
+    assert fig["dask_1w_s"] > 0 and fig["dask_2w_s"] > 0
+    assert fig["dask_speedup_2w"] == pytest.approx(fig["dask_1w_s"] / fig["dask_2w_s"])
+    assert fig["dask_task_time_ratio"] == pytest.approx(
+        fig["dask_2w_task_s"] / fig["dask_1w_task_s"])
+
+
+_SLOW_OPTIMISER = '''
+import time
+from hand_control.physcap.capture import optimise_capture
+
+def optimise(capture, config, progress=None):
+    while capture.name == "endless":  # until the batch is interrupted
+        time.sleep(0.05)
+    return optimise_capture(capture, config, progress=progress)
+'''
+
+
+def test_interrupt_cancels_the_tasks_and_stops_the_cluster(archive, tmp_path):
+    """SIGINT (Ctrl-C) during a Dask run: exit status 130, the finished capture written, the
+    endless one cancelled in summary.json, and every worker process of the local cluster
+    gone."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import psutil
+
+    (tmp_path / "slowopt.py").write_text(_SLOW_OPTIMISER)
+    arch = tmp_path / "arch"
+    arch.mkdir()
+    for name in ("endless", "take_a"):
+        (arch / f"{name}.npz").write_bytes((archive / "take_a.npz").read_bytes())
+    out = tmp_path / "out"
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), str(tmp_path)])}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from hand_control.cli import main; "
+         "sys.exit(main(sys.argv[1:]))", "physcap", "run", str(arch), "-o", str(out),
+         "--workers", "2", "--samples", "8", "--optimiser", "slowopt:optimise",
+         "--no-progress"], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (out / "take_a").exists():  # the fast capture finished (written whole)
+            assert proc.poll() is None, proc.stdout.read()
+            assert time.monotonic() < deadline, "take_a never finished"
+            time.sleep(0.2)
+        workers = psutil.Process(proc.pid).children(recursive=True)
+        assert workers  # the local cluster's processes
+        proc.send_signal(signal.SIGINT)
+        text, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, text
+    assert "interrupted" in text
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] is True and summary["ok"] == 1
+    assert summary["not_ok"]["endless"].startswith("cancelled")
+    gone, alive = psutil.wait_procs(workers, timeout=60)
+    assert not alive, [p.cmdline() for p in alive]
+
+
+def test_a_scheduler_without_workers_is_a_clear_error(archive, tmp_path):
+    from distributed import LocalCluster
+
+    from hand_capture.errors import HandSuiteError
+    from hand_control.physcap.batch import BatchConfig, run_archive
+
+    with LocalCluster(n_workers=0, processes=True, dashboard_address=":0") as cluster:
+        with pytest.raises(HandSuiteError, match="no Dask worker joined"):
+            run_archive(archive, tmp_path / "o", TINY,
+                        BatchConfig(scheduler=cluster.scheduler_address, progress=False,
+                                    connect_timeout=1.0))
+
+
+def test_a_capture_missing_where_the_task_runs_is_named(tmp_path):
+    from hand_control.physcap.batch import CaptureJob, process_capture
+
+    job = CaptureJob("gone", str(tmp_path / "gone.npz"), "npz", TINY)
+    out = process_capture(job)
+    assert out.status == "failed" and "same path on every worker" in out.reason
+
+
+def test_cli_sample_writes_a_usable_archive(tmp_path, capsys):
+    from hand_control.cli import main
+
+    arch = tmp_path / "arch"
+    assert main(["physcap", "sample", str(arch), "--scenarios", "lift_box,lift_ball"]) == 0
+    assert (arch / "lift_box.npz").is_file() and (arch / "lift_ball").is_dir()
+    entries = {e.name: e for e in list_archive(arch)}
+    assert {n: (e.status, e.kind) for n, e in entries.items()} == {
+        "lift_box": ("ok", "npz"), "lift_ball": ("ok", "bag")}
+    assert main(["physcap", "sample", str(arch), "--scenarios", "lift_box"]) == 2

@@ -3,11 +3,14 @@
 An archive is a directory; every entry at its top level is one capture:
 
 * ``NAME.npz``: a :class:`~hand_control.physcap.capture.Capture` saved with
-  ``save_capture_npz`` (object properties inside).
+  ``save_capture_npz`` (object properties inside). In an archive a capture is called by its
+  file's (or bag's) name, whatever name it was saved with.
 * ``NAME/`` (a rosbag2 directory with ``metadata.yaml``) or ``NAME.mcap`` (one MCAP file): a
   recorded capture. Topics read (leading slash optional):
 
-  - hand: ``hand/pose`` (hand_msgs/HandPose, world frame), else ``hand/pose_truth``;
+  - hand: ``hand/pose`` (hand_msgs/HandPose, world frame), else ``hand/pose_truth``; the
+    messages of one hand (``ArchiveConfig.hand``, by ``handedness``: right by default),
+    without those of status LOST (a stale pose);
   - object: ``object/pose``, else ``object/pose_truth`` (geometry_msgs/PoseStamped, world;
     the object's body frame); with several objects ``object/NAME/pose[_truth]`` where NAME is
     the ``name`` of the object properties;
@@ -59,6 +62,7 @@ import numpy as np
 from hand_capture.config import from_mapping, load_yaml, param, validate
 from hand_capture.errors import BagError, ConfigError, InputError
 from hand_capture.model.joints import matrix_to_quat, quat_to_matrix
+from hand_capture.posemsg import HAND_LEFT, HAND_RIGHT, STATUS
 from hand_control.physcap.capture import (
     Capture,
     CapturedObject,
@@ -116,6 +120,8 @@ class ArchiveConfig:
     """How an archive is read and what a usable capture needs."""
 
     min_frames: int = param(5, "fewest frames a capture may have", lo=2, hi=1_000_000)
+    hand: str = param("right", "which hand of a bag (HandPose.handedness) is captured",
+                      choices=("right", "left"))
     touch_distance: float = param(
         0.12, "bags without object poses: the object moves with the hand root once the root "
         "has come this close to it (else it stays at rest) [m]", lo=0.0, hi=1.0)
@@ -230,18 +236,25 @@ def _entry_name(path: Path) -> str:
 
 def list_archive(directory: str | Path, default_object: ObjectProperties | None = None,
                  config: ArchiveConfig | None = None) -> list[ArchiveEntry]:
-    """Every capture at the top level of ``directory``, validated, sorted by name.
+    """Every capture at the top level of ``directory``, validated, sorted by name (or the one
+    capture ``directory`` is: an ``.npz``, a bag folder or an ``.mcap`` file).
 
     Each capture is read completely (bags: CRCs and every message); one that cannot be used
     gets status ``corrupt`` or ``incomplete`` with its reason instead of an exception.
 
     Raises:
-        InputError: ``directory`` is not a directory, or two captures share a name.
+        InputError: ``directory`` is neither a directory nor a capture, or two captures share
+            a name.
     """
     root = Path(directory)
-    if not root.is_dir():
-        raise InputError(f"archive {root} is not a directory")
     config = config or ArchiveConfig()
+    if root.is_file() or (root / "metadata.yaml").is_file():  # one capture
+        kind = _entry_kind(root)
+        if kind is None:
+            raise InputError(f"{root} is not a capture (.npz, .mcap or a bag folder)")
+        return [inspect_entry(root, kind, default_object, config)]
+    if not root.is_dir():
+        raise InputError(f"archive {root} is neither a directory nor a capture file")
     entries: list[ArchiveEntry] = []
     seen: dict[str, Path] = {}
     for path in sorted(root.iterdir()):
@@ -303,29 +316,18 @@ def _load_npz(path: Path, name: str, config: ArchiveConfig) -> Capture:
         cap = load_capture_npz(path)
     except CaptureError as e:
         raise IncompleteCaptureError(name, str(e)) from e
+    if cap.name != name:  # the file's name is the capture's name in an archive
+        cap = replace(cap, name=name)
     _check_capture(cap, name, config)
     return cap
 
 
-def _check_capture(cap: Any, name: str, config: ArchiveConfig) -> None:
-    """The checks every capture passes, from a bag or an npz (IncompleteCaptureError)."""
-    t = np.asarray(cap.times, dtype=float)
-    q = np.asarray(cap.hand_q, dtype=float)
-    op = np.asarray(cap.object_pose, dtype=float)
-    if t.ndim != 1 or len(t) < config.min_frames:
-        raise IncompleteCaptureError(name, f"{len(t)} frames, fewer than the "
+def _check_capture(cap: Capture, name: str, config: ArchiveConfig) -> None:
+    """What an archive asks beyond a valid :class:`Capture` (shapes, finite values and
+    increasing times are checked on its construction): enough frames."""
+    if cap.n_frames < config.min_frames:
+        raise IncompleteCaptureError(name, f"{cap.n_frames} frames, fewer than the "
                                      f"{config.min_frames} a capture needs")
-    if q.shape != (len(t), 27) or op.shape != (len(t), 7):
-        raise IncompleteCaptureError(name, f"shapes times {t.shape}, hand_q {q.shape}, "
-                                     f"object_pose {op.shape}; expected (T,), (T, 27), (T, 7)")
-    for label, arr in (("times", t), ("hand poses", q), ("object poses", op)):
-        bad = ~np.isfinite(arr.reshape(len(t), -1)).all(axis=1)
-        if bad.any():
-            raise IncompleteCaptureError(name, f"NaN or Inf in the {label} at frame "
-                                         f"{int(np.argmax(bad))} ({int(bad.sum())} frames)")
-    if np.any(np.diff(t) <= 0):
-        k = int(np.argmax(np.diff(t) <= 0))
-        raise IncompleteCaptureError(name, f"times do not increase at frame {k + 1}")
 
 
 def _bag_object(path: Path, name: str, default_object: ObjectProperties | None
@@ -406,6 +408,7 @@ def read_capture_bag(path: str | Path, default_object: ObjectProperties | None =
     hand_msgs: dict[str, list[Any]] = {}
     obj_msgs: dict[str, list[Any]] = {}
     kp_msgs: list[Any] = []
+    side = HAND_RIGHT if config.hand == "right" else HAND_LEFT
     try:
         with BagReader(path) as r:
             topics = {t.lstrip("/"): t for t in r.topics}
@@ -417,16 +420,21 @@ def read_capture_bag(path: str | Path, default_object: ObjectProperties | None =
             for m in r.messages():
                 topic = m.topic.lstrip("/")
                 if topic in HAND_TOPICS:
-                    hand_msgs.setdefault(topic, []).append(r.check(m))
+                    msg = r.check(m)  # a lost tracker repeats a stale pose: not a frame
+                    if int(msg.handedness) == side and int(msg.status) != STATUS["lost"]:
+                        hand_msgs.setdefault(topic, []).append(msg)
                 elif topic in wanted_obj:
                     obj_msgs.setdefault(topic, []).append(r.check(m))
                 elif topic == KEYPOINT_TOPIC:
-                    kp_msgs.append(r.check(m))
+                    msg = r.check(m)
+                    if int(msg.handedness) == side:
+                        kp_msgs.append(msg)
     except BagError as e:
         raise CorruptCaptureError(name, str(e)) from e
     hand_topic = next((t for t in HAND_TOPICS if hand_msgs.get(t)), None)
     if hand_topic is None:
-        raise IncompleteCaptureError(name, f"no hand poses (none of {list(HAND_TOPICS)})")
+        raise IncompleteCaptureError(name, f"no {config.hand} hand poses (none on "
+                                     f"{list(HAND_TOPICS)})")
     hands = hand_msgs[hand_topic]
     t_hand = np.array([_stamp_ns(m.header) for m in hands], dtype=np.int64)
     order = np.argsort(t_hand, kind="stable")
@@ -464,6 +472,9 @@ def read_capture_bag(path: str | Path, default_object: ObjectProperties | None =
             name, f"no object poses (none of {list(wanted_obj)}) and no object 'pose' in "
             f"its properties ({source if source != 'default' else '--object'})")
     keypoints = _keypoints(kp_msgs, t_hand)
+    if keypoints is not None and obj.camera_pose:
+        c = np.asarray(obj.camera_pose, dtype=float)
+        keypoints = keypoints @ quat_to_matrix(np.r_[c[4:7], c[3]]).T + c[:3]
     if len(t_hand) < config.min_frames:
         raise IncompleteCaptureError(name, f"{len(t_hand)} frames with object poses, fewer "
                                      f"than the {config.min_frames} a capture needs")

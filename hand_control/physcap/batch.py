@@ -17,8 +17,11 @@
   that dies is reported the same way).
 * Progress: one tqdm bar over captures and one over frames; workers report frames as
   worker events (``physcap-frames``, throttled) that the client subscribes to.
-* Ctrl-C cancels the pending tasks and closes the client and the local cluster; the results
-  written so far stay.
+* Ctrl-C (or SIGTERM in the CLI) cancels the pending tasks and closes the client and the
+  local cluster; the results written so far stay (each result folder appears only when
+  complete) and ``--resume`` continues with the others.
+* Before the first task the client waits for a worker and has every worker import the
+  optimiser, so a cluster without workers or without hand_suite is a clear error.
 
 By default a :class:`distributed.LocalCluster` with worker *processes* (one thread each) is
 started; ``--workers 0`` runs serially in this process (the same code path per capture).
@@ -40,7 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from hand_capture.config import param, validate
-from hand_capture.errors import HandSuiteError, InputError
+from hand_capture.errors import ConfigError, HandSuiteError, InputError
 from hand_control.physcap.archive import (
     ArchiveCaptureError,
     ArchiveConfig,
@@ -54,8 +57,6 @@ from hand_control.physcap.capture import Capture, PhysCapConfig, PhysCapResult
 __all__ = ["BatchConfig", "BatchResult", "CaptureJob", "CaptureOutcome", "capture_seed",
            "dask_client", "measure_dask_speedup", "process_capture", "run_archive",
            "run_batch"]
-
-log = logging.getLogger(__name__)
 
 #: worker event topic of frame progress
 FRAME_TOPIC = "physcap-frames"
@@ -71,19 +72,25 @@ class BatchConfig:
                          hi=256)
     threads_per_worker: int = param(1, "threads of each local worker (tasks at once)",
                                     lo=1, hi=64)
-    scheduler: str = param("", "address of an existing Dask scheduler (tcp://HOST:8786); "
+    scheduler: str = param("", "address of an existing Dask scheduler (tcp://HOST:8786), or "
+                           "its scheduler file (*.json, as 'dask scheduler --scheduler-file' "
+                           "and dask-jobqueue / dask-mpi write it); "
                            "empty = start a local cluster")
     progress: bool = param(True, "tqdm bars over captures and frames (stderr)")
     write: bool = param(True, "write each result (npz + bag) under the output folder")
+    resume: bool = param(False, "keep the results an earlier run (e.g. interrupted) left in "
+                         "the output folder and optimise only the other captures")
     connect_timeout: float = param(30.0, "seconds to wait for --scheduler", lo=1.0,
                                    hi=3600.0)
 
     def __post_init__(self) -> None:
         validate(self)
-        if self.scheduler and not self.scheduler.startswith(("tcp://", "tls://", "inproc://",
-                                                              "ucx://", "ws://", "wss://")):
-            raise InputError(f"BatchConfig.scheduler {self.scheduler!r} is not a scheduler "
-                             f"address like tcp://HOST:8786")
+        if self.scheduler and not self.scheduler.endswith(".json") and \
+                not self.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://",
+                                               "ws://", "wss://")):
+            raise ConfigError(f"BatchConfig.scheduler {self.scheduler!r} is neither a "
+                              f"scheduler address like tcp://HOST:8786 nor a scheduler file "
+                              f"(*.json)")
 
 
 def capture_seed(base_seed: int, name: str) -> int:
@@ -111,7 +118,8 @@ class CaptureJob:
     def from_entry(cls, entry: ArchiveEntry, config: PhysCapConfig,
                    default_object: ObjectProperties | None = None,
                    archive: ArchiveConfig | None = None, optimiser: str = "") -> CaptureJob:
-        return cls(entry.name, str(entry.path), entry.kind, config, default_object,
+        return cls(entry.name, str(Path(entry.path).resolve()), entry.kind, config,
+                   default_object,
                    archive or ArchiveConfig(), optimiser)
 
     @property
@@ -168,6 +176,12 @@ def process_capture(job: CaptureJob, progress: ProgressFn | None = None,
     cfg = job.seeded_config
     t0 = time.perf_counter()
     frames = 0
+    if not Path(job.path).exists():  # e.g. a worker of a cluster without the shared folder
+        import socket
+
+        return CaptureOutcome(job.name, "failed", f"{job.path} not found on "
+                              f"{socket.gethostname()}: the archive must be at the same path "
+                              f"on every worker (a shared file system)", 0, 0.0, cfg.seed)
     try:
         optimise = optimise or _optimiser(job.optimiser)
         entry = ArchiveEntry(job.name, Path(job.path), job.kind, "ok")
@@ -226,12 +240,8 @@ def _warm_worker() -> str:
     """Import the optimiser's modules on a worker (before a timed run)."""
     import importlib
 
-    for mod in ("hand_control.physcap.capture", "hand_control.physcap.archive", "mujoco"):
+    for mod in ("mujoco", "hand_control.physcap.archive", "hand_control.physcap.optimise"):
         importlib.import_module(mod)
-    try:
-        importlib.import_module("hand_control.physcap.optimise")
-    except ImportError:
-        pass
     return "ok"
 
 
@@ -248,12 +258,18 @@ def dask_client(workers: int = 2, scheduler: str = "", threads_per_worker: int =
 
     cluster = None
     try:
-        if scheduler:
+        if scheduler.endswith(".json"):
+            if not Path(scheduler).is_file():
+                raise HandSuiteError(f"scheduler file {scheduler} not found")
+            client = Client(scheduler_file=scheduler, timeout=connect_timeout)
+        elif scheduler:
             client = Client(scheduler, timeout=connect_timeout)
         else:
+            # ":0": the scheduler's HTTP routes (and a dashboard, with bokeh) on a free port,
+            # so clusters of other runs on this machine never collide on 8787
             cluster = LocalCluster(n_workers=max(1, workers),
                                    threads_per_worker=threads_per_worker, processes=True,
-                                   dashboard_address=None, silence_logs=logging.ERROR)
+                                   dashboard_address=":0", silence_logs=logging.ERROR)
             client = Client(cluster)
     except (OSError, TimeoutError) as e:
         if cluster is not None:
@@ -285,7 +301,8 @@ class BatchResult:
 
     @property
     def failed(self) -> list[CaptureOutcome]:
-        return [o for o in self.outcomes if not o.ok]
+        """Captures without a result (kept ones, status ``kept``, have one)."""
+        return [o for o in self.outcomes if o.status not in ("ok", "kept")]
 
     def figures(self) -> dict[str, Any]:
         """JSON-ready summary (the CLI's last line)."""
@@ -295,6 +312,7 @@ class BatchResult:
         res = [o.result for o in ok if o.result is not None]
         return {
             "captures": len(self.outcomes), "ok": len(ok),
+            "kept": sum(o.status == "kept" for o in self.outcomes),
             "not_ok": {o.name: f"{o.status}: {o.reason}" for o in self.failed},
             "frames": frames, "wall_s": self.wall_s,
             "s_per_frame": task_s / frames if frames else None,
@@ -355,15 +373,53 @@ class _Bars:
         self.captures.close()
 
 
-def _finish(outcome: CaptureOutcome, out_dir: Path | None, write: bool) -> CaptureOutcome:
-    if write and out_dir is not None and outcome.ok and outcome.result is not None:
-        from hand_control.physcap.output import write_result
+def _finish(outcome: CaptureOutcome, out_dir: Path | None, write: bool) -> None:
+    """Write an ok outcome's result into ``out_dir/NAME``: built in a hidden folder and
+    renamed when complete, so the folder never holds half a result (Ctrl-C while writing:
+    the outcome becomes cancelled). Updates ``outcome`` in place."""
+    if not (write and out_dir is not None and outcome.ok and outcome.result is not None):
+        return
+    import shutil
 
-        try:
-            outcome.output = str(write_result(outcome.result, out_dir / outcome.name).root)
-        except HandSuiteError as e:
-            outcome.status, outcome.reason = "failed", f"writing the result: {e}"
-    return outcome
+    from hand_control.physcap.output import write_result
+
+    final = out_dir / outcome.name
+    tmp = out_dir / f".{outcome.name}.partial"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        write_result(outcome.result, tmp)
+        tmp.rename(final)
+        outcome.output = str(final)
+    except HandSuiteError as e:
+        outcome.status, outcome.reason = "failed", f"writing the result: {e}"
+    except BaseException:
+        outcome.status, outcome.reason = "cancelled", "interrupted while writing its result"
+        raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _kept(folder: Path, name: str, config: PhysCapConfig) -> CaptureOutcome:
+    """The outcome of a result an earlier run left (``--resume``): refused when it was made
+    with other settings (all but ``n_threads``) or this capture's seed."""
+    from dataclasses import asdict
+
+    from hand_control.physcap.output import read_result
+
+    try:
+        old = read_result(folder)
+    except InputError as e:
+        raise InputError(f"--resume: {folder} is not a finished result ({e}); move it away"
+                         ) from e
+    want = asdict(replace(config, seed=capture_seed(config.seed, name), n_threads=1))
+    have = asdict(replace(old.config, n_threads=1))
+    if want != have:
+        diff = sorted(k for k in want if want[k] != have.get(k))
+        raise InputError(f"--resume: the result in {folder} was made with other settings "
+                         f"({', '.join(f'{k}={have.get(k)}' for k in diff)}); use another "
+                         f"output folder")
+    return CaptureOutcome(name, "kept", "result of an earlier run (--resume)",
+                          int(old.times.shape[0]), 0.0, want["seed"], output=str(folder))
 
 
 def run_batch(entries: Sequence[ArchiveEntry], config: PhysCapConfig,
@@ -381,17 +437,20 @@ def run_batch(entries: Sequence[ArchiveEntry], config: PhysCapConfig,
     out = Path(out_dir) if out_dir is not None else None
     if out is not None and batch.write:
         out.mkdir(parents=True, exist_ok=True)
-        taken = [e.name for e in entries if e.ok and (out / e.name).exists()]
-        if taken:
-            raise InputError(f"{out} already holds results for {taken}; choose another "
-                             f"output folder or move them away")
-    jobs = {e.name: CaptureJob.from_entry(e, config, default_object, archive, optimiser)
-            for e in entries if e.ok}
+    taken = ([e.name for e in entries if e.ok and (out / e.name).exists()]
+             if out is not None and batch.write else [])
+    if taken and not batch.resume:
+        raise InputError(f"{out} already holds results for {taken}; choose another output "
+                         f"folder, move them away, or keep them with --resume")
     outcomes: dict[str, CaptureOutcome] = {
         e.name: CaptureOutcome(e.name, e.status, e.reason,
                                seed=capture_seed(config.seed, e.name))
         for e in entries if not e.ok}
-    frames = {e.name: e.frames for e in entries if e.ok}
+    for name in taken:
+        outcomes[name] = _kept(out / name, name, config)
+    jobs = {e.name: CaptureJob.from_entry(e, config, default_object, archive, optimiser)
+            for e in entries if e.ok and e.name not in outcomes}
+    frames = {e.name: e.frames for e in entries if e.name in jobs}
     bars = _Bars(batch.progress, len(jobs), sum(frames.values()))
     t0 = time.perf_counter()
     interrupted = False
@@ -400,9 +459,13 @@ def run_batch(entries: Sequence[ArchiveEntry], config: PhysCapConfig,
     try:
         if mode == "serial":
             for name, job in jobs.items():
-                o = process_capture(job, lambda d, t, n=name: bars.frame_progress(
-                    n, d, t, frames[n]))
-                outcomes[name] = _finish(o, out, batch.write)
+
+                def progress(done: int, total: int, name: str = name) -> None:
+                    bars.frame_progress(name, done, total, frames[name])
+                    bars.refresh()
+
+                o = outcomes[name] = process_capture(job, progress)
+                _finish(o, out, batch.write)
                 bars.capture_done(name, frames[name])
         else:
             _run_dask(jobs, frames, outcomes, bars, out, batch)
@@ -443,6 +506,7 @@ def _run_dask(jobs: dict[str, CaptureJob], frames: dict[str, int],
         return
     with dask_client(batch.workers, batch.scheduler, batch.threads_per_worker,
                      batch.connect_timeout) as client:
+        _ready(client, batch)
 
         def on_event(event: Any) -> None:
             _, msg = event
@@ -465,7 +529,8 @@ def _run_dask(jobs: dict[str, CaptureJob], frames: dict[str, int],
                         # worker that tried it died (KilledWorker)
                         o = CaptureOutcome(name, "failed", f"{type(exc).__name__}: {exc}",
                                            seed=jobs[name].seeded_config.seed)
-                    outcomes[name] = _finish(o, out, batch.write)
+                    outcomes[name] = o
+                    _finish(o, out, batch.write)
                     bars.capture_done(name, frames[name])
                 if not batch_done:
                     bars.refresh()
@@ -480,6 +545,28 @@ def _run_dask(jobs: dict[str, CaptureJob], frames: dict[str, int],
                 pass
 
 
+def _ready(client: Any, batch: BatchConfig) -> None:
+    """At least one worker, and every worker can import the optimiser (imports done before
+    the first task, so its time is the optimisation's).
+
+    Raises:
+        HandSuiteError: no worker joined within ``connect_timeout``, or a worker cannot
+            import hand_suite's optimiser (not installed there).
+    """
+    where = batch.scheduler or "the local cluster"
+    try:
+        client.wait_for_workers(1, timeout=batch.connect_timeout)
+    except (TimeoutError, OSError) as e:
+        raise HandSuiteError(f"no Dask worker joined {where} within "
+                             f"{batch.connect_timeout:g} s ({type(e).__name__})") from e
+    try:
+        client.run(_warm_worker)
+    except Exception as e:  # ModuleNotFoundError on the worker, unpickling errors, ...
+        raise HandSuiteError(f"the workers of {where} cannot load hand_suite's optimiser "
+                             f"({type(e).__name__}: {e}); install the same hand_suite on "
+                             f"every worker") from e
+
+
 def run_archive(archive_dir: str | Path, out_dir: str | Path | None, config: PhysCapConfig,
                 batch: BatchConfig | None = None, *,
                 default_object: ObjectProperties | None = None,
@@ -487,7 +574,8 @@ def run_archive(archive_dir: str | Path, out_dir: str | Path | None, config: Phy
     """:func:`list_archive` then :func:`run_batch` (what ``hand-suite physcap run`` does).
 
     Raises:
-        InputError: ``archive_dir`` is not a directory, holds no capture, or is ``out_dir``.
+        InputError: ``archive_dir`` is neither a directory nor a capture, holds no capture,
+            or is ``out_dir``.
     """
     if out_dir is not None and Path(out_dir).resolve() == Path(archive_dir).resolve():
         raise InputError("the output folder must not be the archive itself")
@@ -514,9 +602,10 @@ def measure_dask_speedup(captures: Sequence[Capture | str | Path], config: PhysC
     Returns:
         ``dask_1w_s``, ``dask_2w_s`` [s], ``dask_speedup_2w`` (1-worker time / 2-worker
         time), ``dask_identical`` (bool), ``dask_captures``, ``dask_failed`` (names),
-        ``dask_1w_task_s`` / ``dask_2w_task_s`` (sum of the tasks' own wall times [s]: when
-        the 2-worker sum grows, the workers shared CPUs with other load), ``load_avg_1min``
-        (this machine's load when the measurement began).
+        ``dask_1w_task_s`` / ``dask_2w_task_s`` (sum of the tasks' own wall times [s]) and
+        ``dask_task_time_ratio`` (their ratio: 1 = each of 2 workers as fast as a lone one, 2
+        = the two shared one worker's CPU, e.g. on a loaded host), ``load_avg_1min`` (this
+        machine's load when the measurement began).
     """
     import os
     import shutil
@@ -551,6 +640,7 @@ def measure_dask_speedup(captures: Sequence[Capture | str | Path], config: PhysC
                 outs = client.gather(futs)
                 times[n] = time.perf_counter() - t0
                 results[n] = BatchResult(list(outs), times[n], f"local {n}")
+        task_s = {n: sum(o.seconds for o in results[n].outcomes) for n in (1, 2)}
         a = {o.name: o for o in results[1].outcomes}
         identical = all(o.ok and a[o.name].ok and not results_equal(a[o.name].result,
                                                                   o.result)
@@ -559,8 +649,8 @@ def measure_dask_speedup(captures: Sequence[Capture | str | Path], config: PhysC
                 "dask_speedup_2w": times[1] / times[2] if times[2] > 0 else None,
                 "dask_identical": bool(identical), "dask_captures": len(entries),
                 "dask_failed": [o.name for o in results[2].outcomes if not o.ok],
-                "dask_1w_task_s": sum(o.seconds for o in results[1].outcomes),
-                "dask_2w_task_s": sum(o.seconds for o in results[2].outcomes),
+                "dask_1w_task_s": task_s[1], "dask_2w_task_s": task_s[2],
+                "dask_task_time_ratio": task_s[2] / task_s[1] if task_s[1] > 0 else None,
                 "load_avg_1min": load}
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

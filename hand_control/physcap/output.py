@@ -20,6 +20,8 @@ topic                                 type                            content
 ``/control/joint_command``            hand_msgs/JointCommand          PD targets (T - 1)
 ``/control/object_target``            geometry_msgs/PoseStamped       object target (T - 1)
 ``/control/virtual_wrench``           geometry_msgs/WrenchStamped     virtual wrench (T - 1)
+``/sim/contacts``                     hand_msgs/ContactArray          hand-object contacts and
+                                                                      forces (T - 1, replayed)
 ``/physcap/reference/hand_pose``      hand_msgs/HandPose              the capture (T)
 ``/physcap/reference/object_pose``    geometry_msgs/PoseStamped       the capture (T)
 ====================================  ==============================  =========================
@@ -40,10 +42,16 @@ import numpy as np
 from hand_capture.config import from_mapping
 from hand_capture.errors import BagError, ConfigError, InputError
 from hand_capture.model.joints import ARTICULATED_JOINTS, JOINT_NAMES
-from hand_control.physcap.capture import CapturedObject, PhysCapConfig, PhysCapResult
+from hand_control.physcap.capture import (
+    Capture,
+    CapturedObject,
+    PhysCapConfig,
+    PhysCapResult,
+)
 
-__all__ = ["OUTPUT_TOPICS", "RESULT_FORMAT", "ResultFiles", "read_result", "replay_match",
-           "result_files", "results_equal", "write_result", "write_result_bag", "write_result_npz"]
+__all__ = ["OUTPUT_TOPICS", "RESULT_FORMAT", "ResultFiles", "read_result", "replay_contacts",
+           "replay_match", "result_files", "results_equal", "write_capture_bag", "write_result",
+           "write_result_bag", "write_result_npz"]
 
 RESULT_FORMAT = "hand_suite.physcap.result/1"
 #: topic -> message type of a result bag
@@ -55,6 +63,7 @@ OUTPUT_TOPICS = {
     "/control/joint_command": "hand_msgs/msg/JointCommand",
     "/control/object_target": "geometry_msgs/msg/PoseStamped",
     "/control/virtual_wrench": "geometry_msgs/msg/WrenchStamped",
+    "/sim/contacts": "hand_msgs/msg/ContactArray",
     "/physcap/reference/hand_pose": "hand_msgs/msg/HandPose",
     "/physcap/reference/object_pose": "geometry_msgs/msg/PoseStamped",
 }
@@ -188,14 +197,51 @@ def _hand_pose(store: Any, header: Any, q: np.ndarray, status: str, source: str)
     return msg
 
 
+def replay_contacts(result: PhysCapResult) -> list[Any]:
+    """The hand-object contacts (:class:`~hand_control.sim.contacts.ContactFrame`, world
+    frame, forces the hand applies) at the end of each control step, from simulating the
+    result's control again from its first state (the optimiser's simulator: the same
+    motion). Stops at a divergence. Length <= T - 1."""
+    from hand_control.physcap.optimise import SegmentSimulator
+    from hand_control.physcap.world import OBJECT_NAME
+
+    cfg = result.config
+    sim = SegmentSimulator(result.obj, result.hand_q[0], result.object_pose[0], cfg)
+    n = int(round(cfg.step / cfg.timestep))
+    state = sim.initial_state
+    out = []
+    for qt, ot in zip(np.asarray(result.targets, float),
+                      np.asarray(result.object_targets, float), strict=True):
+        seg = sim.run(state, qt, ot, n)
+        if not seg.ok:
+            break
+        state = seg.state
+        out.append(sim.world.contacts(OBJECT_NAME))
+    return out
+
+
+def _contact_array(store: Any, header: Any, cf: Any) -> Any:
+    T = store.types
+    vec, point = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Point"]
+    contacts = [T["hand_msgs/msg/Contact"](
+        body1=cf.body1[k], body2=cf.body2[k], point=point(*map(float, cf.points[k])),
+        normal=vec(*map(float, cf.normals[k])), penetration=float(cf.penetration[k]),
+        force=vec(*map(float, cf.forces[k])), torsional_torque=float(cf.torsional[k]),
+        friction=float(cf.friction[k])) for k in range(len(cf))]
+    return T["hand_msgs/msg/ContactArray"](header=header, contacts=contacts)
+
+
 def write_result_bag(result: PhysCapResult, path: str | Path, *, storage: str = "mcap",
-                     t0_ns: int = T0_NS) -> int:
+                     t0_ns: int = T0_NS, contacts: list[Any] | None = None) -> int:
     """The result as a bag (module docstring for the topics); returns the message count.
+
+    Args:
+        contacts: the contacts of each step (:func:`replay_contacts`, computed when None).
 
     Raises:
         BagError: ``path`` exists or cannot be written.
     """
-    from hand_capture.bag import BagWriter, default_typestore
+    from hand_capture.bag import BagWriter, default_typestore, make_qos
 
     path = Path(path)
     if path.exists():
@@ -211,10 +257,12 @@ def write_result_bag(result: PhysCapResult, path: str | Path, *, storage: str = 
         vel[0] = vel[1]
     names = list(JOINT_NAMES)
     art = [JOINT_NAMES.index(j) for j in ARTICULATED_JOINTS]
+    if contacts is None:
+        contacts = replay_contacts(result)
     w = BagWriter(path, storage=storage, flush_period=1.0)
     try:
         for topic, msgtype in OUTPUT_TOPICS.items():
-            w.add_topic(topic, msgtype)
+            w.add_topic(topic, msgtype, qos=[make_qos(reliable=True)])
 
         def put(topic: str, t_ns: int, msg: Any) -> None:
             w.write(topic, t_ns, bytes(store.serialize_cdr(msg, OUTPUT_TOPICS[topic])))
@@ -234,6 +282,8 @@ def write_result_bag(result: PhysCapResult, path: str | Path, *, storage: str = 
                            "capture"))
             put("/physcap/reference/object_pose", t_ns,
                 _pose_stamped(store, header, np.asarray(result.reference_object[k])))
+            if 0 < k <= len(contacts):  # contacts at the end of step k - 1, i.e. at frame k
+                put("/sim/contacts", t_ns, _contact_array(store, header, contacts[k - 1]))
             if k >= len(result.targets):
                 continue
             # control of step k (frame k -> k + 1), stamped at its start
@@ -253,22 +303,60 @@ def write_result_bag(result: PhysCapResult, path: str | Path, *, storage: str = 
     return w.count
 
 
+def _object_yaml(obj: CapturedObject) -> str:
+    import yaml
+
+    return yaml.safe_dump({"kind": obj.kind, "size": [float(v) for v in obj.size],
+                           "mass": float(obj.mass), "friction": float(obj.friction),
+                           "mesh": obj.mesh}, sort_keys=False)
+
+
+def write_capture_bag(capture: Capture, path: str | Path, *, t0_ns: int = T0_NS) -> Path:
+    """A capture as the archive reads a recorded one: ``/hand/pose`` (HandPose) and
+    ``/object/pose`` (PoseStamped), world frame, plus its object in ``NAME.object.yaml``
+    next to the bag (:mod:`hand_control.physcap.archive`); returns the bag's path.
+
+    Raises:
+        BagError: ``path`` exists.
+    """
+    from hand_capture.bag import BagWriter, default_typestore, make_qos
+
+    path = Path(path)
+    if path.exists():
+        raise BagError(f"{path} exists; a capture bag is never overwritten")
+    store = default_typestore()
+    T = store.types
+    topics = {"/hand/pose": "hand_msgs/msg/HandPose",
+              "/object/pose": "geometry_msgs/msg/PoseStamped"}
+    w = BagWriter(path, storage="mcap", flush_period=1.0)
+    try:
+        for topic, msgtype in topics.items():
+            w.add_topic(topic, msgtype, qos=[make_qos(reliable=True)])
+        for k, t in enumerate(np.asarray(capture.times, dtype=float)):
+            t_ns = t0_ns + int(round(t * 1e9))
+            header = T["std_msgs/msg/Header"](stamp=_stamp(store, t_ns), frame_id="world")
+            w.write("/hand/pose", t_ns, bytes(store.serialize_cdr(
+                _hand_pose(store, header, capture.hand_q[k], "tracking", "capture"),
+                topics["/hand/pose"])))
+            w.write("/object/pose", t_ns, bytes(store.serialize_cdr(
+                _pose_stamped(store, header, capture.object_pose[k]), topics["/object/pose"])))
+    finally:
+        w.close()
+    path.with_name(path.name + ".object.yaml").write_text(_object_yaml(capture.obj))
+    return path
+
+
 def write_result(result: PhysCapResult, root: str | Path) -> ResultFiles:
     """``root/result.npz``, ``root/bag`` and its object sidecar (module docstring).
 
     Raises:
         BagError: ``root/bag`` exists already.
     """
-    import yaml
-
     files = result_files(root)
     files.root.mkdir(parents=True, exist_ok=True)
     write_result_npz(result, files.npz)
     write_result_bag(result, files.bag)
-    o = result.obj
-    files.sidecar.write_text(yaml.safe_dump(
-        {"kind": o.kind, "size": [float(s) for s in o.size], "mass": float(o.mass),
-         "friction": float(o.friction), "mesh": o.mesh}, sort_keys=False))
+    files.sidecar.write_text(_object_yaml(result.obj))
     return files
 
 
