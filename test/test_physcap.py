@@ -201,7 +201,11 @@ def test_threads_and_repeat_give_identical_results(lift_capture):
     _, sc = lift_capture
     c = sc.capture
     short = Capture(c.name, c.times[:5], c.hand_q[:5], c.object_pose[:5], c.obj)
-    one = optimise_capture(short, PhysCapConfig(n_samples=8, n_keep=2, seed=4))
+    calls: list[tuple[int, int]] = []
+    one = optimise_capture(short, PhysCapConfig(n_samples=8, n_keep=2, seed=4),
+                           progress=lambda k, n: calls.append((k, n)))
+    assert calls == [(1, 4), (2, 4), (3, 4), (4, 4)]
+    assert one.frame_seconds.shape == (4,) and (one.frame_seconds > 0).all()
     two = optimise_capture(short, PhysCapConfig(n_samples=8, n_keep=2, seed=4, n_threads=2))
     again = optimise_capture(short, PhysCapConfig(n_samples=8, n_keep=2, seed=4))
     for r in (two, again):
