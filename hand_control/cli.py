@@ -13,6 +13,8 @@
     hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
     hand-suite grasp OBJECT [--grip MODE] [-o OUT] [--play]   grasp synthesis (III.4)
+    hand-suite physcap run ARCHIVE -o OUT [--workers N | --scheduler tcp://HOST:8786] [--quick]
+    hand-suite physcap info PATH | sample DIR | replay RESULT   physics capture (Dask batch)
     hand-suite demo [--out DIR]          the README's main job
     hand-suite test [PYTEST ARGS]        lint + the test suite (what CI runs)
 """
@@ -400,6 +402,10 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--scenario", default=None,
                     help="scenario the sim ran, for the rendered frames (default: teleop's)")
     rp.set_defaults(func=cmd_report)
+
+    from hand_control.physcap.cli import add_parser as add_physcap
+
+    add_physcap(sub)
 
     d = sub.add_parser("demo", help="the main job (README)")
     d.add_argument("--out", default="out/demo")

@@ -37,6 +37,10 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
     "model": (("fk_lbs_ms", "baseline_fk_lbs_ms", "fk_lbs_speedup", "fk_lbs_batch_speedup",
                "fk_lbs_speedup_vs_naive", "vectorised_max_diff_m", "jacobian_speedup",
                "render_fps", "raycast_fps", "render_speedup_vs_raycast"), ()),
+    "physcap": (("s_per_frame", "contact_sampling_success", "random_sampling_success",
+                 "pd_only_success", "object_err_mm", "hand_err_mm", "retarget_success",
+                 "low_friction_slipped", "dask_speedup_2w"),
+                (pytest.mark.slow,)),  # 3 optimisations + a 1- and a 2-worker Dask cluster
     "pipeline": (("latency_p50_ms", "latency_p99_ms", "fps", "truth_latency_p50_ms",
                   "latency_vs_truth", "lift_mm"), (pytest.mark.slow,)),  # 3 graph runs
     "retarget": (("tip_err_mm", "joint_map_tip_err_mm", "pinch_err_mm", "joint_map_pinch_err_mm",
