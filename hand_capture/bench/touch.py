@@ -12,7 +12,10 @@ an iPad-sized surface, panel offset, jitter and quantisation); 1,200 frames (480
 * Table 1: wrist position error [cm] and joint angle error [deg] (mean |difference| over the
   21 articulated joints), mean and standard error of the mean, for the linear, quadratic and
   cubic encodings (true finger labels) and the PCA-IK baseline (on a subsample: it runs 100 IK
-  iterations per pose).
+  iterations per pose). The encodings work in the contacts' frame
+  (:class:`~hand_capture.touch.encoding.ContactFrame`); the row "Quadratic, paper's frame"
+  (keys ``leftmost_*``) is the quadratic fitted on the same data relative to the leftmost
+  contact, unturned, as in the paper: the before/after comparison of that departure.
 * Table 1b (full run only): the same encodings with a ridge weight chosen by cross-validation
   on the training set, to show how much of the ranking is the paper's plain least squares.
 * Table 2: finger labelling accuracy by number of contacts: every test frame's contacts are

@@ -24,6 +24,10 @@ down with its fingers pointing away from the user then has root angles near (0, 
 from the wrap of the Euler angles, which a polynomial could not follow. The root position of
 an encoded pose is relative to the leftmost contact (the same translation invariance as u);
 :func:`absolute_pose` adds the contact back.
+
+Departure (issue #13): the shipped model uses :class:`ContactFrame` instead, origin at the
+contacts' centroid and axes turned to the finger set's mean layout; the paper's
+leftmost-contact frame stays available (``hand-suite train touch --leftmost``).
 """
 
 from __future__ import annotations

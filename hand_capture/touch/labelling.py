@@ -82,8 +82,10 @@ class FingerLabeller:
 
     Args:
         encoder: reconstructs poses from inputs u.
-        reference: (M, 27) training poses (mode "pose", root relative to the leftmost
-            contact) or (M, 15) training inputs u (mode "input").
+        reference: (M, 27) training poses (mode "pose", in the encoder's frame: root
+            relative to the leftmost contact, or in the contacts' frame when the encoder has
+            one, which makes the nearest-neighbour distance blind to where the hand lies and
+            how it is turned) or (M, 15) training inputs u (mode "input").
         config: see :class:`LabellerConfig`.
         mode: ``"pose"`` (the paper's labelling for encodings) or ``"input"`` (PCA-IK).
     """
