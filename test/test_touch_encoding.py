@@ -158,3 +158,65 @@ def test_shipped_model_file_was_trained_on_the_current_hand_model():
     assert meta.get("hand_model") == model_fingerprint(build_model(-1)), (
         "data/touch/touch_model.npz is stale: the hand model changed; regenerate it with "
         "'python -m hand_capture.touch.train'")
+
+
+# --- the contacts' frame (issue #13) ------------------------------------------------------
+
+def _turn_surface(p: np.ndarray, deg: float, centre: np.ndarray, shift: np.ndarray
+                  ) -> np.ndarray:
+    """Surface points (..., 2) turned by ``deg`` about ``centre`` (table-frame sense), then
+    shifted."""
+    a = np.radians(deg)
+    rot = np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])  # y points down
+    return (p - centre) @ rot.T + centre + shift
+
+
+def test_contact_frame_turns_and_shifts_with_the_hand():
+    """Three or more contacts turned and moved on the surface give the same u, and the
+    reconstructed wrist turns and moves with them (the paper's leftmost-contact frame does
+    not: its u changes)."""
+    model = TouchModel.load()
+    assert model.frame is not None
+    enc = model.encoder("quadratic")
+    pads = np.array([[0.05, 0.10], [0.08, 0.05], [0.10, 0.045], [0.12, 0.05], [0.14, 0.07]])
+    contact = np.array([True, True, True, False, True])
+    centre = pads[contact].mean(axis=0)
+    u0, origin0, phi0 = enc.encode(pads, contact)
+    q0 = enc.reconstruct(pads, contact)
+    for deg in (-30.0, 20.0):
+        moved = _turn_surface(pads, deg, centre, np.array([0.03, -0.01]))
+        u1, origin1, phi1 = enc.encode(moved, contact)
+        np.testing.assert_allclose(u1, u0, atol=1e-9)
+        np.testing.assert_allclose(phi1 - phi0, np.radians(deg), atol=1e-9)
+        q1 = enc.reconstruct(moved, contact)
+        wrist0 = np.array([q0[0], -q0[1]])  # table -> surface xy
+        expect = _turn_surface(wrist0, deg, centre, np.array([0.03, -0.01]))
+        np.testing.assert_allclose([q1[0], -q1[1]], expect, atol=1e-9)
+        np.testing.assert_allclose(q1[6:], q0[6:], atol=1e-9)  # same finger joints
+        u_paper, _ = encode_input(moved, contact)
+        assert not np.allclose(u_paper, encode_input(pads, contact)[0], atol=1e-3)
+
+
+def test_contact_frame_pose_round_trip_and_file():
+    from hand_capture.touch.encoding import ContactFrame
+
+    rng = np.random.default_rng(4)
+    q = rng.normal(0.0, 0.3, (6, 27))
+    q[:, 5] += np.pi / 2
+    origin, phi = rng.uniform(0.0, 0.2, (6, 2)), rng.uniform(-1.0, 1.0, 6)
+    back = ContactFrame.from_frame(ContactFrame.to_frame(q, origin, phi), origin, phi)
+    np.testing.assert_allclose(back, q, atol=1e-9)
+    frame = TouchModel.load().frame
+    again = ContactFrame.from_arrays(frame.to_arrays())
+    np.testing.assert_array_equal(again.layouts, frame.layouts)
+    with pytest.raises(ConfigError, match="two_contact_share"):
+        ContactFrame(frame.layouts, frame.known, 1.5)
+    # two contacts: only a share of the angle; one contact: none
+    pads = np.array([[0.05, 0.10], [0.08, 0.05], [0, 0], [0, 0], [0, 0]])
+    two = np.array([True, True, False, False, False])
+    _, _, phi_two = frame.encode(pads, two)
+    turned = _turn_surface(pads, 20.0, pads[two].mean(axis=0), np.zeros(2))
+    _, _, phi_turned = frame.encode(turned, two)
+    assert phi_turned - phi_two == pytest.approx(frame.two_contact_share * np.radians(20.0))
+    _, _, phi_one = frame.encode(pads, np.array([True, False, False, False, False]))
+    assert phi_one == 0.0

@@ -100,23 +100,60 @@ def test_labelling_recovers_permuted_labels_on_training_like_data(data, model):
     assert overall > 0.5  # chance is 1/20 .. 1/120
 
 
-def test_candidate_inputs_are_the_training_encoding(data, model):
-    """Every labelling's u is exactly what encode_input makes of the same assignment."""
+def test_shipped_labeller_names_every_finger_of_a_turned_hand(hand):
+    """Known answers: five fingertips of generated hands (a generator seed training does not
+    use), turned by up to 30 deg on the surface and shuffled, are labelled thumb..little by the
+    shipped model; the thumb of a wide two-finger pinch is found (which finger opposes it is
+    ambiguous from two points)."""
+    from hand_capture.touch.touch_model import TouchModel
+
+    shipped = TouchModel.load()
+    lab = FingerLabeller(shipped.encoder("quadratic"), shipped.reference_poses,
+                         layout=shipped.layout)
+    data = generate(hand, GenConfig(sequences=60, frames=1, seed=43))
+    rows = np.nonzero(data.n_contacts == 5)[0][:6]
+    assert len(rows) >= 3
+    rng = np.random.default_rng(2)
+    for i in rows:
+        for deg in (-30.0, 0.0, 30.0):
+            a = np.radians(deg)
+            rot = np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])
+            c = data.pads[i].mean(axis=0)
+            pads = (data.pads[i] - c) @ rot.T + c
+            perm = rng.permutation(5)
+            assert np.array_equal(lab.search(pads[perm]).labels, perm)
+    # a right thumb 6 cm left of and 4 cm nearer the user than the index fingertip
+    pinch = np.array([[0.10, 0.08], [0.04, 0.12]])
+    labels = lab.search(pinch).labels
+    assert labels[1] == 0 and labels[0] != 0
+
+
+@pytest.mark.parametrize("contact_frame", [True, False])
+def test_candidate_inputs_are_the_training_encoding(data, model, contact_frame):
+    """Every labelling's u is exactly what the training encoding makes of the same assignment
+    (in the contacts' frame, and relative to the leftmost contact as in the paper)."""
     from hand_capture.touch.encoding import encode_input
 
-    lab = FingerLabeller(model.encoder("quadratic"), model.reference_poses)
+    m = model if contact_frame else fit_model(data, degrees=("quadratic",),
+                                              contact_frame=False)
+    enc = m.encoder("quadratic")
+    lab = FingerLabeller(enc, m.reference_poses)
     i = int(np.nonzero(data.n_contacts == 3)[0][0])
     pads = data.pads[i, data.contact[i]]
     perms = lab.perms[3]
-    u, origin = lab.candidate_inputs(pads, perms)
+    u, origin, phi = lab.candidate_inputs(pads, perms)
     for k in (0, 7, 33, 59):
         full = np.zeros((5, 2))
         full[perms[k]] = pads
         contact = np.zeros(5, bool)
         contact[perms[k]] = True
-        ref_u, ref_origin = encode_input(full, contact)
+        if contact_frame:
+            ref_u, ref_origin, ref_phi = m.frame.encode(full, contact)
+        else:
+            (ref_u, ref_origin), ref_phi = encode_input(full, contact), 0.0
         np.testing.assert_allclose(u[k], ref_u)
-        np.testing.assert_allclose(origin, ref_origin)
+        np.testing.assert_allclose(origin[k], ref_origin)
+        np.testing.assert_allclose(phi[k], ref_phi)
 
 
 def test_labels_stay_while_contacts_persist(data, model):
@@ -160,7 +197,7 @@ def test_pose_search_matches_exhaustive_query(data, model):
     for i in range(0, len(data), 25):
         pads = data.pads[i, data.contact[i]]
         perms = lab.perms[len(pads)]
-        u, _ = lab.candidate_inputs(pads, perms)
+        u, _, _ = lab.candidate_inputs(pads, perms)
         d, _ = cKDTree(lab.index.points).query(lab.encoder.predict(u) * lab.weights)
         res = lab.search(pads)
         assert res.distance == pytest.approx(d.min())

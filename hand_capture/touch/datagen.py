@@ -41,6 +41,7 @@ from hand_capture.errors import InputError
 from hand_capture.model.joints import FINGERS, JOINT_INDEX, JOINT_LIMITS, N_DOF
 from hand_capture.touch.encoding import (
     N_FINGERS,
+    ContactFrame,
     encode_input,
     relative_pose,
 )
@@ -108,8 +109,13 @@ class TouchDataset:
     def __len__(self) -> int:
         return len(self.poses)
 
-    def inputs(self, **kw: float) -> tuple[np.ndarray, np.ndarray]:
-        """Encoder inputs u (N, 15) and the relative poses (N, 27) (sec. 2 and 4)."""
+    def inputs(self, frame: ContactFrame | None = None, **kw: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """Encoder inputs u (N, 15) and the relative poses (N, 27) (sec. 2 and 4), relative
+        to the leftmost contact or, with ``frame``, in the contacts' frame."""
+        if frame is not None:
+            u, origin, phi = frame.encode(self.pads, self.contact, **kw)
+            return u, ContactFrame.to_frame(self.poses, origin, phi)
         u, origin = encode_input(self.pads, self.contact, **kw)
         return u, relative_pose(self.poses, origin)
 

@@ -28,8 +28,6 @@ from hand_capture.touch.encoding import (
     DEGREES,
     N_FINGERS,
     TABLE_TO_SURFACE,
-    absolute_pose,
-    encode_input,
 )
 from hand_capture.touch.frame import TouchFrame
 from hand_capture.touch.labelling import FingerLabeller, LabellerConfig
@@ -139,11 +137,11 @@ class TouchEncoder:
         contact = np.zeros(N_FINGERS, bool)
         contact[labels] = True
         enc = self.encoder
-        u, origin = encode_input(fingertips, contact, enc.input_scale, enc.lifted_value)
-        rel = enc.predict(u[None])[0]  # eq. (1), root relative to the leftmost contact
+        u, origin, phi = enc.encode(fingertips, contact)
+        rel = enc.predict(u[None])[0]  # eq. (1), in the contacts' frame
         distance = float(self.labeller.nearest_distance(rel)[0])
         # joints inside their limits (hand_capture.model.joints); the root is free
-        pose = clamp_to_limits(absolute_pose(rel, origin))
+        pose = clamp_to_limits(enc.absolute(rel, origin, phi))
         self.last_pose = pose
         return EncodedPose(pose, "tracking", dict(self.labeller.labels), searched,
                            float(np.exp(-distance / self.config.confidence_scale)),

@@ -36,7 +36,6 @@ from hand_capture.touch.encoding import (
     POSE_DIM,
     U_DIM,
     PolynomialEncoder,
-    absolute_pose,
 )
 
 
@@ -83,8 +82,10 @@ class FingerLabeller:
 
     Args:
         encoder: reconstructs poses from inputs u.
-        reference: (M, 27) training poses (mode "pose", root relative to the leftmost
-            contact) or (M, 15) training inputs u (mode "input").
+        reference: (M, 27) training poses (mode "pose", in the encoder's frame: root
+            relative to the leftmost contact, or in the contacts' frame when the encoder has
+            one, which makes the nearest-neighbour distance blind to where the hand lies and
+            how it is turned) or (M, 15) training inputs u (mode "input").
         config: see :class:`LabellerConfig`.
         mode: ``"pose"`` (the paper's labelling for encodings) or ``"input"`` (PCA-IK).
     """
@@ -113,11 +114,19 @@ class FingerLabeller:
         self.labels: dict[int, int] = {}  # session id -> finger
 
     # --- search -------------------------------------------------------------------------
-    def candidate_inputs(self, positions: np.ndarray,
-                         perms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Inputs u (P, 15) of every labelling in ``perms`` (P, n), and the origin (2,)."""
+    def candidate_inputs(self, positions: np.ndarray, perms: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Inputs u (P, 15) of every labelling in ``perms`` (P, n), the origins (P, 2) and
+        angles (P,) of their frames (:meth:`PolynomialEncoder.encode`)."""
         enc = self.encoder
         p = np.asarray(positions, np.float64)
+        if enc.frame is not None:
+            full = np.zeros((len(perms), N_FINGERS, 2))
+            contact = np.zeros((len(perms), N_FINGERS), bool)
+            rows = np.arange(len(perms))[:, None]
+            full[rows, perms] = p
+            contact[rows, perms] = True
+            return enc.encode(full, contact)
         origin = p[np.argmin(p[:, 0])]
         rel = (p - origin) * enc.input_scale
         n_cand = len(perms)
@@ -128,7 +137,7 @@ class FingerLabeller:
         uf[rows + 2 * perms] = rel[:, 0]
         uf[rows + 2 * perms + 1] = rel[:, 1]
         uf[rows + 2 * N_FINGERS + perms] = 1.0
-        return u, origin
+        return u, np.broadcast_to(origin, (n_cand, 2)), np.zeros(n_cand)
 
     def search(self, positions: np.ndarray,
                fixed: dict[int, int] | None = None) -> LabelResult:
@@ -148,7 +157,7 @@ class FingerLabeller:
                 keep &= perms[:, k] == f
             if keep.any():
                 perms = perms[keep]
-        u, origin = self.candidate_inputs(p, perms)
+        u, origin, phi = self.candidate_inputs(p, perms)
         q = self.encoder.predict(u) if self.mode == "pose" else None
         if q is not None and self.layout is not None and len(p) >= 2:
             d = self.index.distances(q * self.weights)[0]
@@ -160,7 +169,7 @@ class FingerLabeller:
                 best, dist = self._nearest(q * self.weights)
         else:
             best, dist = self._nearest(q * self.weights if q is not None else u)
-        pose = None if q is None else absolute_pose(q[best], origin)
+        pose = None if q is None else self.encoder.absolute(q[best], origin[best], phi[best])
         return LabelResult(perms[best].copy(), pose, dist, len(perms))
 
     def nearest_distance(self, points: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hand_capture.errors import ConfigError, InputError
-from hand_capture.touch.encoding import DEGREES, POSE_DIM, PolynomialEncoder
+from hand_capture.touch.encoding import DEGREES, POSE_DIM, ContactFrame, PolynomialEncoder
 from hand_capture.touch.labelling import LayoutPrior
 
 MODEL_FILE = Path("data") / "touch" / "touch_model.npz"
@@ -32,12 +32,19 @@ def default_model_path() -> Path:
 
 @dataclass
 class TouchModel:
-    """Encoders by name and the labelling reference poses (root relative to leftmost contact)."""
+    """Encoders by name and the labelling reference poses (root relative to the leftmost
+    contact, or in the contacts' frame when the model has one)."""
 
     encoders: dict[str, PolynomialEncoder]
     reference_poses: np.ndarray
     meta: dict[str, str] = field(default_factory=dict)
     layout: LayoutPrior | None = None  # labelling prior (None in files made before it)
+    #: frame of u and the poses (None in files made before it: the leftmost contact)
+    frame: ContactFrame | None = None
+
+    def __post_init__(self) -> None:
+        for enc in self.encoders.values():
+            enc.frame = self.frame
 
     def encoder(self, name: str) -> PolynomialEncoder:
         try:
@@ -59,6 +66,8 @@ class TouchModel:
             arrays.update(enc.to_arrays(prefix=f"{name}_"))
         if self.layout is not None:
             arrays.update(self.layout.to_arrays())
+        if self.frame is not None:
+            arrays.update(self.frame.to_arrays())
         for k, v in self.meta.items():
             arrays[f"meta_{k}"] = np.array(str(v))
         path = Path(path)
@@ -82,6 +91,7 @@ class TouchModel:
                 ref = np.asarray(data["reference_poses"], np.float64)
                 meta = {k[5:]: str(data[k]) for k in data.files if k.startswith("meta_")}
                 layout = LayoutPrior.from_arrays(data)
+                frame = ContactFrame.from_arrays(data)
         except FileNotFoundError as e:
             raise ConfigError(f"touch model file not found: {path} (make it with "
                               "'python -m hand_capture.touch.train')") from e
@@ -90,5 +100,5 @@ class TouchModel:
         unknown = set(names) - set(DEGREES)
         if unknown or ref.ndim != 2 or ref.shape[1] != POSE_DIM:
             raise ConfigError(f"touch model file {path} is malformed")
-        return TouchModel(encoders, ref, meta, layout)
+        return TouchModel(encoders, ref, meta, layout, frame)
 

@@ -6,7 +6,10 @@ The training set (:data:`TRAIN_PARTS`) is generated with the hand model and cach
 (``data/touch/cache/``): the template right hand (seed 0, about 6,800 valid frames like the
 paper's 7,083) and, so that the encoder does not learn one hand size, eight sampled subjects
 (``sample_shape(1..8)``, scales 0.90-1.12; 700 sequences each, seeds 11-18, wrist yaw +-45
-deg and roll sd 8 deg instead of +-35 and 5). The linear,
+deg and roll sd 8 deg instead of +-35 and 5) and eight more (``sample_shape(9..16)``, seeds
+29-36) over a wider wrist pitch (-12 +- 10 deg), roll (sd 10 deg) and finger curl (0-0.9).
+u and the poses are expressed in the contacts' frame
+(:class:`~hand_capture.touch.encoding.ContactFrame`; ``--leftmost`` for the paper's). The linear,
 quadratic and cubic encodings (eq. 1-3) are fitted by plain least squares, as in the paper,
 and saved with a subsample of the training poses and the layout prior for the labelling
 search, and with a fingerprint of the hand model's kinematics: a test fails when the model
@@ -32,7 +35,7 @@ from hand_capture.touch.datagen import (
     load_or_generate,
     model_fingerprint,
 )
-from hand_capture.touch.encoding import DEGREES, PolynomialEncoder
+from hand_capture.touch.encoding import DEGREES, ContactFrame, PolynomialEncoder
 from hand_capture.touch.labelling import LayoutPrior
 from hand_capture.touch.touch_model import MAX_REFERENCE, TouchModel, default_model_path
 
@@ -43,7 +46,11 @@ assert TRAIN == GenConfig()
 #: with a wider wrist yaw (+-45 deg) and roll (sd 8 deg) than the template part's.
 TRAIN_PARTS: tuple[GenConfig, ...] = (TRAIN,) + tuple(
     GenConfig(sequences=700, frames=8, seed=10 + k, shape_seed=k, yaw_deg=45.0,
-              roll_sd_deg=8.0) for k in range(1, 9))
+              roll_sd_deg=8.0) for k in range(1, 9)) + tuple(
+    # issue #13: eight more subjects over wider wrist pitch / roll and finger curl
+    GenConfig(sequences=700, frames=8, seed=20 + k, shape_seed=k, yaw_deg=45.0,
+              roll_sd_deg=10.0, pitch_deg=(-12.0, 10.0), curl=(0.0, 0.9), curl_sd=0.12)
+    for k in range(9, 17))
 
 
 def training_set(parts: tuple[GenConfig, ...] = TRAIN_PARTS) -> TouchDataset:
@@ -58,14 +65,18 @@ def training_set(parts: tuple[GenConfig, ...] = TRAIN_PARTS) -> TouchDataset:
 
 
 def fit_model(ds: TouchDataset, ridge: float = 0.0,
-              degrees: tuple[str, ...] = tuple(DEGREES)) -> TouchModel:
+              degrees: tuple[str, ...] = tuple(DEGREES), contact_frame: bool = True
+              ) -> TouchModel:
     """Encoders for ``degrees`` fitted on ``ds``; every training pose is kept as reference;
-    the labelling's layout prior from the same frames."""
-    u, poses = ds.inputs()
+    the labelling's layout prior from the same frames. ``contact_frame``: u and the poses in
+    the contacts' frame (:class:`~hand_capture.touch.encoding.ContactFrame`, fitted on ``ds``),
+    else relative to the leftmost contact (the paper)."""
+    frame = ContactFrame.fit(ds.pads, ds.contact) if contact_frame else None
+    u, poses = ds.inputs(frame)
     encoders = {name: PolynomialEncoder.fit(u, poses, DEGREES[name], ridge=ridge)
                 for name in degrees}
     return TouchModel(encoders, poses, {"frames": str(len(ds)), "ridge": str(ridge)},
-                      LayoutPrior.fit(ds.pads, ds.contact))
+                      LayoutPrior.fit(ds.pads, ds.contact), frame)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -78,12 +89,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ridge", type=float, default=0.0,
                     help="ridge weight (0 = plain least squares, as in the paper)")
     ap.add_argument("--max-reference", type=int, default=MAX_REFERENCE)
+    ap.add_argument("--leftmost", action="store_true",
+                    help="u relative to the leftmost contact, unturned (the paper) instead of "
+                    "the contacts' frame")
     a = ap.parse_args(argv)
     parts = (TRAIN,) if a.template_only else TRAIN_PARTS
     t0 = time.perf_counter()
     ds = training_set(parts)
     t1 = time.perf_counter()
-    model = fit_model(ds, a.ridge)
+    model = fit_model(ds, a.ridge, contact_frame=not a.leftmost)
     model.meta.update({"parts": json.dumps([asdict(c) for c in parts]),
                        "seed": str(TRAIN.seed),
                        "hand_model": model_fingerprint(build_model(-1))})
