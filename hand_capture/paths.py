@@ -39,3 +39,39 @@ def resolve_path(path: str | Path) -> Path:
     if not p.is_absolute() and not p.exists() and (share_dir() / p).exists():
         return share_dir() / p
     return p
+
+
+def named_config_names(subdir: str) -> list[str]:
+    """Names (file stems) of the YAML files shipped in ``config/<subdir>/``."""
+    try:
+        folder = config_dir() / subdir
+    except Exception:  # no source tree and no ament index: nothing is shipped
+        return []
+    return sorted(f.stem for f in folder.glob("*.yaml")) if folder.is_dir() else []
+
+
+def resolve_named_config(name_or_path: str | Path, subdir: str, what: str) -> Path:
+    """A YAML file given as a path, or as a bare name of ``config/<subdir>/NAME.yaml``.
+
+    Args:
+        name_or_path: a file path (absolute, relative to the working directory or to the share
+            folder) or a bare name such as ``leap_hand`` (``.yaml`` optional).
+        subdir: the folder under ``config/`` that holds the named files, e.g. ``servo_maps``.
+        what: what the file is, for the error message, e.g. ``"servo map"``.
+
+    Raises:
+        ConfigError: nothing found; the message lists the names that exist.
+    """
+    from hand_capture.errors import ConfigError
+
+    p = resolve_path(name_or_path)
+    if p.is_file():
+        return p
+    name = str(name_or_path)
+    names = named_config_names(subdir)
+    if "/" not in name:
+        stem = name.removesuffix(".yaml")
+        if stem in names:
+            return config_dir() / subdir / f"{stem}.yaml"
+    raise ConfigError(f"{what} {name!r} not found (not a file, not a name under "
+                      f"config/{subdir}/); available {what}s: {names}")

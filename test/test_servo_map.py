@@ -79,7 +79,7 @@ def test_every_problem_is_listed_at_once() -> None:
 
 
 def test_missing_map_lists_the_available_ones() -> None:
-    with pytest.raises(ConfigError, match=r"available maps: \[.*'leap_hand'"):
+    with pytest.raises(ConfigError, match=r"available servo maps: \[.*'leap_hand'"):
         load_servo_map("no_such_hand")
 
 

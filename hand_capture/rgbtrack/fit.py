@@ -33,7 +33,6 @@ and keeps the one whose full fit has the lower cost.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 
@@ -41,6 +40,7 @@ import cv2
 import numpy as np
 
 from hand_capture.cameras.base import Intrinsics
+from hand_capture.cameras.transforms import matrix_to_rotvec, rotvec_to_matrix
 from hand_capture.config import param, validate
 from hand_capture.errors import InputError
 from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel
@@ -146,29 +146,7 @@ def projection_jacobian(intr: Intrinsics, pts: np.ndarray) -> np.ndarray:
     return j
 
 
-def _rodrigues(w: np.ndarray) -> np.ndarray:
-    th = float(np.linalg.norm(w))
-    if th < 1e-12:
-        return np.eye(3)
-    k = w / th
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(th) * kx + (1 - math.cos(th)) * kx @ kx
 
-
-def _rotvec(r: np.ndarray) -> np.ndarray:
-    """Rotation vector of a rotation matrix (log map)."""
-    c = float(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0))
-    th = math.acos(c)
-    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    if th < 1e-9:
-        return 0.5 * v
-    if math.pi - th < 1e-6:
-        # axis from the symmetric part
-        a = np.sqrt(np.maximum((np.diag(r) + 1.0) / 2.0, 0.0))
-        i = int(np.argmax(a))
-        axis = r[:, i] + np.eye(3)[i]
-        return th * axis / np.linalg.norm(axis)
-    return th / (2.0 * math.sin(th)) * v
 
 
 def sample_depth(depth_m: np.ndarray, pixels: np.ndarray, half: int) -> np.ndarray:
@@ -261,7 +239,7 @@ class KeypointFitter:
             if self._prev_ref is not prev:
                 self._prev_ref, self._r_prev_t = prev, root_rotation_matrix(prev[3:6]).T
             r_rel = root_rotation_matrix(q[3:6]) @ self._r_prev_t
-            dt[3:6] = _rotvec(r_rel) / c.temporal_sigma_rad
+            dt[3:6] = matrix_to_rotvec(r_rel) / c.temporal_sigma_rad
             dt[6:] = (q[6:] - prev[6:]) / c.temporal_sigma_rad
             res.append(dt)
             if jac:
@@ -276,7 +254,7 @@ class KeypointFitter:
     @staticmethod
     def _apply(q: np.ndarray, step: np.ndarray) -> np.ndarray:
         out = q + step
-        rot = _rodrigues(step[3:6]) @ root_rotation_matrix(q[3:6])
+        rot = rotvec_to_matrix(step[3:6]) @ root_rotation_matrix(q[3:6])
         out[3:6] = root_angles_from_matrix(rot)
         return np.clip(out, _LO, _HI)
 

@@ -38,7 +38,7 @@ from typing import Any
 
 from hand_capture.config import load_yaml
 from hand_capture.model.joints import ARTICULATED_JOINTS
-from hand_capture.paths import config_dir
+from hand_capture.paths import resolve_named_config
 from hand_control.dynamixel.control_table import (
     MODELS,
     OPERATING_MODES,
@@ -132,34 +132,13 @@ class ServoMap:
         return tuple(seen)
 
 
-def servo_map_dirs() -> list[Path]:
-    """Folders searched for a servo map given by name: ``config/servo_maps`` of the suite."""
-    try:
-        return [config_dir() / "servo_maps"]
-    except Exception:  # no source tree and no ament index: only paths work
-        return []
-
-
 def resolve_servo_map(name_or_path: str | Path) -> Path:
     """A servo map file from a path or a bare name such as ``leap_hand``.
 
     Raises:
         ConfigError: nothing found; the message lists the maps that exist.
     """
-    p = Path(name_or_path).expanduser()
-    if p.is_file():
-        return p
-    name = str(name_or_path)
-    if "/" not in name:
-        stem = name[:-5] if name.endswith(".yaml") else name
-        for d in servo_map_dirs():
-            cand = d / f"{stem}.yaml"
-            if cand.is_file():
-                return cand
-    available = sorted({f.stem for d in servo_map_dirs() if d.is_dir() for f in d.glob("*.yaml")})
-    raise ConfigError(
-        f"servo map {name!r} not found (not a file, not a name under "
-        f"{[str(d) for d in servo_map_dirs() if d.is_dir()]}); available maps: {available}")
+    return resolve_named_config(name_or_path, "servo_maps", "servo map")
 
 
 def load_servo_map(name_or_path: str | Path) -> ServoMap:

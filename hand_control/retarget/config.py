@@ -36,7 +36,7 @@ import numpy as np
 
 from hand_capture.config import from_mapping, load_yaml, param, validate
 from hand_capture.model.keypoints21 import KEYPOINT21_NAMES
-from hand_capture.paths import config_dir
+from hand_capture.paths import resolve_named_config
 from hand_control.errors import ConfigError
 from hand_control.retarget.robot import BUILTIN_SUITE_HAND
 
@@ -137,34 +137,13 @@ class RetargetConfig:
         return RetargetConfig(**{**self.__dict__, "settings": s})
 
 
-def retarget_config_dirs() -> list[Path]:
-    """Folders searched for a config given by name: ``config/retarget`` of the suite."""
-    try:
-        return [config_dir() / "retarget"]
-    except Exception:  # no source tree and no ament index: only paths work
-        return []
-
-
 def resolve_retarget_config(name_or_path: str | Path) -> Path:
     """A retarget config file from a path or a bare name such as ``leap_hand``.
 
     Raises:
         ConfigError: nothing found; the message lists the configs that exist.
     """
-    p = Path(name_or_path).expanduser()
-    if p.is_file():
-        return p
-    name = str(name_or_path)
-    if "/" not in name:
-        stem = name[:-5] if name.endswith(".yaml") else name
-        for d in retarget_config_dirs():
-            cand = d / f"{stem}.yaml"
-            if cand.is_file():
-                return cand
-    available = sorted({f.stem for d in retarget_config_dirs() if d.is_dir()
-                        for f in d.glob("*.yaml")})
-    raise ConfigError(f"retarget config {name!r} not found (not a file, not a name under "
-                      f"{[str(d) for d in retarget_config_dirs()]}); available: {available}")
+    return resolve_named_config(name_or_path, "retarget", "retarget config")
 
 
 def load_retarget_config(name_or_path: str | Path) -> RetargetConfig:
