@@ -43,6 +43,37 @@ def test_shipped_performance_and_camera_pose_come_from_the_generator(performance
     assert np.allclose(cfg["camera_rotation"], performance.camera_rotation, atol=1e-5)
 
 
+def test_performance_is_not_built_from_the_grasp_plan(monkeypatch) -> None:
+    """The operator's performance comes from human keyframes and the object's size: it builds
+    with grasp planning switched off, and its grasp is not the plan's."""
+    import hand_control.sim.grasp as grasp
+    import hand_control.sim.lockstep as lockstep
+
+    def no_plan(*_a, **_k):
+        raise AssertionError("the performance must not use the grasp plan")
+
+    monkeypatch.setattr(grasp, "plan_grasp", no_plan)
+    monkeypatch.setattr(lockstep, "plan_grasp", no_plan)
+    perf = performance_for_scenario("lift_box")
+    monkeypatch.undo()
+    plan = LockstepRunner(load_scenario("lift_box")).plan
+    q = perf.poses[np.argmin(np.abs(perf.times - 2.5))]  # held at the grasp
+    assert np.degrees(np.abs(q[6:] - plan.q_grasp[6:]).max()) > 20.0
+    assert np.linalg.norm(q[:3] - plan.q_grasp[:3]) > 0.03
+
+
+def _noisy(poses: np.ndarray, seed: int) -> np.ndarray:
+    """Tracking-like errors on a performance: a slow wrist drift plus per-frame jitter of the
+    wrist (2 mm, 0.02 rad) and of the fingers (0.05 rad)."""
+    rng = np.random.default_rng(seed)
+    q = poses.copy()
+    n = len(q)
+    q[:, :3] += 0.003 * np.sin(np.linspace(0, 12, n))[:, None] + rng.normal(0.0, 0.002, (n, 3))
+    q[:, 3:6] += rng.normal(0.0, 0.02, (n, 3))
+    q[:, 6:] += rng.normal(0.0, 0.05, (n, 21))
+    return q
+
+
 def test_controller_period_matches_the_sims_state_rate() -> None:
     """The controller caps the object's rotational gains by its control period: in teleop it
     must be the period of the sim's joint states (timestep x steps_per_tick)."""
@@ -69,26 +100,42 @@ def test_offline_teleop_grasps_lifts_carries_and_releases(performance) -> None:
     runner = LockstepRunner(load_scenario("lift_box"), control_every=4)
     res = run_teleop(runner, performance.times[idx], performance.poses[idx])
     order = [int(p) for i, p in enumerate(res.phases) if i == 0 or p != res.phases[i - 1]]
-    assert order == [Phase.REACHING, Phase.CLOSING, Phase.MANIPULATION, Phase.RELEASING]
+    # ... and the hand withdraws far enough to start over
+    assert order == [Phase.REACHING, Phase.CLOSING, Phase.MANIPULATION, Phase.RELEASING,
+                     Phase.REACHING]
     assert res.max_lift_mm > 70.0  # the performance lifts by 100 mm
     assert res.carried_mm > 70.0   # ... and carries 100 mm sideways
     assert res.qp_fallbacks == 0
 
 
-def test_offline_teleop_with_tracking_like_noise_still_lifts(performance) -> None:
-    """Tracking-like errors on the performance (a slow wrist drift plus per-frame jitter of
-    the wrist and the fingers): the filtered wrist and the planned grasp still lift the box."""
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_offline_teleop_with_tracking_like_noise_still_lifts(performance, seed) -> None:
+    """Tracking-like errors on the performance: the filtered wrist, the paced approach onto the
+    planned grasp and the grasp lift the box most of the performance's 10 cm, every time (the
+    keyframed performance once lifted it in 1 of 4 such runs: the approach swept the hand onto
+    the box and the grasp target chased the pushed box)."""
     idx = np.arange(0, len(performance.times), 2)
-    rng = np.random.default_rng(3)
-    q = performance.poses[idx].copy()
-    q[:, :3] += 0.003 * np.sin(np.linspace(0, 12, len(idx)))[:, None] \
-        + rng.normal(0.0, 0.002, (len(idx), 3))
-    q[:, 3:6] += rng.normal(0.0, 0.02, (len(idx), 3))
-    q[:, 6:] += rng.normal(0.0, 0.05, (len(idx), 21))
     runner = LockstepRunner(load_scenario("lift_box"), control_every=4)
-    res = run_teleop(runner, performance.times[idx], q)
+    res = run_teleop(runner, performance.times[idx], _noisy(performance.poses[idx], seed))
     assert Phase.MANIPULATION in res.phases
-    assert res.max_lift_mm > 50.0
+    assert res.max_lift_mm > 70.0
+    assert res.carried_mm > 60.0
+
+
+def test_a_moved_box_is_still_lifted_by_the_same_performance(performance) -> None:
+    """The performance is made for the box at its scenario's place; with the box 15 mm away
+    (and the grasp planned there by the controller, as grasp_phase does) the operator's
+    unchanged reach still ends in a lift: the retargeting, not the performance, meets the
+    object."""
+    import dataclasses
+
+    spec = load_scenario("lift_box")
+    x, y = spec.object_xy
+    moved = dataclasses.replace(spec, object_xy=(x + 0.010, y - 0.012))
+    idx = np.arange(0, len(performance.times), 2)
+    runner = LockstepRunner(moved, control_every=4)
+    res = run_teleop(runner, performance.times[idx], _noisy(performance.poses[idx], 7))
+    assert res.max_lift_mm > 70.0
 
 
 def _topics(bag: Path) -> dict[str, int]:

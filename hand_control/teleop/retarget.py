@@ -112,23 +112,29 @@ class GraspRetarget:
         q_pregrasp: (27,) the plan's open pre-grasp (same wrist); None = the grasp itself.
         closing_span: the operator's grip closing [m] that completes the progress; None =
             from the open grip down to the planned grasp's grip.
+        approach: how the hand gets from the operator's wrist to the plan's (speeds, the
+            height it comes down from, how fast the fingers may close); None = defaults.
     """
 
     def __init__(self, q_grasp: np.ndarray, object_pose: np.ndarray,
                  model: HandModel | None = None, q_pregrasp: np.ndarray | None = None,
-                 closing_span: float | None = None) -> None:
+                 closing_span: float | None = None,
+                 approach: InterfaceConfig | None = None) -> None:
         self.model = model or HandModel()
         self.q_grasp = np.array(q_grasp, dtype=np.float64)
         self.q_pregrasp = self.q_grasp if q_pregrasp is None \
             else np.array(q_pregrasp, dtype=np.float64)
         self.closing_span = closing_span
+        self.approach = approach or InterfaceConfig()
         # the planned wrist in the object's frame: the grasp stays fixed to the object
         self._wrist_in_object = np.linalg.inv(object_pose) @ pose_matrix(self.q_grasp)
         self.grip_grasp = float(grip_size(self.model.joint_positions(self.q_grasp)))
         self._phase = Phase.REACHING
         self._grip_open = self.grip_grasp
         self._T_op0 = np.eye(4)
-        self._T_plan0 = np.eye(4)
+        self._path: _ApproachPath | None = None
+        self._q_from = self.q_pregrasp
+        self._c, self._t_c = 0.0, 0.0  # how far the fingers have closed, and when [s]
 
     def progress(self, grip: float) -> float:
         """Closing progress in [0, 1] of the operator's grip size [m]."""
@@ -138,8 +144,21 @@ class GraspRetarget:
             return 1.0
         return float(np.clip((self._grip_open - grip) / span, 0.0, 1.0))
 
+    def _fingers(self, t: float, s: float, arrived: bool) -> float:
+        """The fingers' closing from the pre-grasp (0) to the grasp (1) at ``t`` [s]: the
+        operator's progress ``s``, not before the wrist has arrived, and no faster than
+        ``1 / close_time`` per second (a grip closed while the hand was still on its way does
+        not snap the fingers shut)."""
+        goal = s if arrived else 0.0
+        rate = 1.0 / max(self.approach.close_time, 1e-6)
+        self._c = min(max(goal, 0.0), self._c + rate * max(t - self._t_c, 0.0)) \
+            if goal > self._c else self._c
+        self._t_c = t
+        return self._c
+
     def target(self, q_op: np.ndarray, T_op: np.ndarray, phase: Phase,
-               object_pose: np.ndarray, grip: float | None = None) -> np.ndarray:
+               object_pose: np.ndarray, grip: float | None = None,
+               t: float | None = None) -> np.ndarray:
         """The hand's PD target (27,) for the tracked pose ``q_op`` (world) in ``phase``.
 
         Args:
@@ -148,28 +167,87 @@ class GraspRetarget:
             phase: the grasp phase decided for this pose.
             object_pose: (4, 4) the object's current pose.
             grip: ``q_op``'s grip size [m] when the caller has it (else computed).
+            t: time of ``q_op`` [s] (paces the approach); None = the approach is instant.
         """
         if grip is None:
             grip = float(grip_size(self.model.joint_positions(q_op)))
-        T_plan = object_pose @ self._wrist_in_object
+        timed = t is not None
+        t = float(t) if timed else 0.0
         if phase != self._phase:
             if phase == Phase.CLOSING:
                 self._grip_open = max(grip, self.grip_grasp)
+                # the grasp goes where the object rests as closing begins, and stays there: a
+                # plan that followed the object would chase a box the fingers push (the
+                # earlier runaway: pushed 2-3 cm, then dropped)
+                T_plan = object_pose @ self._wrist_in_object
+                self._path = _ApproachPath(T_op, T_plan, t, self.approach, timed)
+                self._q_from = np.asarray(q_op, dtype=np.float64).copy()
+                self._c, self._t_c = 0.0, t
             elif phase == Phase.MANIPULATION:
-                self._T_op0, self._T_plan0 = T_op, T_plan
+                self._T_op0 = T_op
+                if self._path is None:  # manipulation without closing (a restarted stream)
+                    self._path = _ApproachPath(T_op, object_pose @ self._wrist_in_object,
+                                               t, self.approach, timed)
+            elif phase in (Phase.REACHING, Phase.RELEASING):
+                self._path = None
             self._phase = phase
-        if phase == Phase.CLOSING:
-            s = self.progress(grip)
-            if s < 0.5:  # wrist to the plan's, fingers to the open pre-grasp
-                u = 2.0 * s
-                q = (1 - u) * np.asarray(q_op, dtype=np.float64) + u * self.q_pregrasp
-                return pose_with_wrist(q, _blend(T_op, T_plan, u))
-            u = 2.0 * s - 1.0  # then the fingers close onto the grasp
-            return pose_with_wrist((1 - u) * self.q_pregrasp + u * self.q_grasp, T_plan)
-        if phase == Phase.MANIPULATION:
-            return pose_with_wrist(self.q_grasp,
-                                   T_op @ np.linalg.inv(self._T_op0) @ self._T_plan0)
+        if phase in (Phase.CLOSING, Phase.MANIPULATION) and self._path is not None:
+            T_w, a = self._path(t)
+            arrived = self._path.arrived(t)
+            # fingers: the operator's, opening to the plan's pre-grasp as the wrist travels
+            q = (1 - a) * self._q_from + a * self.q_pregrasp
+            s = self.progress(grip) if phase == Phase.CLOSING else 1.0
+            c = self._fingers(t, s, arrived) if timed else s
+            if arrived:
+                q = (1 - c) * self.q_pregrasp + c * self.q_grasp
+            if phase == Phase.MANIPULATION:  # moved rigidly with the operator's wrist
+                T_w = T_op @ np.linalg.inv(self._T_op0) @ T_w
+            return pose_with_wrist(q, T_w)
         return pose_with_wrist(q_op, T_op)
+
+
+class _ApproachPath:
+    """The wrist's way from the operator's wrist to the planned one (eq. of a rigid blend,
+    :func:`_blend`): first to a via pose ``approach_height`` above the plan's wrist, then
+    straight down onto it, so the open fingers come down beside the object instead of sweeping
+    through it. Each leg lasts as long as its distance and angle need at the configured
+    speeds (at least ``min_approach_time`` in all). Call with ``t`` [s] -> ((4, 4) wrist,
+    progress in [0, 1]). The fingers may close once the servoed wrist, which lags its target,
+    has caught up: ``settle_time`` after the path's end (:meth:`arrived`)."""
+
+    def __init__(self, T_from: np.ndarray, T_to: np.ndarray, t0: float,
+                 cfg: InterfaceConfig, timed: bool) -> None:
+        self.T_from, self.T_to, self.t0 = np.array(T_from), np.array(T_to), t0
+        self.T_via = self.T_to.copy()
+        self.T_via[2, 3] += cfg.approach_height
+        ang = float(np.linalg.norm(matrix_to_rotvec(self.T_from[:3, :3].T @ self.T_to[:3, :3])))
+        d1 = float(np.linalg.norm(self.T_via[:3, 3] - self.T_from[:3, 3]))
+        self.t1 = max(d1 / cfg.approach_speed, ang / cfg.approach_turn_rate)
+        self.t2 = cfg.approach_height / cfg.approach_speed
+        scale = max(1.0, cfg.min_approach_time / max(self.t1 + self.t2, 1e-9))
+        self.t1 *= scale
+        self.t2 *= scale
+        self.settle = cfg.settle_time
+        self.timed = timed
+
+    def arrived(self, t: float) -> bool:
+        """Whether the hand may close its fingers at ``t`` [s]."""
+        return not self.timed or t - self.t0 >= self.t1 + 2.0 * self.settle + self.t2
+
+    def __call__(self, t: float) -> tuple[np.ndarray, float]:
+        if not self.timed:
+            return self.T_to.copy(), 1.0
+        e = t - self.t0
+        if e < self.t1:
+            u = e / self.t1
+            return _blend(self.T_from, self.T_via, u * u * (3 - 2 * u)), u
+        e -= self.t1 + self.settle  # held at the via pose while the wrist catches up
+        if e < 0.0:
+            return self.T_via.copy(), 1.0
+        if e < self.t2:
+            u = e / self.t2
+            return _blend(self.T_via, self.T_to, u * u * (3 - 2 * u)), 1.0
+        return self.T_to.copy(), 1.0
 
 
 @dataclass(frozen=True)
@@ -178,6 +256,22 @@ class InterfaceConfig:
 
     wrist_cutoff: float = param(3.0, "low-pass cutoff of the operator's wrist [Hz]; 0 = off",
                                 lo=0.0, hi=100.0)
+    approach_speed: float = param(
+        0.3, "closing: speed of the hand's wrist on its way from the operator's wrist to the "
+        "planned grasp's [m/s]", lo=0.01, hi=5.0)
+    approach_turn_rate: float = param(
+        3.0, "closing: the wrist's turning rate on that way [rad/s]", lo=0.1, hi=50.0)
+    approach_height: float = param(
+        0.03, "closing: the wrist comes down onto the planned grasp from this far above [m]",
+        lo=0.0, hi=0.3)
+    min_approach_time: float = param(
+        0.2, "closing: the approach lasts at least this long [s]", lo=0.0, hi=5.0)
+    settle_time: float = param(
+        0.3, "closing: the fingers start closing this long after the wrist's target has "
+        "reached the planned grasp (the servoed wrist lags its target) [s]", lo=0.0, hi=5.0)
+    close_time: float = param(
+        0.25, "the fingers close from the pre-grasp to the grasp in no less than this [s]",
+        lo=0.0, hi=5.0)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -213,7 +307,8 @@ class PerformanceInterface:
         self.filter = WristFilter(self.config.wrist_cutoff)
         # the progress completes with the closing the detector needs to see a grasp
         self.retarget = GraspRetarget(q_grasp, object_pose, self.model, q_pregrasp,
-                                      closing_span=self.detector.cfg.close_decrease)
+                                      closing_span=self.detector.cfg.close_decrease,
+                                      approach=self.config)
 
     def update(self, t: float, q_op: np.ndarray, object_pose: np.ndarray) -> InterfaceStep:
         """Advance with the operator's pose ``q_op`` (27,) at ``t`` [s] and the object's pose.
@@ -228,4 +323,5 @@ class PerformanceInterface:
         kp = self.model.joint_positions(q)
         grip = float(grip_size(kp))
         up = self.detector.update(t, kp, T_op, object_pose, raw_grip=grip)
-        return InterfaceStep(up, self.retarget.target(q, T_op, up.phase, object_pose, grip))
+        return InterfaceStep(up, self.retarget.target(q, T_op, up.phase, object_pose, grip,
+                                                             t))
