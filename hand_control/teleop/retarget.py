@@ -22,7 +22,7 @@ kinematics onto the object's surface (:func:`hand_control.sim.grasp.plan_grasp`)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -131,7 +131,7 @@ class GraspRetarget:
         self.grip_grasp = float(grip_size(self.model.joint_positions(self.q_grasp)))
         self._phase = Phase.REACHING
         self._grip_open = self.grip_grasp
-        self._T_op0 = np.eye(4)
+        self._T_op0: np.ndarray | None = None  # operator's wrist when the grasp closed
         self._path: _ApproachPath | None = None
         self._q_from = self.q_pregrasp
         self._c, self._t_c = 0.0, 0.0  # how far the fingers have closed, and when [s]
@@ -143,6 +143,12 @@ class GraspRetarget:
         if span <= 1e-6:
             return 1.0
         return float(np.clip((self._grip_open - grip) / span, 0.0, 1.0))
+
+    @property
+    def closed(self) -> bool:
+        """Whether the hand's target has reached the planned grasp (wrist arrived, fingers
+        closed); true when the approach is not paced."""
+        return self._path is not None and (not self._path.timed or self._c >= 1.0)
 
     def _fingers(self, t: float, s: float, arrived: bool) -> float:
         """The fingers' closing from the pre-grasp (0) to the grasp (1) at ``t`` [s]: the
@@ -184,7 +190,7 @@ class GraspRetarget:
                 self._q_from = np.asarray(q_op, dtype=np.float64).copy()
                 self._c, self._t_c = 0.0, t
             elif phase == Phase.MANIPULATION:
-                self._T_op0 = T_op
+                self._T_op0 = None
                 if self._path is None:  # manipulation without closing (a restarted stream)
                     self._path = _ApproachPath(T_op, object_pose @ self._wrist_in_object,
                                                t, self.approach, timed)
@@ -200,7 +206,12 @@ class GraspRetarget:
             c = self._fingers(t, s, arrived) if timed else s
             if arrived:
                 q = (1 - c) * self.q_pregrasp + c * self.q_grasp
-            if phase == Phase.MANIPULATION:  # moved rigidly with the operator's wrist
+            if phase == Phase.MANIPULATION and self.closed:
+                # moved rigidly with the operator's wrist since the hand's grasp closed: the
+                # wrist's drift while the fingers were closing (a tracker's wrist moves as the
+                # tracked fingers curl) must not shift the hand off a grasp not yet made
+                if self._T_op0 is None:
+                    self._T_op0 = T_op
                 T_w = T_op @ np.linalg.inv(self._T_op0) @ T_w
             return pose_with_wrist(q, T_w)
         return pose_with_wrist(q_op, T_op)
@@ -306,6 +317,8 @@ class PerformanceInterface:
         self.detector = GraspPhaseDetector(phase_config)
         self.filter = WristFilter(self.config.wrist_cutoff)
         # the progress completes with the closing the detector needs to see a grasp
+        self._held = False  # manipulation detected, reported as closing (hand not closed)
+        self._T_obj0 = np.eye(4)  # the object in the operator's wrist frame (manipulation)
         self.retarget = GraspRetarget(q_grasp, object_pose, self.model, q_pregrasp,
                                       closing_span=self.detector.cfg.close_decrease,
                                       approach=self.config)
@@ -323,5 +336,22 @@ class PerformanceInterface:
         kp = self.model.joint_positions(q)
         grip = float(grip_size(kp))
         up = self.detector.update(t, kp, T_op, object_pose, raw_grip=grip)
-        return InterfaceStep(up, self.retarget.target(q, T_op, up.phase, object_pose, grip,
-                                                             t))
+        target = self.retarget.target(q, T_op, up.phase, object_pose, grip, t)
+        # The operator has grasped; the hand grasps once its paced approach has arrived and
+        # its fingers have closed. Until then the controller still sees closing: PD only, no
+        # grasp torques (III.5.2 drops the grasp term while closing) and no object target,
+        # so the grasp term never pushes on a box the fingers are still closing onto.
+        manip = up.phase == Phase.MANIPULATION
+        if manip and not self.retarget.closed:
+            up = replace(up, phase=Phase.CLOSING, changed=False, object_target=None)
+            self._held = True
+        elif manip:
+            if self._held or up.changed:  # the hand's grasp starts: the object follows the
+                # operator's wrist rigidly from here (the detector's rule, from this moment)
+                self._T_obj0 = np.linalg.inv(T_op) @ object_pose
+                up = replace(up, changed=True)
+            up = replace(up, object_target=T_op @ self._T_obj0)
+            self._held = False
+        else:
+            self._held = False
+        return InterfaceStep(up, target)
