@@ -126,15 +126,20 @@ def test_a_moved_box_is_still_lifted_by_the_same_performance(performance) -> Non
     """The performance is made for the box at its scenario's place; with the box 15 mm away
     (and the grasp planned there by the controller, as grasp_phase does) the operator's
     unchanged reach still ends in a lift: the retargeting, not the performance, meets the
-    object."""
+    object. As in the teleop graph, the simulated hand starts at the scenario's start (not at
+    the operator's first pose) and holds the first pose a second before the motion."""
     import dataclasses
 
     spec = load_scenario("lift_box")
     x, y = spec.object_xy
     moved = dataclasses.replace(spec, object_xy=(x + 0.010, y - 0.012))
     idx = np.arange(0, len(performance.times), 2)
-    runner = LockstepRunner(moved, control_every=4)
-    res = run_teleop(runner, performance.times[idx], _noisy(performance.poses[idx], 7))
+    q = _noisy(performance.poses[idx], 7)
+    hold = 30  # 1 s at 30 fps
+    times = np.r_[np.arange(hold) / 30.0, performance.times[idx] + hold / 30.0]
+    runner = LockstepRunner(moved, control_every=20)  # the graph's 50 Hz control
+    res = run_teleop(runner, times, np.r_[np.repeat(q[:1], hold, axis=0), q],
+                     initial=runner.reference.initial_pose)
     assert res.max_lift_mm > 70.0
 
 
@@ -149,10 +154,10 @@ def _topics(bag: Path) -> dict[str, int]:
 
 def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
     """The whole graph with the tracker in the loop (grasp_phase and the controller see only
-    the tracked hand/pose, never the camera's ground truth): every topic is recorded and the
-    grasp lifts the box off the table. On a quiet host it is lifted most of the performance's
-    10 cm (bench pipeline: 98.6 mm); beside two CPU burners one of six runs held it only 30 mm
-    up before it slipped, so the bound here is the box clearly off the table (20 mm)."""
+    the tracked hand/pose, never the camera's ground truth) and the operator's performance made
+    from human keyframes, not from the grasp plan: every topic is recorded and the box is
+    lifted at least half of the performance's 10 cm (on the loaded 2-core host, load average
+    11-13: 95, 98 and 127 mm)."""
     from hand_control.report.series import load_bag, max_lift_mm, positions
 
     p = hand_suite("run", "teleop", "-p", f"bag_recorder.output:={tmp_path}/bag")
@@ -166,7 +171,7 @@ def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
     data = load_bag(tmp_path / "bag", skip=("camera/depth/image_raw", "hand/markers",
                                             "control/contact_markers"))
     lift = max_lift_mm(positions(data.topics["sim/object_pose"].msgs))
-    assert lift > 20.0, (lift, out[-4000:])
+    assert lift > 50.0, (lift, out[-4000:])
 
 
 def test_replay_graph_runs_the_shipped_capture_through_the_chain(tmp_path: Path) -> None:
