@@ -8,16 +8,19 @@ not have). Our substitute for that synthesis is the grasp planned by fingertip i
 kinematics onto the object's surface (:func:`hand_control.sim.grasp.plan_grasp`):
 
 * reaching, releasing: the target is the tracked hand;
-* closing: the target goes from the tracked hand to the planned grasp (fixed to the object)
-  as the operator's grip closes, progress ``s = (g_open - g) / span`` in [0, 1], where ``span``
-  is the closing the phase detector needs for a grasp (``close_decrease``), so the target is
-  the grasp by the time the grasp is detected. The operator's wrist need not be the plan's (a
-  tracked hand reaches as it likes): over the first half of the progress the wrist moves to the
-  plan's with the fingers opening to the plan's pre-grasp, over the second half the fingers
-  close from the pre-grasp to the grasp, so the fingers do not sweep into the object;
-* manipulation: the planned grasp, moved rigidly with the operator's wrist since the phase
-  began, ``T_wrist = T_op(t) T_op(t0)^-1 T_plan`` (the same rigid motion the object's target
-  follows, so the controller carries the object with the grasp it was planned for).
+* closing: the grasp is fixed where the object rests as closing begins (a grasp that followed
+  the object would chase a box the fingers push). The wrist travels from the operator's to
+  the plan's at bounded speed and turning rate, first to a pose ``approach_height`` above the
+  plan's, then straight down (:class:`_ApproachPath`), with the fingers opening to the plan's
+  pre-grasp; after ``settle_time`` (the servoed wrist lags its target) the fingers close onto
+  the grasp as the operator's grip closes, progress ``s = (g_open - g) / span`` in [0, 1]
+  (``span`` = the detector's ``close_decrease``), no faster than ``close_time``. The
+  operator's wrist need not be the plan's;
+* manipulation: the controller is told so once the hand's grasp has closed
+  (:class:`PerformanceInterface`; until then it still sees closing, PD only). From that
+  moment the planned grasp moves rigidly with the operator's wrist,
+  ``T_wrist = T_op(t) T_op(t0)^-1 T_plan``, and so does the object's target (the controller
+  carries the object with the grasp it was planned for).
 """
 
 from __future__ import annotations
@@ -219,12 +222,13 @@ class GraspRetarget:
 
 class _ApproachPath:
     """The wrist's way from the operator's wrist to the planned one (eq. of a rigid blend,
-    :func:`_blend`): first to a via pose ``approach_height`` above the plan's wrist, then
-    straight down onto it, so the open fingers come down beside the object instead of sweeping
-    through it. Each leg lasts as long as its distance and angle need at the configured
-    speeds (at least ``min_approach_time`` in all). Call with ``t`` [s] -> ((4, 4) wrist,
-    progress in [0, 1]). The fingers may close once the servoed wrist, which lags its target,
-    has caught up: ``settle_time`` after the path's end (:meth:`arrived`)."""
+    :func:`_blend`): first to a via pose ``approach_height`` above the plan's wrist, held there
+    ``settle_time`` (the servoed wrist lags its target, most in the turn), then straight down
+    onto it, so the open fingers come down beside the object instead of sweeping through it.
+    Each leg lasts as long as its distance and angle need at the configured speeds (at least
+    ``min_approach_time`` in all). Call with ``t`` [s] -> ((4, 4) wrist, progress of the
+    first leg in [0, 1]). The fingers may close ``settle_time`` after the path's end
+    (:meth:`arrived`)."""
 
     def __init__(self, T_from: np.ndarray, T_to: np.ndarray, t0: float,
                  cfg: InterfaceConfig, timed: bool) -> None:
