@@ -48,7 +48,8 @@ def test_phases_and_target_follow_the_hand(ros) -> None:
         float(palm[0]), float(-palm[1]), float(1.0 - palm[2]))
     obj.pose.orientation.w = 1.0
     assert spin_until(lambda: pub_hand.get_subscription_count() > 0, 10.0)
-    seq = [0.0] * 5 + list(np.linspace(0.0, 0.8, 10)) + [0.8] * 25
+    # ... held closed while the hand's paced approach reaches the planned grasp and closes it
+    seq = [0.0] * 5 + list(np.linspace(0.0, 0.8, 10)) + [0.8] * 150
     sent = 0
 
     def tick() -> None:

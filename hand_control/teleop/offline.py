@@ -41,19 +41,22 @@ class TeleopResult:
 def run_teleop(runner: LockstepRunner, times: np.ndarray, poses: np.ndarray,
                phase_config: PhaseConfig | None = None,
                config: InterfaceConfig | None = None, model: HandModel | None = None,
-               synthesizer: Callable[[np.ndarray, np.ndarray], Any] | None = None
-               ) -> TeleopResult:
+               synthesizer: Callable[[np.ndarray, np.ndarray], Any] | None = None,
+               initial: np.ndarray | None = None) -> TeleopResult:
     """Drive ``runner``'s world with world-frame hand ``poses`` (T, 27) at ``times`` (T,) [s].
 
-    The simulation starts with the hand at ``poses[0]`` and runs until ``times[-1]``.
-    ``synthesizer``: the grasp synthesised from the operator's hand as closing begins (III.6,
-    :class:`~hand_control.grasp.synthesis.PerformerSynthesizer`) instead of the runner's plan.
+    The simulation starts with the hand at ``initial`` (default ``poses[0]``; the teleop
+    graph's sim starts at the scenario's start, ``runner.reference.initial_pose``) and runs
+    until ``times[-1]``. ``synthesizer``: the grasp synthesised from the operator's hand as
+    closing begins (III.6, :class:`~hand_control.grasp.synthesis.PerformerSynthesizer`)
+    instead of the runner's plan.
     """
     w, core = runner.world, runner.core
     model = model or HandModel()
     w.reset()
-    w.set_initial_state(poses[0])
-    w.set_command(poses[0], np.zeros(w.n_hand))
+    q0 = poses[0] if initial is None else np.asarray(initial, dtype=np.float64)
+    w.set_initial_state(q0)
+    w.set_command(q0, np.zeros(w.n_hand))
     core.grasp_override = False
     name = runner.obj.name
     op = w.object_pose(name)

@@ -12,23 +12,26 @@ closing motion is played as the grip closes. Without one, the grasp is the scena
 :func:`hand_control.sim.grasp.plan_grasp`, or a scenario's synthesised grasp):
 
 * reaching, releasing: the target is the tracked hand;
-* closing: the target goes from the tracked hand to the planned grasp (fixed to the object)
-  as the operator's grip closes, progress ``s = (g_open - g) / span`` in [0, 1], where ``span``
-  is the closing the phase detector needs for a grasp (``close_decrease``), so the target is
-  the grasp by the time the grasp is detected. The operator's wrist need not be the plan's (a
-  tracked hand reaches as it likes): over the first half of the progress the wrist moves to the
-  plan's with the fingers opening to the plan's pre-grasp, over the second half the fingers
-  close from the pre-grasp to the grasp, so the fingers do not sweep into the object;
-* manipulation: the planned grasp, moved rigidly with the operator's wrist since the phase
-  began, ``T_wrist = T_op(t) T_op(t0)^-1 T_plan`` (the same rigid motion the object's target
-  follows, so the controller carries the object with the grasp it was planned for).
+* closing: the grasp is fixed where the object rests as closing begins (a grasp that followed
+  the object would chase a box the fingers push). The wrist travels from the operator's to
+  the plan's at bounded speed and turning rate, first to a pose ``approach_height`` above the
+  plan's, then straight down (:class:`_ApproachPath`), with the fingers opening to the plan's
+  pre-grasp; after ``settle_time`` (the servoed wrist lags its target) the fingers close onto
+  the grasp as the operator's grip closes, progress ``s = (g_open - g) / span`` in [0, 1]
+  (``span`` = the detector's ``close_decrease``), no faster than ``close_time``. The
+  operator's wrist need not be the plan's;
+* manipulation: the controller is told so once the hand's grasp has closed
+  (:class:`PerformanceInterface`; until then it still sees closing, PD only). From that
+  moment the planned grasp moves rigidly with the operator's wrist,
+  ``T_wrist = T_op(t) T_op(t0)^-1 T_plan``, and so does the object's target (the controller
+  carries the object with the grasp it was planned for).
 """
 
 from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -119,26 +122,34 @@ class GraspRetarget:
         q_pregrasp: (27,) the plan's open pre-grasp (same wrist); None = the grasp itself.
         closing_span: the operator's grip closing [m] that completes the progress; None =
             from the open grip down to the planned grasp's grip.
+        closing: (T, 27) a closing motion from ``q_pregrasp`` to ``q_grasp`` (a synthesised
+            grasp), played as the fingers close; None = a blend of the two.
+        approach: how the hand gets from the operator's wrist to the plan's (speeds, the
+            height it comes down from, how fast the fingers may close); None = defaults.
     """
 
     def __init__(self, q_grasp: np.ndarray, object_pose: np.ndarray,
                  model: HandModel | None = None, q_pregrasp: np.ndarray | None = None,
-                 closing_span: float | None = None, closing: np.ndarray | None = None
-                 ) -> None:
+                 closing_span: float | None = None, closing: np.ndarray | None = None,
+                 approach: InterfaceConfig | None = None) -> None:
         self.model = model or HandModel()
         self.closing_span = closing_span
+        self.approach = approach or InterfaceConfig()
         self.replan(q_grasp, object_pose, q_pregrasp, closing)
         self._phase = Phase.REACHING
         self._grip_open = self.grip_grasp
-        self._T_op0 = np.eye(4)
-        self._T_plan0 = np.eye(4)
+        self._T_op0: np.ndarray | None = None  # operator's wrist when the grasp closed
+        self._path: _ApproachPath | None = None
+        self._obj0 = np.array(object_pose, dtype=np.float64)  # object as closing began
+        self._q_from = self.q_pregrasp
+        self._c, self._t_c = 0.0, 0.0  # how far the fingers have closed, and when [s]
 
     def replan(self, q_grasp: np.ndarray, object_pose: np.ndarray,
                q_pregrasp: np.ndarray | None = None, closing: np.ndarray | None = None
                ) -> None:
         """Use another grasp (world, for the object at ``object_pose``): e.g. one synthesised
         for the operator's hand as closing begins (III.6). ``closing``: (T, 27) its closing
-        motion from ``q_pregrasp`` to ``q_grasp``, played as the operator's grip closes."""
+        motion from ``q_pregrasp`` to ``q_grasp``, played as the fingers close."""
         self.q_grasp = np.array(q_grasp, dtype=np.float64)
         self.q_pregrasp = self.q_grasp if q_pregrasp is None \
             else np.array(q_pregrasp, dtype=np.float64)
@@ -151,15 +162,20 @@ class GraspRetarget:
             self._closing_wrists = np.array([inv @ pose_matrix(q) for q in self._closing])
         self.grip_grasp = float(grip_size(self.model.joint_positions(self.q_grasp)))
 
-    def _closing_target(self, u: float, object_pose: np.ndarray) -> np.ndarray:
-        """The closing motion at fraction ``u``, its wrists following the object."""
+    def _start_in_object(self) -> np.ndarray:
+        """(4, 4) the wrist the approach goes to, in the object's frame: the closing motion's
+        first wrist, or the plan's."""
+        return self._wrist_in_object if self._closing is None else self._closing_wrists[0]
+
+    def _closing_target(self, u: float) -> tuple[np.ndarray, np.ndarray]:
+        """The closing motion at fraction ``u`` in [0, 1]: fingers (27,) and wrist (4, 4),
+        on the object where it rested as closing began."""
         c = self._closing
         x = min(max(u, 0.0), 1.0) * (len(c) - 1)
         i = min(int(x), len(c) - 2)
         a = x - i
         q = (1 - a) * c[i] + a * c[i + 1]
-        T = _blend(self._closing_wrists[i], self._closing_wrists[i + 1], a)
-        return pose_with_wrist(q, object_pose @ T)
+        return q, self._obj0 @ _blend(self._closing_wrists[i], self._closing_wrists[i + 1], a)
 
     def progress(self, grip: float) -> float:
         """Closing progress in [0, 1] of the operator's grip size [m]."""
@@ -169,8 +185,27 @@ class GraspRetarget:
             return 1.0
         return float(np.clip((self._grip_open - grip) / span, 0.0, 1.0))
 
+    @property
+    def closed(self) -> bool:
+        """Whether the hand's target has reached the planned grasp (wrist arrived, fingers
+        closed); true when the approach is not paced."""
+        return self._path is not None and (not self._path.timed or self._c >= 1.0)
+
+    def _fingers(self, t: float, s: float, arrived: bool) -> float:
+        """The fingers' closing from the pre-grasp (0) to the grasp (1) at ``t`` [s]: the
+        operator's progress ``s``, not before the wrist has arrived, and no faster than
+        ``1 / close_time`` per second (a grip closed while the hand was still on its way does
+        not snap the fingers shut)."""
+        goal = s if arrived else 0.0
+        rate = 1.0 / max(self.approach.close_time, 1e-6)
+        self._c = min(max(goal, 0.0), self._c + rate * max(t - self._t_c, 0.0)) \
+            if goal > self._c else self._c
+        self._t_c = t
+        return self._c
+
     def target(self, q_op: np.ndarray, T_op: np.ndarray, phase: Phase,
-               object_pose: np.ndarray, grip: float | None = None) -> np.ndarray:
+               object_pose: np.ndarray, grip: float | None = None,
+               t: float | None = None) -> np.ndarray:
         """The hand's PD target (27,) for the tracked pose ``q_op`` (world) in ``phase``.
 
         Args:
@@ -179,35 +214,97 @@ class GraspRetarget:
             phase: the grasp phase decided for this pose.
             object_pose: (4, 4) the object's current pose.
             grip: ``q_op``'s grip size [m] when the caller has it (else computed).
+            t: time of ``q_op`` [s] (paces the approach); None = the approach is instant.
         """
         if grip is None:
             grip = float(grip_size(self.model.joint_positions(q_op)))
-        T_plan = object_pose @ self._wrist_in_object
+        timed = t is not None
+        t = float(t) if timed else 0.0
         if phase != self._phase:
             if phase == Phase.CLOSING:
                 self._grip_open = max(grip, self.grip_grasp)
+                # the grasp goes where the object rests as closing begins, and stays there: a
+                # plan that followed the object would chase a box the fingers push (the
+                # earlier runaway: pushed 2-3 cm, then dropped)
+                self._obj0 = np.array(object_pose, dtype=np.float64)
+                T_plan = object_pose @ self._start_in_object()
+                self._path = _ApproachPath(T_op, T_plan, t, self.approach, timed)
+                self._q_from = np.asarray(q_op, dtype=np.float64).copy()
+                self._c, self._t_c = 0.0, t
             elif phase == Phase.MANIPULATION:
-                self._T_op0, self._T_plan0 = T_op, T_plan
+                self._T_op0 = None
+                if self._path is None:  # manipulation without closing (a restarted stream)
+                    self._obj0 = np.array(object_pose, dtype=np.float64)
+                    self._path = _ApproachPath(T_op, object_pose @ self._start_in_object(),
+                                               t, self.approach, timed)
+            elif phase in (Phase.REACHING, Phase.RELEASING):
+                self._path = None
             self._phase = phase
-        if phase == Phase.CLOSING:
-            s = self.progress(grip)
-            if self._closing is not None:  # a closing motion: to its start, then play it
-                T_start = object_pose @ self._closing_wrists[0]
-                if s < 0.5:
-                    u = 2.0 * s
-                    q = (1 - u) * np.asarray(q_op, dtype=np.float64) + u * self.q_pregrasp
-                    return pose_with_wrist(q, _blend(T_op, T_start, u))
-                return self._closing_target(2.0 * s - 1.0, object_pose)
-            if s < 0.5:  # wrist to the plan's, fingers to the open pre-grasp
-                u = 2.0 * s
-                q = (1 - u) * np.asarray(q_op, dtype=np.float64) + u * self.q_pregrasp
-                return pose_with_wrist(q, _blend(T_op, T_plan, u))
-            u = 2.0 * s - 1.0  # then the fingers close onto the grasp
-            return pose_with_wrist((1 - u) * self.q_pregrasp + u * self.q_grasp, T_plan)
-        if phase == Phase.MANIPULATION:
-            return pose_with_wrist(self.q_grasp,
-                                   T_op @ np.linalg.inv(self._T_op0) @ self._T_plan0)
+        if phase in (Phase.CLOSING, Phase.MANIPULATION) and self._path is not None:
+            T_w, a = self._path(t)
+            arrived = self._path.arrived(t)
+            # fingers: the operator's, opening to the plan's pre-grasp as the wrist travels
+            q = (1 - a) * self._q_from + a * self.q_pregrasp
+            s = self.progress(grip) if phase == Phase.CLOSING else 1.0
+            c = self._fingers(t, s, arrived) if timed else s
+            if arrived and self._closing is not None:  # a synthesised closing motion
+                q, T_w = self._closing_target(c)
+            elif arrived:
+                q = (1 - c) * self.q_pregrasp + c * self.q_grasp
+            if phase == Phase.MANIPULATION and self.closed:
+                # moved rigidly with the operator's wrist since the hand's grasp closed: the
+                # wrist's drift while the fingers were closing (a tracker's wrist moves as the
+                # tracked fingers curl) must not shift the hand off a grasp not yet made
+                if self._T_op0 is None:
+                    self._T_op0 = T_op
+                T_w = T_op @ np.linalg.inv(self._T_op0) @ T_w
+            return pose_with_wrist(q, T_w)
         return pose_with_wrist(q_op, T_op)
+
+
+class _ApproachPath:
+    """The wrist's way from the operator's wrist to the planned one (eq. of a rigid blend,
+    :func:`_blend`): first to a via pose ``approach_height`` above the plan's wrist, held there
+    ``settle_time`` (the servoed wrist lags its target, most in the turn), then straight down
+    onto it, so the open fingers come down beside the object instead of sweeping through it.
+    Each leg lasts as long as its distance and angle need at the configured speeds (at least
+    ``min_approach_time`` in all). Call with ``t`` [s] -> ((4, 4) wrist, progress of the
+    first leg in [0, 1]). The fingers may close ``settle_time`` after the path's end
+    (:meth:`arrived`)."""
+
+    def __init__(self, T_from: np.ndarray, T_to: np.ndarray, t0: float,
+                 cfg: InterfaceConfig, timed: bool) -> None:
+        self.T_from, self.T_to, self.t0 = np.array(T_from), np.array(T_to), t0
+        self.T_via = self.T_to.copy()
+        self.T_via[2, 3] += cfg.approach_height
+        ang = float(np.linalg.norm(matrix_to_rotvec(self.T_from[:3, :3].T @ self.T_to[:3, :3])))
+        d1 = float(np.linalg.norm(self.T_via[:3, 3] - self.T_from[:3, 3]))
+        self.t1 = max(d1 / cfg.approach_speed, ang / cfg.approach_turn_rate)
+        self.t2 = cfg.approach_height / cfg.approach_speed
+        scale = max(1.0, cfg.min_approach_time / max(self.t1 + self.t2, 1e-9))
+        self.t1 *= scale
+        self.t2 *= scale
+        self.settle = cfg.settle_time
+        self.timed = timed
+
+    def arrived(self, t: float) -> bool:
+        """Whether the hand may close its fingers at ``t`` [s]."""
+        return not self.timed or t - self.t0 >= self.t1 + 2.0 * self.settle + self.t2
+
+    def __call__(self, t: float) -> tuple[np.ndarray, float]:
+        if not self.timed:
+            return self.T_to.copy(), 1.0
+        e = t - self.t0
+        if e < self.t1:
+            u = e / self.t1
+            return _blend(self.T_from, self.T_via, u * u * (3 - 2 * u)), u
+        e -= self.t1 + self.settle  # held at the via pose while the wrist catches up
+        if e < 0.0:
+            return self.T_via.copy(), 1.0
+        if e < self.t2:
+            u = e / self.t2
+            return _blend(self.T_via, self.T_to, u * u * (3 - 2 * u)), 1.0
+        return self.T_to.copy(), 1.0
 
 
 @dataclass(frozen=True)
@@ -220,6 +317,22 @@ class InterfaceConfig:
         0.04, "with a grasp synthesiser: the grasp is synthesised once the palm comes within "
         "the closing distance (phase.reach_distance) plus this of the object [m], so it is "
         "ready when closing begins", lo=0.0, hi=0.5)
+    approach_speed: float = param(
+        0.3, "closing: speed of the hand's wrist on its way from the operator's wrist to the "
+        "planned grasp's [m/s]", lo=0.01, hi=5.0)
+    approach_turn_rate: float = param(
+        3.0, "closing: the wrist's turning rate on that way [rad/s]", lo=0.1, hi=50.0)
+    approach_height: float = param(
+        0.03, "closing: the wrist comes down onto the planned grasp from this far above [m]",
+        lo=0.0, hi=0.3)
+    min_approach_time: float = param(
+        0.2, "closing: the approach lasts at least this long [s]", lo=0.0, hi=5.0)
+    settle_time: float = param(
+        0.3, "closing: the fingers start closing this long after the wrist's target has "
+        "reached the planned grasp (the servoed wrist lags its target) [s]", lo=0.0, hi=5.0)
+    close_time: float = param(
+        0.25, "the fingers close from the pre-grasp to the grasp in no less than this [s]",
+        lo=0.0, hi=5.0)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -243,13 +356,6 @@ class PerformanceInterface:
     Args:
         q_grasp: (27,) the planned grasp (world) for the object at ``object_pose`` (4, 4).
         q_pregrasp: (27,) the plan's open pre-grasp (see :class:`GraspRetarget`).
-        synthesizer: ``(recent tracked poses (n, 27) world, object pose (4, 4)) -> plan or
-            None``, called once per approach as the palm comes within ``reach_distance +
-            synthesis_lead`` of the object (or as closing begins): the grasp synthesised for
-            the object from the operator's hand (III.6;
-            ``hand_control.grasp.synthesis.PerformerSynthesizer``) replaces the given one (a
-            plan with ``q_grasp``, ``q_pregrasp``, ``closing``).
-        closing: (T, 27) the given grasp's closing motion (world), if it has one.
     """
 
     def __init__(self, q_grasp: np.ndarray, object_pose: np.ndarray,
@@ -263,9 +369,11 @@ class PerformanceInterface:
         self.detector = GraspPhaseDetector(phase_config)
         self.filter = WristFilter(self.config.wrist_cutoff)
         # the progress completes with the closing the detector needs to see a grasp
+        self._held = False  # manipulation detected, reported as closing (hand not closed)
+        self._T_obj0 = np.eye(4)  # the object in the operator's wrist frame (manipulation)
         self.retarget = GraspRetarget(q_grasp, object_pose, self.model, q_pregrasp,
                                       closing_span=self.detector.cfg.close_decrease,
-                                      closing=closing)
+                                      closing=closing, approach=self.config)
         self.synthesizer = synthesizer
         self._recent: deque[np.ndarray] = deque(maxlen=15)
         self._last_phase = Phase.REACHING
@@ -301,4 +409,22 @@ class PerformanceInterface:
                                          plan.closing)
                     self.synthesized += 1
         self._last_phase = up.phase
-        return InterfaceStep(up, self.retarget.target(q, T_op, up.phase, object_pose, grip))
+        target = self.retarget.target(q, T_op, up.phase, object_pose, grip, t)
+        # The operator has grasped; the hand grasps once its paced approach has arrived and
+        # its fingers have closed. Until then the controller still sees closing: PD only, no
+        # grasp torques (III.5.2 drops the grasp term while closing) and no object target,
+        # so the grasp term never pushes on a box the fingers are still closing onto.
+        manip = up.phase == Phase.MANIPULATION
+        if manip and not self.retarget.closed:
+            up = replace(up, phase=Phase.CLOSING, changed=False, object_target=None)
+            self._held = True
+        elif manip:
+            if self._held or up.changed:  # the hand's grasp starts: the object follows the
+                # operator's wrist rigidly from here (the detector's rule, from this moment)
+                self._T_obj0 = np.linalg.inv(T_op) @ object_pose
+                up = replace(up, changed=True)
+            up = replace(up, object_target=T_op @ self._T_obj0)
+            self._held = False
+        else:
+            self._held = False
+        return InterfaceStep(up, target)
