@@ -43,12 +43,48 @@ def _bone_err_pct(model, true_model) -> float:
     return float(np.mean(np.abs(lf - lt) / lt) * 100.0)
 
 
-def _score(tracker, frames, truth) -> dict:
+def segment_quality(pixels: np.ndarray, label: np.ndarray, depth: np.ndarray
+                    ) -> tuple[float, float]:
+    """How well the tracker's hand segment (after the forearm cut) matches the truth.
+
+    Args:
+        pixels: (N, 2) the segment's pixels (u, v) (``HandObservation.pixels``).
+        label: (H, W) primitive labels of the frame (1 hand, 2 forearm, 3 sleeve, 4
+            clutter; :class:`~hand_capture.evaldata.HeldoutSequence`).
+        depth: (H, W) the frame's depth (0 = no measurement).
+
+    Returns:
+        ``(arm_pct, hand_kept_pct)``: the share of the segment on the forearm or sleeve
+        [%] (0 for an empty segment), and the share of the measured hand pixels in it [%]
+        (100 when no hand pixel is measured).
+    """
+    px = np.asarray(pixels).astype(np.int64).reshape(-1, 2)
+    lab = label[px[:, 1], px[:, 0]]
+    arm = 100.0 * float(np.mean((lab == 2) | (lab == 3))) if len(lab) else 0.0
+    n_hand = int(np.count_nonzero((label == 1) & (depth > 0)))
+    kept = 100.0 * np.count_nonzero(lab == 1) / n_hand if n_hand else 100.0
+    return arm, float(kept)
+
+
+def _score(tracker, frames, truth, labels=None) -> dict:
+    """Track a sequence; with ``labels`` also the segment quality per frame
+    (:func:`segment_quality`) and which cut made it (``plane``: the frame followed a
+    tracked one, so the forearm was cut at the previous wrist; else the cloud's shape)."""
     from hand_capture.bench.tracking import _run_mode, _summary
 
-    e, w, c, fl, _, _ = _run_mode(tracker, frames, truth)
+    seg: list[tuple[float, float, bool]] = []
+    last = [False]
+
+    def on_result(i: int, r) -> None:
+        o = r.observation
+        px = o.pixels if o is not None and o.found else np.zeros((0, 2))
+        seg.append((*segment_quality(px, labels[i], frames[i][0]), last[0]))
+        last[0] = bool(r.success)
+
+    e, w, c, fl, _, _ = _run_mode(tracker, frames, truth,
+                                  on_result=None if labels is None else on_result)
     s = _summary(e)
-    s.update(errs=e, cpu=c, wall=w, flags=fl)
+    s.update(errs=e, cpu=c, wall=w, flags=fl, seg=np.array(seg).reshape(-1, 3))
     return s
 
 
@@ -66,7 +102,8 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
     n, step = frames or ((12, 3) if quick else (60, 1))
     base = HandModel()
     rows, agg = [], {"heldout": [], "forearm": []}
-    cpu = {"heldout": [], "forearm": []}
+    cpu: dict[str, list] = {"heldout": [], "forearm": []}
+    seg: dict[str, list] = {"heldout": [], "forearm": []}
     for arm in (False, True):
         key = "forearm" if arm else "heldout"
         for k, (cam, clutter, seed) in enumerate(cases):
@@ -82,15 +119,17 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
             model = base.with_shape(cal.shape)
             tracker = HybridTracker(base, config, reg)
             tracker.set_calibration(cal)   # as the node: the shape, and tau from the fit
-            s = _score(tracker, seq.frames, seq.keypoints)
+            s = _score(tracker, seq.frames, seq.keypoints, seq.labels)
             agg[key].append(s["errs"])
             cpu[key].append(s["cpu"])
+            seg[key].append(s["seg"])
             rows.append([key, cam, "yes" if clutter else "no",
                          "sleeve" if seq.surface.sleeve else ("arm" if arm else "-"),
                          f"{seq.model.shape.global_scale:.3f}",
                          f"{model.shape.global_scale:.3f}",
                          _bone_err_pct(model, seq.model), len(seq.frames), s["mean"],
                          s["median"], s["s20"], float(np.mean(s["flags"])),
+                         float(np.mean(s["seg"][:, 0])), float(np.mean(s["seg"][:, 1])),
                          1e3 * float(np.mean(s["cpu"])), 1e3 * t_render])
             if not arm and k == 0:   # what the first sequence's error is made of
                 exact = make_sequence(seed, n, cam, clutter=clutter, step=step, noise=False)
@@ -106,11 +145,34 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                 "stereo-like noise, other cameras and motions), calibrated per subject, "
                 "product settings",
                 ["set", "camera", "clutter", "arm", "s_g true", "s_g fit", "bone err %",
-                 "frames", "mean mm", "median mm", "succ@20", "flag rate", "cpu ms",
-                 "render ms"], rows)
+                 "frames", "mean mm", "median mm", "succ@20", "flag rate", "seg arm %",
+                 "hand kept %", "cpu ms", "render ms"], rows)
     out = {"heldout_first_mean_mm": diag["same"]["mean"],
            "heldout_first_exact_depth_mean_mm": diag["exact depth"]["mean"],
            "heldout_first_uncalibrated_mean_mm": diag["uncalibrated"]["mean"]}
+    # what the forearm frames' error is made of: the segment the tracker fitted, by the cut
+    # that made it (at the previous wrist while tracking, else from the cloud's shape)
+    sq = np.concatenate(seg["forearm"])
+    ef = np.concatenate(agg["forearm"]).mean(axis=1)
+    srows = []
+    for name, sel in (("previous wrist", sq[:, 2] > 0),
+                      ("cloud, then fitted wrist", sq[:, 2] == 0),
+                      ("all", np.ones(len(sq), bool))):
+        srows.append([name, int(sel.sum())] + ([float(np.mean(sq[sel, 0])),
+                                                 float(np.mean(sq[sel, 1])),
+                                                 float(np.mean(sq[sel, 1] < 20.0)),
+                                                 float(np.mean(ef[sel]))]
+                                                if sel.any() else [math.nan] * 4))
+    print_table("forearm frames: the fitted segment against the true labels (seg arm %: share "
+                "of the segment on the forearm or sleeve; hand kept %: share of the measured "
+                "hand pixels in it; missed: hand kept under 20 %), by the cut that made it",
+                ["cut", "frames", "seg arm %", "hand kept %", "missed", "mean mm"], srows)
+    out.update({"forearm_seg_arm_pct": srows[2][2], "forearm_seg_hand_kept_pct": srows[2][3],
+                "forearm_seg_missed_rate": srows[2][4],
+                "forearm_seg_arm_pct_plane": srows[0][2],
+                "forearm_seg_arm_pct_cloud": srows[1][2],
+                "heldout_seg_hand_kept_pct": float(np.mean(
+                    np.concatenate(seg["heldout"])[:, 1]))})
     for key in ("heldout", "forearm"):
         e = np.concatenate(agg[key])
         s = _summary(e)
