@@ -12,6 +12,7 @@ from hand_capture.bench._tracking_heldout import (
     calibration_section,
     heldout_section,
     segment_quality,
+    suite_forearm_sequence,
 )
 from hand_capture.tracking import HandRegressor, TrackerConfig
 from hand_capture.tracking.hybrid import default_model_path
@@ -56,3 +57,17 @@ def test_segment_quality_counts_arm_and_hand_pixels() -> None:
     assert math.isclose(kept, 100.0 * 5 / 11)
     assert segment_quality(np.zeros((0, 2)), label, depth) == (0.0, 0.0)
     assert segment_quality(px, np.full((4, 6), 2, np.int16), depth)[1] == 100.0
+
+
+def test_suite_forearm_sequence_shows_the_arm_and_labels_it() -> None:
+    model, intr, frames, kps, labels = suite_forearm_sequence(21, "pinch", 2, 4)
+    assert len(frames) == len(kps) == len(labels) == 2
+    for (depth, fi), kp, lab in zip(frames, kps, labels, strict=True):
+        assert fi is intr and depth.shape == lab.shape == (intr.height, intr.width)
+        assert kp.shape == (21, 3)
+        arm, hand = lab == 2, lab == 1
+        assert arm.sum() > 200 and hand.sum() > 200     # both in view
+        assert np.mean(depth[arm] > 0) > 0.8            # and measured
+    # reproducible: the validation set is the same in every run
+    again = suite_forearm_sequence(21, "pinch", 2, 4)
+    assert np.array_equal(again[2][1][0], frames[1][0])
