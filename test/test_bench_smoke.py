@@ -67,7 +67,8 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
     "tracking": (("fps", "mean_joint_err_mm", "success_20mm", "icp_only_mean_joint_err_mm",
                   "fps_ratio_vs_icp_only", "heldout_mean_mm", "heldout_success_20mm",
                   "forearm_mean_mm", "forearm_success_20mm", "calib_bone_err_pct",
-                  "large_frame_delivery", "temporal_weight_chosen"), ()),
+                  "large_frame_delivery", "temporal_weight_chosen", "forearm_seg_arm_pct",
+                  "val_forearm_mean_mm"), ()),
 }
 
 

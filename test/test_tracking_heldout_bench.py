@@ -11,6 +11,8 @@ from hand_capture.bench._tracking_heldout import (
     TEMPORAL_GRID,
     calibration_section,
     heldout_section,
+    segment_quality,
+    suite_forearm_sequence,
 )
 from hand_capture.tracking import HandRegressor, TrackerConfig
 from hand_capture.tracking.hybrid import default_model_path
@@ -24,11 +26,48 @@ def test_heldout_and_calibration_sections_report_their_figures(capsys) -> None:
         assert out[f"{key}_frames"] == 3
         assert math.isfinite(out[f"{key}_mean_mm"]) and out[f"{key}_mean_mm"] > 0
         assert 0.0 <= out[f"{key}_success_20mm"] <= 1.0
+    # the forearm frames' segment against the true labels
+    assert 0.0 <= out["forearm_seg_arm_pct"] <= 100.0
+    assert 0.0 <= out["forearm_seg_hand_kept_pct"] <= 100.0
+    assert 0.0 <= out["forearm_seg_missed_rate"] <= 1.0
+    assert 0.0 < out["heldout_seg_hand_kept_pct"] <= 100.0
     cal = calibration_section(True, scales=(0.9,))
     assert cal["calib_scales"] == [0.9]
     assert cal["calib_bone_err_pct"] >= cal["calib_bone_err_pct_mean"] > 0
     # a 0.9-scale hand: the template's bones are about 10 % off (the baseline row)
     assert cal["calib_bone_err_pct_template"] > 5.0
     text = capsys.readouterr().out
+    assert "forearm frames" in text
     assert "held-out family" in text and "d435_848" in text and "bone-length" in text
     assert TEMPORAL_GRID[0] == 0.0 and np.all(np.diff(TEMPORAL_GRID) > 0)
+
+
+def test_segment_quality_counts_arm_and_hand_pixels() -> None:
+    label = np.zeros((4, 6), np.int16)
+    label[:, :3] = 1          # 12 hand pixels
+    label[:, 3:5] = 2         # 8 forearm pixels
+    label[0, 5] = 3           # a sleeve pixel
+    depth = np.full((4, 6), 500, np.uint16)
+    depth[3, 0] = 0           # a hand pixel without depth: not counted as hand
+    # the segment: 5 hand pixels, 3 forearm, 1 sleeve, 1 background
+    px = np.array([[0, 0], [1, 0], [2, 0], [0, 1], [1, 1], [3, 0], [4, 1], [3, 2], [5, 0],
+                   [5, 3]])
+    arm, kept = segment_quality(px, label, depth)
+    assert arm == 40.0                       # 4 of 10
+    assert math.isclose(kept, 100.0 * 5 / 11)
+    assert segment_quality(np.zeros((0, 2)), label, depth) == (0.0, 0.0)
+    assert segment_quality(px, np.full((4, 6), 2, np.int16), depth)[1] == 100.0
+
+
+def test_suite_forearm_sequence_shows_the_arm_and_labels_it() -> None:
+    model, intr, frames, kps, labels = suite_forearm_sequence(21, "pinch", 2, 4)
+    assert len(frames) == len(kps) == len(labels) == 2
+    for (depth, fi), kp, lab in zip(frames, kps, labels, strict=True):
+        assert fi is intr and depth.shape == lab.shape == (intr.height, intr.width)
+        assert kp.shape == (21, 3)
+        arm, hand = lab == 2, lab == 1
+        assert arm.sum() > 200 and hand.sum() > 200     # both in view
+        assert np.mean(depth[arm] > 0) > 0.8            # and measured
+    # reproducible: the validation set is the same in every run
+    again = suite_forearm_sequence(21, "pinch", 2, 4)
+    assert np.array_equal(again[2][1][0], frames[1][0])

@@ -24,10 +24,15 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hand_capture.bench import print_table
+
+if TYPE_CHECKING:
+    from hand_capture.cameras.base import Intrinsics
+    from hand_capture.model import HandModel
 
 #: (camera, clutter, seed) of the held-out sequences; forearm sequences use seed + 100
 HELDOUT = (("d435_640", False, 101), ("d435_640", True, 102), ("d435_848", False, 103),
@@ -43,12 +48,48 @@ def _bone_err_pct(model, true_model) -> float:
     return float(np.mean(np.abs(lf - lt) / lt) * 100.0)
 
 
-def _score(tracker, frames, truth) -> dict:
+def segment_quality(pixels: np.ndarray, label: np.ndarray, depth: np.ndarray
+                    ) -> tuple[float, float]:
+    """How well the tracker's hand segment (after the forearm cut) matches the truth.
+
+    Args:
+        pixels: (N, 2) the segment's pixels (u, v) (``HandObservation.pixels``).
+        label: (H, W) primitive labels of the frame (1 hand, 2 forearm, 3 sleeve, 4
+            clutter; :class:`~hand_capture.evaldata.HeldoutSequence`).
+        depth: (H, W) the frame's depth (0 = no measurement).
+
+    Returns:
+        ``(arm_pct, hand_kept_pct)``: the share of the segment on the forearm or sleeve
+        [%] (0 for an empty segment), and the share of the measured hand pixels in it [%]
+        (100 when no hand pixel is measured).
+    """
+    px = np.asarray(pixels).astype(np.int64).reshape(-1, 2)
+    lab = label[px[:, 1], px[:, 0]]
+    arm = 100.0 * float(np.mean((lab == 2) | (lab == 3))) if len(lab) else 0.0
+    n_hand = int(np.count_nonzero((label == 1) & (depth > 0)))
+    kept = 100.0 * np.count_nonzero(lab == 1) / n_hand if n_hand else 100.0
+    return arm, float(kept)
+
+
+def _score(tracker, frames, truth, labels=None) -> dict:
+    """Track a sequence; with ``labels`` also the segment quality per frame
+    (:func:`segment_quality`) and which cut made it (``plane``: the frame followed a
+    tracked one, so the forearm was cut at the previous wrist; else the cloud's shape)."""
     from hand_capture.bench.tracking import _run_mode, _summary
 
-    e, w, c, fl, _, _ = _run_mode(tracker, frames, truth)
+    seg: list[tuple[float, float, bool]] = []
+    last = [False]
+
+    def on_result(i: int, r) -> None:
+        o = r.observation
+        px = o.pixels if o is not None and o.found else np.zeros((0, 2))
+        seg.append((*segment_quality(px, labels[i], frames[i][0]), last[0]))
+        last[0] = bool(r.success)
+
+    e, w, c, fl, _, _ = _run_mode(tracker, frames, truth,
+                                  on_result=None if labels is None else on_result)
     s = _summary(e)
-    s.update(errs=e, cpu=c, wall=w, flags=fl)
+    s.update(errs=e, cpu=c, wall=w, flags=fl, seg=np.array(seg).reshape(-1, 3))
     return s
 
 
@@ -66,7 +107,8 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
     n, step = frames or ((12, 3) if quick else (60, 1))
     base = HandModel()
     rows, agg = [], {"heldout": [], "forearm": []}
-    cpu = {"heldout": [], "forearm": []}
+    cpu: dict[str, list] = {"heldout": [], "forearm": []}
+    seg: dict[str, list] = {"heldout": [], "forearm": []}
     for arm in (False, True):
         key = "forearm" if arm else "heldout"
         for k, (cam, clutter, seed) in enumerate(cases):
@@ -82,15 +124,17 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
             model = base.with_shape(cal.shape)
             tracker = HybridTracker(base, config, reg)
             tracker.set_calibration(cal)   # as the node: the shape, and tau from the fit
-            s = _score(tracker, seq.frames, seq.keypoints)
+            s = _score(tracker, seq.frames, seq.keypoints, seq.labels)
             agg[key].append(s["errs"])
             cpu[key].append(s["cpu"])
+            seg[key].append(s["seg"])
             rows.append([key, cam, "yes" if clutter else "no",
                          "sleeve" if seq.surface.sleeve else ("arm" if arm else "-"),
                          f"{seq.model.shape.global_scale:.3f}",
                          f"{model.shape.global_scale:.3f}",
                          _bone_err_pct(model, seq.model), len(seq.frames), s["mean"],
                          s["median"], s["s20"], float(np.mean(s["flags"])),
+                         float(np.mean(s["seg"][:, 0])), float(np.mean(s["seg"][:, 1])),
                          1e3 * float(np.mean(s["cpu"])), 1e3 * t_render])
             if not arm and k == 0:   # what the first sequence's error is made of
                 exact = make_sequence(seed, n, cam, clutter=clutter, step=step, noise=False)
@@ -106,11 +150,34 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                 "stereo-like noise, other cameras and motions), calibrated per subject, "
                 "product settings",
                 ["set", "camera", "clutter", "arm", "s_g true", "s_g fit", "bone err %",
-                 "frames", "mean mm", "median mm", "succ@20", "flag rate", "cpu ms",
-                 "render ms"], rows)
+                 "frames", "mean mm", "median mm", "succ@20", "flag rate", "seg arm %",
+                 "hand kept %", "cpu ms", "render ms"], rows)
     out = {"heldout_first_mean_mm": diag["same"]["mean"],
            "heldout_first_exact_depth_mean_mm": diag["exact depth"]["mean"],
            "heldout_first_uncalibrated_mean_mm": diag["uncalibrated"]["mean"]}
+    # what the forearm frames' error is made of: the segment the tracker fitted, by the cut
+    # that made it (at the previous wrist while tracking, else from the cloud's shape)
+    sq = np.concatenate(seg["forearm"])
+    ef = np.concatenate(agg["forearm"]).mean(axis=1)
+    srows = []
+    for name, sel in (("previous wrist", sq[:, 2] > 0),
+                      ("cloud, then fitted wrist", sq[:, 2] == 0),
+                      ("all", np.ones(len(sq), bool))):
+        srows.append([name, int(sel.sum())] + ([float(np.mean(sq[sel, 0])),
+                                                 float(np.mean(sq[sel, 1])),
+                                                 float(np.mean(sq[sel, 1] < 20.0)),
+                                                 float(np.mean(ef[sel]))]
+                                                if sel.any() else [math.nan] * 4))
+    print_table("forearm frames: the fitted segment against the true labels (seg arm %: share "
+                "of the segment on the forearm or sleeve; hand kept %: share of the measured "
+                "hand pixels in it; missed: hand kept under 20 %), by the cut that made it",
+                ["cut", "frames", "seg arm %", "hand kept %", "missed", "mean mm"], srows)
+    out.update({"forearm_seg_arm_pct": srows[2][2], "forearm_seg_hand_kept_pct": srows[2][3],
+                "forearm_seg_missed_rate": srows[2][4],
+                "forearm_seg_arm_pct_plane": srows[0][2],
+                "forearm_seg_arm_pct_cloud": srows[1][2],
+                "heldout_seg_hand_kept_pct": float(np.mean(
+                    np.concatenate(seg["heldout"])[:, 1]))})
     for key in ("heldout", "forearm"):
         e = np.concatenate(agg[key])
         s = _summary(e)
@@ -120,6 +187,91 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                     f"{key}_frames": len(e), f"{key}_cpu_ms": 1e3 * float(np.mean(c)),
                     f"{key}_cpu_ms_p99": 1e3 * float(np.percentile(c, 99))})
     return out
+
+
+def suite_forearm_sequence(seed: int, clip: str, n: int, step: int
+                           ) -> tuple[HandModel, Intrinsics, list, list, list]:
+    """A sequence of the suite's own generator with a forearm in view: the synthetic
+    camera's shape ``seed`` and motion ``clip`` (its mesh, rasteriser and noise model,
+    320x240) with the training renders' forearm (:func:`~hand_capture.tracking.train.
+    forearm_mesh`, radius, length and bend drawn from ``seed``). Nothing of the held-out
+    family: a validation set to tune forearm handling on.
+
+    Returns:
+        ``(model, intrinsics, frames, keypoints, labels)``: the true model, the pinhole,
+        ``n`` frames ``(depth uint16 [mm], intrinsics)`` (every ``step``-th of 30 fps), the
+        (21, 3) true keypoints [m] and (H, W) labels (1 hand, 2 forearm, 0 other) of each.
+    """
+    from hand_capture.cameras.render import make_renderer
+    from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
+    from hand_capture.tracking.train import forearm_mesh
+
+    rng = np.random.default_rng(seed * 1000 + sum(map(ord, clip)))
+    cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed, clip=clip,
+                                                noise_seed=seed + 1000))
+    cam.open()
+    radius, length = rng.uniform(0.024, 0.04), rng.uniform(0.25, 0.5)
+    bend = tuple(rng.uniform(-0.4, 0.4, 2))
+    renderer = make_renderer("zbuffer")
+    last = int(math.floor(cam.motion.duration * 30))
+    frames, kps, labels = [], [], []
+    for i in list(range(0, last + 1, step))[:n]:
+        t = i / 30.0
+        pose = cam.truth_pose(t)
+        meshes, _ = cam.scene_meshes(t, pose)
+        arm = forearm_mesh(cam.model, pose, radius, length, bend)
+        arm = dataclasses.replace(arm, label=255)
+        res = renderer.render(meshes + [arm], cam.intrinsics)
+        frames.append((cam.noise.apply_mm(res.depth, res.cos_incidence, cam.intrinsics, rng),
+                       cam.intrinsics))
+        kps.append(cam.model.joint_positions(pose))
+        labels.append(np.where(res.label == 255, 2, (res.label > 0).astype(np.int16)))
+    return cam.model, cam.intrinsics, frames, kps, labels
+
+
+def forearm_validation_section(reg, config, quick: bool) -> dict:
+    """The tracker with a forearm in view on the suite's own generator (validation shapes
+    21, 22; :func:`suite_forearm_sequence`), calibrated per shape: where forearm handling
+    may be tuned, beside the held-out figure it is reported on. ``cloud cut``: the share
+    of frames whose forearm was cut by the cloud's shape (the previous frame not tracked),
+    the path that fails most on the held-out family."""
+    from hand_capture.bench.tracking import _summary
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import calibrate, render_calibration_frames
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    seeds = VAL_SEEDS[:1] if quick else VAL_SEEDS
+    clips = ("finger_counting", "pinch") if quick else ("finger_counting", "wrist_rotation",
+                                                        "pinch", "fist")
+    n, step = (8, 4) if quick else (30, 2)
+    base = HandModel()
+    rows, errs, seg = [], [], []
+    for seed in seeds:
+        for clip in clips:
+            true, intr, frames, kps, labels = suite_forearm_sequence(seed, clip, n, step)
+            cal = calibrate(render_calibration_frames(true, intr,
+                                                      np.random.default_rng(seed + 500)),
+                            model=base)
+            tracker = HybridTracker(base, config, reg)
+            tracker.set_calibration(cal)
+            s = _score(tracker, frames, kps, labels)
+            errs.append(s["errs"])
+            seg.append(s["seg"])
+            rows.append([seed, clip, len(frames), s["mean"], s["s20"],
+                         float(np.mean(s["seg"][:, 0])), float(np.mean(s["seg"][:, 1])),
+                         float(np.mean(s["seg"][:, 2] == 0))])
+    e, sq = np.concatenate(errs), np.concatenate(seg)
+    sm = _summary(e)
+    rows.append(["all", "", len(e), sm["mean"], sm["s20"], float(np.mean(sq[:, 0])),
+                 float(np.mean(sq[:, 1])), float(np.mean(sq[:, 2] == 0))])
+    print_table("forearm in view, the suite's own generator (validation shapes, the training "
+                "renders' forearm): tune forearm handling here, report on the held-out family",
+                ["shape", "motion", "frames", "mean mm", "succ@20", "seg arm %",
+                 "hand kept %", "cloud cut"], rows)
+    return {"val_forearm_mean_mm": sm["mean"], "val_forearm_success_20mm": sm["s20"],
+            "val_forearm_seg_arm_pct": rows[-1][5],
+            "val_forearm_seg_hand_kept_pct": rows[-1][6],
+            "val_forearm_cloud_cut_share": rows[-1][7]}
 
 
 def calibration_section(quick: bool, scales: tuple[float, ...] | None = None) -> dict:
@@ -282,6 +434,7 @@ def run_sections(reg, config, quick: bool) -> dict:
     """Every section above, in order; their figures merged."""
     out = {}
     out.update(heldout_section(reg, config, quick))
+    out.update(forearm_validation_section(reg, config, quick))
     out.update(calibration_section(quick))
     out.update(split_section(reg, config, quick))
     out.update(resolution_section(reg, config, quick))

@@ -69,10 +69,11 @@ def _hand_length(model) -> float:
     return float(np.linalg.norm(kp[12] - kp[0]))
 
 
-def _run_mode(tracker, frames, truth_kp, mode_first=None):
+def _run_mode(tracker, frames, truth_kp, mode_first=None, on_result=None):
     """Track a pre-rendered sequence: per-frame errors (N, 21) [mm], wall and CPU time [s]
     (the tracking call and a regression it deferred), success flags, stage times, and the
-    CPU time until the pose is out (the tracking call alone) [s]."""
+    CPU time until the pose is out (the tracking call alone) [s]. ``on_result(i, r)``, when
+    given, sees every frame's ``TrackResult`` (outside the timed call)."""
     errs, wall, cpu, flags, regressed, pose_cpu = [], [], [], [], [], []
     stages: dict[str, float] = {}
     if mode_first is not None:
@@ -86,6 +87,8 @@ def _run_mode(tracker, frames, truth_kp, mode_first=None):
         deferred = tracker.run_deferred()  # as the node: after the pose is out
         wall.append(time.perf_counter() - t0)
         cpu.append(time.process_time() - c0)
+        if on_result is not None:
+            on_result(len(errs), r)
         for k, v in (deferred or {}).items():
             stages[k] = stages.get(k, 0.0) + v
         errs.append(np.linalg.norm(tracker.model.joint_positions(r.pose) - kp, axis=1) * 1e3)
