@@ -206,11 +206,29 @@ def test_visual_hull_and_icp_recover_the_global_pose():
     with pytest.raises(InputError, match="hull"):
         initialise(views, scene, rig,
                    hand_masks={n: np.zeros_like(v.labels, bool) for n, v in views.items()})
+    # the tracker's initialiser: silhouettes from the colour model learned on a known frame
+    from hand_capture.multiview.hull import HullInitializer
+
+    images = {n: v.rgb for n, v in views.items()}
+    images["cam5"] = None                          # a camera missing from the group
+    init = HullInitializer(rig)
+    assert init(images, scene, 0) is None          # no colour model yet
+    init.learn(images, scene, scene.pack([q]))
+    init.prior = None
+    got = init(images, scene, 0)
+    assert got is not None and got.shape == (27,)
+    err = np.linalg.norm(h.joint_positions(got) - h.joint_positions(q), axis=1)
+    assert err.mean() < 0.025, err.mean()
 
 
 # ------------------------------------------------------------------ salient detector
 def test_shipped_detector_finds_fingertips_on_heldout_renders():
-    from hand_capture.multiview.salient import evaluate, load_salient_detector, render_views
+    from hand_capture.multiview.salient import (
+        evaluate,
+        load_salient_detector,
+        render_views,
+        tip_vertices,
+    )
 
     det = load_salient_detector()
     views = list(render_views(2, 4242, heldout=True))   # surfaces never seen in training
@@ -223,6 +241,11 @@ def test_shipped_detector_finds_fingertips_on_heldout_renders():
         det.detect(np.zeros((48, 64, 3), np.float32))
     blank = det.detect(np.full((48, 64, 3), 40, np.uint8))   # nothing skin-coloured
     assert len(blank[0]) == 0
+    # the salient vertices matching the detections: the mesh vertices at the fingertips
+    hand = HandModel()
+    q = home_pose()
+    tips = hand.vertices(q)[tip_vertices(hand)]
+    assert np.max(np.linalg.norm(tips - hand.fingertips(q), axis=1)) < 0.004
 
 
 def test_detector_training_is_seeded_and_round_trips(tmp_path):

@@ -25,13 +25,15 @@ import numpy as np
 from hand_capture.errors import InputError
 from hand_capture.model.joints import N_DOF, root_angles_from_matrix
 
-__all__ = ["InitResult", "icp_rigid", "initialise", "visual_hull"]
+__all__ = ["HullInitializer", "InitResult", "icp_rigid", "initialise", "register",
+           "visual_hull"]
 
 
 def visual_hull(masks: Mapping[str, np.ndarray], rig: object,
                 lo: Sequence[float] = (-0.35, -0.35, 0.005),
                 hi: Sequence[float] = (0.35, 0.35, 0.4), voxel_m: float = 0.006,
-                min_views: int = 3, max_misses: int = 1) -> np.ndarray:
+                min_views: int = 3, max_misses: int = 1, keep_components: int = 0
+                ) -> np.ndarray:
     """Surface points (N, 3) [m, world] of the visual hull of silhouettes.
 
     Args:
@@ -41,6 +43,8 @@ def visual_hull(masks: Mapping[str, np.ndarray], rig: object,
         voxel_m: voxel size [m].
         min_views: a voxel needs at least this many cameras that see it in their image.
         max_misses: cameras that may see a voxel outside their silhouette.
+        keep_components: > 0: keep only the largest this many connected pieces of the hull
+            (and none under a tenth of the largest).
     """
     lo_a, hi_a = np.asarray(lo, float), np.asarray(hi, float)
     if not (voxel_m > 0 and np.all(hi_a > lo_a)):
@@ -65,6 +69,14 @@ def visual_hull(masks: Mapping[str, np.ndarray], rig: object,
         seen[idx] += 1
         miss[idx] += ~mask[v[idx], u[idx]]
     occ = ((seen >= min_views) & (miss <= max_misses)).reshape(shape)
+    if keep_components > 0 and occ.any():  # drop stray voxels of silhouette noise
+        from scipy import ndimage
+
+        lab, n = ndimage.label(occ)
+        sizes = np.bincount(lab.ravel())[1:]
+        big = np.argsort(-sizes)[:keep_components]
+        big = big[sizes[big] >= 0.1 * sizes.max()]
+        occ = np.isin(lab, big + 1)
     inner = occ.copy()
     for ax in range(3):  # a surface voxel has an empty 6-neighbour
         for sh in (1, -1):
@@ -213,7 +225,7 @@ def initialise(group: Mapping[str, object], scene: object, rig: object, *,
     masks = {k: np.asarray(v, bool) for k, v in hand_masks.items() if k in rig.names}
     if len(masks) < 3:
         raise InputError(f"initialise needs silhouettes from >= 3 cameras, got {len(masks)}")
-    hull = visual_hull(masks, rig, voxel_m=voxel_m)
+    hull = visual_hull(masks, rig, voxel_m=voxel_m, keep_components=scene.n_hands)
     # a hand kept at the prior is taken out of the hull (its points within 2 cm)
     from scipy.spatial import cKDTree
 
@@ -226,8 +238,10 @@ def initialise(group: Mapping[str, object], scene: object, rig: object, *,
             hull = hull[d > 0.02]
     if len(hull) < 30 * len(todo):
         raise InputError(f"the visual hull has {len(hull)} points: no hand in the silhouettes")
-    if len(todo) > 1:
-        centres, _ = weighted_kmeans(hull, np.ones(len(hull)), len(todo))
+    # the hull holds every hand not taken out above: one cluster per such hand
+    n_clusters = len(todo) if prior is not None else scene.n_hands
+    if n_clusters > 1:
+        centres, _ = weighted_kmeans(hull, np.ones(len(hull)), n_clusters)
         lab = np.argmin(((hull[:, None] - centres[None]) ** 2).sum(-1), axis=1)
         clusters = [hull[lab == c] for c in range(len(centres))]
     else:
@@ -285,3 +299,52 @@ def initialise(group: Mapping[str, object], scene: object, rig: object, *,
         p = res.best_x if res.best_cost < res.cost else res.x
         refined = True
     return InitResult(p, hull, rms, refined)
+
+
+class HullInitializer:
+    """:func:`initialise` as the multi-view tracker's initialiser: called with
+    ``(images, model, part)`` it returns the hand's 27 parameters, or None (an object, no
+    colour model yet, or no hand in the hull).
+
+    The hand silhouettes come from a colour model (eq. 4) that :meth:`learn` fits on a
+    frame whose configuration is known (the first frame, or any well-tracked one); the
+    configuration given to :meth:`set_prior` keeps the other, still tracked hand out of
+    the hull.
+
+    Args:
+        rig: the cameras.
+        voxel_m: voxel size of the hull [m].
+    """
+
+    def __init__(self, rig: object, voxel_m: float = 0.008) -> None:
+        self.rig = rig
+        self.voxel_m = voxel_m
+        self.colour: object | None = None
+        self.prior: np.ndarray | None = None
+
+    def learn(self, images: Mapping[str, np.ndarray | None], model: object,
+              params: np.ndarray) -> None:
+        """Fit the colour model on ``images`` seen at the configuration ``params``."""
+        from hand_capture.multiview.imageterms import ColourModel
+        from hand_capture.multiview.isa import first_frame_masks
+
+        names = [n for n in self.rig.names if images.get(n) is not None]
+        masks = first_frame_masks(model, self.rig, params, names)
+        self.colour = ColourModel.fit([np.asarray(images[n]) for n in names], masks)
+        self.prior = np.asarray(params, float).copy()
+
+    def set_prior(self, params: np.ndarray) -> None:
+        """The current configuration (its tracked hands are kept out of the hull)."""
+        self.prior = np.asarray(params, float).copy()
+
+    def __call__(self, images: Mapping[str, np.ndarray | None], model: object,
+                 part: int) -> np.ndarray | None:
+        if part >= model.n_hands or self.colour is None:
+            return None
+        group = {k: v for k, v in images.items() if v is not None}
+        try:
+            res = initialise(group, model, self.rig, colour=self.colour, prior=self.prior,
+                             parts=[part], voxel_m=self.voxel_m)
+        except InputError:
+            return None
+        return res.params[model.slices[model.part_names[part]]].copy()

@@ -167,9 +167,14 @@ class ColourModel:
 
     def silhouette(self, rgb: np.ndarray) -> np.ndarray:
         """Observed hand silhouette ``S_o`` (H, W) bool of a colour image (eq. 4, thresholded
-        against the background mixture)."""
+        against the background mixture, then opened with a 5 px disc)."""
+        import cv2
+
         q = (np.asarray(rgb) >> 3).astype(np.intp)  # 256 / 32 levels
-        return self.lut[q[..., 0], q[..., 1], q[..., 2]]
+        m = self.lut[q[..., 0], q[..., 1], q[..., 2]].astype(np.uint8)
+        # an opening drops the thin mixed-colour lines along other objects' edges and speckle
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+        return cv2.morphologyEx(m, cv2.MORPH_OPEN, k) > 0
 
 
 # ------------------------------------------------------------------- per-view precompute

@@ -42,7 +42,8 @@ from hand_capture.tracking.forest import RegressionForest
 
 __all__ = ["DetectorConfig", "LabelledView", "SalientDetector", "choose_min_score",
            "default_detector_path", "evaluate", "load_salient_detector", "main",
-           "match_detections", "random_hand_pose", "render_views", "train_detector"]
+           "match_detections", "random_hand_pose", "render_views", "tip_vertices",
+           "train_detector"]
 
 _LUT_LEVELS = 16
 _N_CHANNELS = 4  # hand probability, grey, chroma r, chroma g
@@ -220,6 +221,22 @@ def _check_rgb(rgb: np.ndarray) -> np.ndarray:
             a.shape[1] < 8:
         raise InputError(f"expected an (H, W, 3) uint8 image, got {a.shape} {a.dtype}")
     return a
+
+
+def tip_vertices(hand: object) -> np.ndarray:
+    """(5,) index of the mesh vertex nearest each fingertip keypoint (thumb .. little) of a
+    :class:`~hand_capture.model.HandModel` in its rest pose: the salient vertices whose
+    projections the detector's points are (its training targets are the tip keypoints)."""
+    from hand_capture.model.joints import N_DOF
+    from hand_capture.model.skeleton import FINGERTIP_KEYPOINTS, KEYPOINT_BONE
+
+    fk = hand.forward(np.zeros(N_DOF))
+    out = np.empty(5, dtype=np.int64)
+    for f, k in enumerate(FINGERTIP_KEYPOINTS):
+        cand = np.flatnonzero(hand.vertex_labels == KEYPOINT_BONE[k])
+        out[f] = cand[np.argmin(np.linalg.norm(fk.vertices[cand] - fk.joint_positions[k],
+                                               axis=1))]
+    return out
 
 
 def default_detector_path() -> Path:
