@@ -89,8 +89,9 @@ def test_every_term_is_lowest_at_the_true_pose(scene_views):
     names = rig.names
     masks = [views[n].labels == 1 for n in names]
     cm = ColourModel.fit([views[n].rgb for n in names], masks)
-    obs = [observe(views[n].rgb, rig.camera(n), cm) for n in names]
-    cost = ImageCost(scene)
+    cfg = ImageTermsConfig(scale=0.5)     # 160 x 120, as 0.25 of the studio's 640 x 480
+    obs = [observe(views[n].rgb, rig.camera(n), cm, cfg) for n in names]
+    cost = ImageCost(scene, cfg)
     cost.learn_colours(truth, obs)
     P = np.stack([truth, *_perturbations(truth)])
     parts = cost(P, obs, parts=True)
@@ -98,6 +99,7 @@ def test_every_term_is_lowest_at_the_true_pose(scene_views):
         assert np.all(parts[term][1:] > parts[term][0]), (term, parts[term])
     # weights of eq. (3): 1.0 / 0.6 / 1.0
     cfg = ImageTermsConfig()
+    assert cfg.scale == 0.25
     assert (cfg.w_silh, cfg.w_color, cfg.w_edge, cfg.window, cfg.color_cutoff) == \
         (1.0, 0.6, 1.0, 5, 0.25)
     total = parts["silh"] + parts["color"] + parts["edge"]
@@ -108,8 +110,9 @@ def test_moving_the_object_raises_only_the_edge_term(scene_views):
     rig, scene, views, truth = scene_views
     names = rig.names
     cm = ColourModel.fit([views[n].rgb for n in names], [views[n].labels == 1 for n in names])
-    obs = [observe(views[n].rgb, rig.camera(n), cm) for n in names]
-    cost = ImageCost(scene, ImageTermsConfig(w_color=0.0))
+    cfg = ImageTermsConfig(w_color=0.0, scale=0.5)
+    obs = [observe(views[n].rgb, rig.camera(n), cm, cfg) for n in names]
+    cost = ImageCost(scene, cfg)
     moved = truth.copy()
     moved[scene.slices["box"]][:2] += 0.02
     parts = cost(np.stack([truth, moved]), obs, parts=True)
