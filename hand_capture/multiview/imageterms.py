@@ -49,7 +49,8 @@ from hand_capture.errors import InputError
 from hand_capture.multiview.rig import RigCamera
 
 __all__ = ["SGMM", "ColourModel", "ImageCost", "ImageTermsConfig", "ObservedView",
-           "edge_term", "observe", "silhouette_term", "surface_points"]
+           "colour_features", "edge_term", "hand_rois", "observe", "observe_group",
+           "silhouette_term", "surface_points"]
 
 _EPS = 1e-6
 
@@ -68,6 +69,8 @@ class ImageTermsConfig:
     canny_high: float = param(100.0, "Canny upper threshold [grey levels]", lo=1.0, hi=1000.0)
     edge_clip_px: float = param(10.0, "largest edge distance counted, eq. (7) [px at scale]",
                                 lo=1.0, hi=1000.0)
+    depth_edge_m: float = param(0.015, "depth step of a rendered occlusion edge [m]",
+                                lo=0.001, hi=1.0)
     point_spacing_m: float = param(0.005, "spacing of the splatted surface points [m]",
                                    lo=0.001, hi=0.05)
     color_points: int = param(400, "hand points per hand the colour term samples, eq. (6)",
@@ -119,7 +122,7 @@ class SGMM:
             mu = (r.T @ x) / nk[:, None]
             d = np.linalg.norm(x[:, None, :] - mu[None], axis=2)
             # scale: the mean of d^0.8 of the members sets s^0.8 (3/0.8 per 3-D sample)
-            s = np.maximum((0.8 / 3.0 * (r * d ** 0.8).sum(axis=0) / nk) ** (1 / 0.8), 0.01)
+            s = np.maximum((0.8 / 3.0 * (r * d ** 0.8).sum(axis=0) / nk) ** (1 / 0.8), 0.003)
         return cls(mu, lam, s)
 
     def density(self, x: np.ndarray) -> np.ndarray:
@@ -127,6 +130,15 @@ class SGMM:
         x = np.asarray(x, float)
         d = np.linalg.norm(x[..., None, :] - self.mu, axis=-1)
         return np.sum(self.lam / self.s ** 3 * np.exp(-(d / self.s) ** 0.8), axis=-1)
+
+
+def colour_features(rgb: np.ndarray) -> np.ndarray:
+    """The colour coordinates the mixtures of eq. (4) live in, (..., 3) from RGB in [0, 1]:
+    chromaticity r/(r+g+b), g/(r+g+b) and a quarter of the intensity, so that a camera's
+    exposure changes (a common gain) hardly move a colour."""
+    x = np.asarray(rgb, float)
+    tot = x.sum(axis=-1, keepdims=True) + 1e-3
+    return np.concatenate([x[..., :2] / tot, 0.25 * tot / 3.0], axis=-1)
 
 
 class ColourModel:
@@ -144,7 +156,8 @@ class ColourModel:
         n = self.LEVELS
         c = (np.arange(n) + 0.5) / n
         grid = np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1)          # (n, n, n, 3)
-        self.lut = hand.density(grid) > background.density(grid)
+        f = colour_features(grid)
+        self.lut = hand.density(f) > background.density(f)
 
     @classmethod
     def fit(cls, images: Sequence[np.ndarray], hand_masks: Sequence[np.ndarray],
@@ -159,7 +172,7 @@ class ColourModel:
             mask = np.asarray(m, bool)
             if a.shape[:2] != mask.shape:
                 raise InputError(f"mask {mask.shape} does not fit image {a.shape}")
-            px = a.reshape(-1, 3).astype(float) / 255.0
+            px = colour_features(a.reshape(-1, 3).astype(float) / 255.0)
             fg.append(px[mask.ravel()])
             bg.append(px[~mask.ravel()][::7])
         return cls(SGMM.fit(np.concatenate(fg), components, seed=seed),
@@ -214,8 +227,13 @@ def _dt(edges: np.ndarray, clip: float) -> np.ndarray:
 
 
 def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel,
-            config: ImageTermsConfig | None = None) -> ObservedView:
+            config: ImageTermsConfig | None = None,
+            roi: tuple[float, float, float, float] | None = None) -> ObservedView:
     """Precompute one view's observation (see :class:`ObservedView`).
+
+    ``roi`` (u0, v0, u1, v1) [px]: the hand's silhouette and edges are looked for only in
+    this box (e.g. around the previous frame's hands), so that skin-coloured clutter
+    elsewhere does not enter eq. (5) and (7).
 
     Raises:
         InputError: not an (H, W, 3) uint8 image of the camera's resolution.
@@ -232,6 +250,11 @@ def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel,
     small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
     silh_full = colour.silhouette(img)
     silh = cv2.resize(silh_full.astype(np.uint8), (w, h), interpolation=cv2.INTER_AREA) > 0
+    if roi is not None:
+        keep = np.zeros_like(silh)
+        u0, v0, u1, v1 = (int(np.floor(c * cfg.scale)) for c in roi)
+        keep[max(v0, 0): max(v1 + 1, 0), max(u0, 0): max(u1 + 1, 0)] = True
+        silh &= keep
     grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
     edges = cv2.Canny(grey, cfg.canny_low, cfg.canny_high) > 0
     # hand edges: the image edges on or next to the observed hand silhouette
@@ -278,6 +301,18 @@ def _border(mask: np.ndarray) -> np.ndarray:
     inner[..., 0, :] = inner[..., -1, :] = False
     inner[..., :, 0] = inner[..., :, -1] = False
     return m & ~inner
+
+
+def _depth_edges(depth: np.ndarray, step_m: float) -> np.ndarray:
+    """Pixels of depth maps (..., h, w) (inf = empty) whose 4-neighbour is nearer by more
+    than ``step_m``: the far side of an occlusion boundary inside the silhouette."""
+    d = np.where(np.isfinite(depth), depth, 1e6)  # empty: far (no inf - inf)
+    out = np.zeros(d.shape, bool)
+    out[..., 1:, :] |= d[..., 1:, :] - d[..., :-1, :] > step_m
+    out[..., :-1, :] |= d[..., :-1, :] - d[..., 1:, :] > step_m
+    out[..., :, 1:] |= d[..., :, 1:] - d[..., :, :-1] > step_m
+    out[..., :, :-1] |= d[..., :, :-1] - d[..., :, 1:] > step_m
+    return out & np.isfinite(depth)
 
 
 def edge_term(hand_edges_r: np.ndarray, view: ObservedView, obj_edges_r: np.ndarray | None,
@@ -367,15 +402,19 @@ class ImageCost:
         B, n, _ = pts.shape
         cam = view.camera
         h, w = view.silh.shape
-        R = cam.R_wc
-        pc = pts.reshape(-1, 3) @ R - cam.t_wc @ R  # world -> camera (RigCamera.to_camera)
-        z = pc[:, 2]
+        R, t = cam.R_wc, cam.t_wc
+        X, Y, Z = (pts[..., i].reshape(-1) - t[i] for i in range(3))
+        # world -> camera, pc = (p - t) R, column by column (a (N, 3) @ (3, 3) matmul is
+        # several times slower than these three products on this machine)
+        x = X * R[0, 0] + Y * R[1, 0] + Z * R[2, 0]
+        y = X * R[0, 1] + Y * R[1, 1] + Z * R[2, 1]
+        z = X * R[0, 2] + Y * R[1, 2] + Z * R[2, 2]
         ok = z > 0.02
-        zz = np.where(ok, z, 1.0)
+        inv = 1.0 / np.where(ok, z, 1.0)
         k = cam.intrinsics
         s = view.scale
-        col = np.floor((k.fx * pc[:, 0] / zz + k.cx + 0.5) * s).astype(np.int64)
-        row = np.floor((k.fy * pc[:, 1] / zz + k.cy + 0.5) * s).astype(np.int64)
+        col = np.floor((k.fx * x * inv + k.cx + 0.5) * s).astype(np.int64)
+        row = np.floor((k.fy * y * inv + k.cy + 0.5) * s).astype(np.int64)
         ok &= (col >= 0) & (col < w) & (row >= 0) & (row < h)
         flat = np.where(ok, row * w + col, -1).reshape(B, n)
         return flat, z.reshape(B, n), row.reshape(B, n), col.reshape(B, n)
@@ -389,14 +428,22 @@ class ImageCost:
         m[idx.ravel()] = True
         return m[:-1].reshape(B, h, w)
 
-    def _visible(self, flat: np.ndarray, z: np.ndarray, shape: tuple[int, int],
-                 tol_m: float = 0.012) -> np.ndarray:
-        """(B, n) points not behind the nearest splatted point of their pixel by > tol."""
+    @staticmethod
+    def _zbuffer(flat: np.ndarray, z: np.ndarray, shape: tuple[int, int]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest splatted depth per pixel (B, h, w) [m] (inf where empty) and each point's
+        index into it (B, n) (the dummy last cell for points outside the image)."""
         B = len(flat)
         h, w = shape
         zb = np.full(B * h * w + 1, np.inf)
         idx = np.where(flat >= 0, flat + (np.arange(B) * h * w)[:, None], B * h * w)
         np.minimum.at(zb, idx.ravel(), z.ravel())
+        return zb, idx
+
+    def _visible(self, flat: np.ndarray, z: np.ndarray, shape: tuple[int, int],
+                 tol_m: float = 0.012) -> np.ndarray:
+        """(B, n) points not behind the nearest splatted point of their pixel by > tol."""
+        zb, idx = self._zbuffer(flat, z, shape)
         return (flat >= 0) & (z <= zb[idx] + tol_m)
 
     def learn_colours(self, params: np.ndarray, views: Sequence[ObservedView]) -> None:
@@ -439,15 +486,20 @@ class ImageCost:
         for v in views:
             shape = v.silh.shape
             flat, z, row, col = self._splat(v, hand_pts)
-            S_r = self._masks(flat, shape)
+            zb, zidx = self._zbuffer(flat, z, shape)
+            depth = zb[:-1].reshape(B, *shape)
+            S_r = np.isfinite(depth)
             e_s += silhouette_term(S_r, v.silh)                                  # eq. (5)
             obj_e = None
             if sc.objects:
                 oflat = self._splat(v, np.concatenate(pts[sc.n_hands:], axis=1))[0]
                 obj_e = _border(self._masks(oflat, shape))
-            e_e += edge_term(_border(S_r), v, obj_e, cfg.edge_clip_px)           # eq. (7)
+            # rendered hand edges: the outline and the occlusion boundaries inside it (what
+            # Canny finds in a rendered image: a finger in front of the palm)
+            e_r = _border(S_r) | _depth_edges(depth, cfg.depth_edge_m)
+            e_e += edge_term(e_r, v, obj_e, cfg.edge_clip_px)                    # eq. (7)
             if cols is not None and cfg.w_color > 0:                             # eq. (6)
-                vis = self._visible(flat, z, shape)[:, self.color_sel]
+                vis = ((flat >= 0) & (z <= zb[zidx] + 0.012))[:, self.color_sel]
                 bb, jj = np.nonzero(vis)
                 jj = self.color_sel[jj]
                 obs = v.shifted[:, row[bb, jj], col[bb, jj]]                     # (k*k, m, 3)
@@ -464,6 +516,27 @@ class ImageCost:
 
 
 def observe_group(group: Mapping[str, np.ndarray], rig: object, colour: ColourModel,
-                  config: ImageTermsConfig | None = None) -> list[ObservedView]:
-    """:func:`observe` for every camera of ``rig`` present in ``group`` (name -> rgb)."""
-    return [observe(group[c.name], c, colour, config) for c in rig.cameras if c.name in group]
+                  config: ImageTermsConfig | None = None,
+                  rois: Mapping[str, tuple[float, float, float, float]] | None = None
+                  ) -> list[ObservedView]:
+    """:func:`observe` for every camera of ``rig`` present in ``group`` (name -> rgb), with
+    each camera's ``rois`` entry if given."""
+    return [observe(group[c.name], c, colour, config, (rois or {}).get(c.name))
+            for c in rig.cameras if c.name in group]
+
+
+def hand_rois(scene: object, rig: object, params: np.ndarray, margin_px: float = 40.0
+              ) -> dict[str, tuple[float, float, float, float]]:
+    """Per camera the box (u0, v0, u1, v1) [px] around the hands posed at ``params``,
+    widened by ``margin_px`` and by a quarter of its size (the next frame's search area)."""
+    state = scene.pose(params)
+    pts = np.concatenate(state.vertices[: scene.n_hands])
+    out = {}
+    for cam in rig.cameras:
+        uv, front = cam.project(pts)
+        if not front.any():
+            continue
+        lo, hi = uv[front].min(axis=0), uv[front].max(axis=0)
+        pad = margin_px + 0.25 * (hi - lo)
+        out[cam.name] = (*(lo - pad), *(hi + pad))
+    return out

@@ -3,8 +3,9 @@
 Seed 000 tracks the hand and object frame by frame by minimising its image cost, eq. (3)
 (:mod:`hand_capture.multiview.imageterms`), plus a smoothness term on the accelerations,
 ``|q_t - 2 q_{t-1} + q_{t-2}|^2``, with ISA (Gall et al. 2008): particles are sampled around
-the previous frame's estimate, weighted by the annealed cost, resampled and diffused, 25
-times with 300 particles; the estimate is the weighted mean of the last particle set.
+the previous frames' estimate (here: its constant-velocity prediction), weighted by the
+annealed cost, resampled and diffused, 25 times with 300 particles; the estimate is the
+weighted mean of the last particle set (here: or the best particle, when its cost is lower).
 
 :func:`isa_minimise` is the optimiser for any batch cost function; :func:`isa_track` runs it
 over a sequence of synchronised colour groups with seed 000's cost (the sampling baseline
@@ -275,7 +276,12 @@ def isa_track(frames: Sequence[Mapping[str, object]], rig: object, scene: object
     """
     from dataclasses import replace
 
-    from hand_capture.multiview.imageterms import ColourModel, ImageCost, observe_group
+    from hand_capture.multiview.imageterms import (
+        ColourModel,
+        ImageCost,
+        hand_rois,
+        observe_group,
+    )
 
     if not frames:
         raise InputError("isa_track needs at least one frame")
@@ -290,7 +296,7 @@ def isa_track(frames: Sequence[Mapping[str, object]], rig: object, scene: object
     colour = ColourModel.fit([g0[n] for n in names], first_frame_masks(scene, rig, p0, names),
                              seed=seed)
     cost_fn = ImageCost(scene, terms)
-    views0 = observe_group(g0, rig, colour, cost_fn.config)
+    views0 = observe_group(g0, rig, colour, cost_fn.config, hand_rois(scene, rig, p0))
     cost_fn.learn_colours(p0, views0)
     sig = default_sigma(scene, cfg)
     acc = _acc_scale(scene, cfg)
@@ -299,17 +305,22 @@ def isa_track(frames: Sequence[Mapping[str, object]], rig: object, scene: object
     secs = [time.perf_counter() - t0]
     for t in range(1, len(frames)):
         t0 = time.perf_counter()
-        views = observe_group(_rgb_group(frames[t]), rig, colour, cost_fn.config)
         prev = out[-1]
         prev2 = out[-2] if len(out) > 1 else out[-1]
+        views = observe_group(_rgb_group(frames[t]), rig, colour, cost_fn.config,
+                              hand_rois(scene, rig, prev))
 
         def cost(X: np.ndarray, views: list = views, prev: np.ndarray = prev,
                  prev2: np.ndarray = prev2) -> np.ndarray:
             e = cost_fn(X, views) if views else np.zeros(len(X))
             return e + cfg.w_smooth * smoothness_term(X, prev, prev2, acc)
 
-        res = isa_minimise(cost, prev, sig, scene.lo, scene.hi, config=cfg, seed=rng)
-        out.append(res.x)
-        costs.append(res.cost)
+        # particles start around the constant-velocity prediction, where the smoothness
+        # term is zero; the estimate is the weighted mean, or the best particle if lower
+        pred = scene.clip(2.0 * prev - prev2)
+        res = isa_minimise(cost, pred, sig, scene.lo, scene.hi, config=cfg, seed=rng)
+        x, e = (res.x, res.cost) if res.cost <= res.best_cost else (res.best_x, res.best_cost)
+        out.append(x)
+        costs.append(e)
         secs.append(time.perf_counter() - t0)
     return ISATrackResult(np.array(out), np.array(secs), np.array(costs))
