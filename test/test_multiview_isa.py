@@ -240,6 +240,8 @@ def test_shipped_detector_finds_fingertips_on_heldout_renders():
     assert r["recall"] >= 0.3 and r["precision"] >= 0.3, r
     pts, sc = det.detect(views[0].rgb)
     assert pts.shape[1] == 2 and len(pts) == len(sc) and np.all(np.diff(sc) <= 0)
+    whole = det.detect(views[0].rgb, crop=False)          # the crop changes nothing
+    assert np.array_equal(pts, whole[0]) and np.allclose(sc, whole[1])
     with pytest.raises(InputError, match="uint8"):
         det.detect(np.zeros((48, 64, 3), np.float32))
     blank = det.detect(np.full((48, 64, 3), 40, np.uint8))   # nothing skin-coloured
