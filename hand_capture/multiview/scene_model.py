@@ -177,10 +177,12 @@ class SceneModel:
         hands: one or two :class:`HandModel` (the subjects' shapes), at most one per side.
         objects: the rigid objects (:class:`SceneObject`, e.g. from :func:`object_mesh`).
         reach_m: half-size of the workspace box every position is bounded to [m].
+        wrist_cut_m: hand vertices closer than this to the wrist plane (rest x) [m] are not
+            used as edge vertices (see :attr:`edge_usable`).
     """
 
     def __init__(self, hands: Sequence[HandModel], objects: Sequence[SceneObject] = (),
-                 reach_m: float = 3.0) -> None:
+                 reach_m: float = 3.0, wrist_cut_m: float = 0.015) -> None:
         hands = tuple(hands)
         if not 1 <= len(hands) <= 2 or not all(isinstance(h, HandModel) for h in hands):
             raise ConfigError("a scene holds one or two HandModel hands")
@@ -223,6 +225,11 @@ class SceneModel:
             *(h.vertex_labels for h in hands),
             *(np.zeros(len(o.vertices), dtype=np.int64) for o in self.objects))
         self.n_vertices = tuple(len(b) for b in self.vertex_bones)
+        #: per part, the vertices whose outline can be matched to image edges: not the
+        #: hand's wrist cap, where the real forearm continues the silhouette
+        self.edge_usable: tuple[np.ndarray, ...] = (
+            *(h.rest_vertices[:, 0] > wrist_cut_m for h in hands),
+            *(np.ones(len(o.vertices), bool) for o in self.objects))
         self._renderer = ZBufferRenderer(near=0.02)
 
     # ------------------------------------------------------------------------ parameters
@@ -341,14 +348,17 @@ class SceneModel:
         return (f * dd) @ dn @ camera.R_wc.T[None]
 
     # -------------------------------------------------------------------------- rendering
-    def render(self, camera: RigCamera, state: SceneState, scale: float = 1.0) -> SceneRender:
+    def render(self, camera: RigCamera, state: SceneState, scale: float = 1.0,
+               parts: Sequence[int] | None = None) -> SceneRender:
         """Depth and part labels of ``state`` seen by ``camera`` (lens distortion ignored),
-        at ``scale`` times the camera's resolution; see the module docstring for its cost."""
+        at ``scale`` times the camera's resolution, drawing ``parts`` (default: all); see the
+        module docstring for its cost."""
         if not 0.05 <= scale <= 1.0:
             raise InputError(f"render scale must be in [0.05, 1], got {scale}")
         intr = scaled_intrinsics(camera.intrinsics, scale)
-        meshes = [Mesh(camera.to_camera(v), f, label=i + 1, closed=True)
-                  for i, (v, f) in enumerate(zip(state.vertices, self.faces, strict=True))]
+        draw = range(len(self.part_names)) if parts is None else parts
+        meshes = [Mesh(camera.to_camera(state.vertices[i]), self.faces[i], label=i + 1,
+                       closed=True) for i in draw]
         res = self._renderer.render(meshes, intr)
         return SceneRender(res.depth, res.label, scale)
 
