@@ -209,7 +209,7 @@ class LocalOptimizer:
 
     # ----------------------------------------------------------------------- per iteration
     def correspondences(self, state: SceneState, frame: FrameData, parts: Sequence[int],
-                        gate_px: float | None = None
+                        gate_px: float | None = None, support: bool = True
                         ) -> tuple[Correspondences, np.ndarray, np.ndarray]:
         """Edge and salient correspondences at ``state`` (Algorithm 1's loop body), edges
         matched within ``gate_px`` (default ``edge_max_px``), and per part the model edge
@@ -236,7 +236,7 @@ class LocalOptimizer:
                 pix[:, 1] = np.clip(pix[:, 1], 0, h - 1)
                 on = (bins[pix[:, 1], pix[:, 0]] >= 0) & m.edge_usable[p][idx]
                 n_on = int(on.sum())
-                if n_on:
+                if n_on and support:
                     _, dist, _ = feats.nearest_edge(uv[on], bins[pix[on, 1], pix[on, 0]])
                     n_edge[p] += n_on
                     n_sup[p] += float(np.sum(dist <= cfg.support_px))
@@ -309,6 +309,33 @@ class LocalOptimizer:
         w = np.array([self.cfg.w_edge, self.cfg.w_flow, self.cfg.w_salient])
         return np.sqrt(w[corr.kind] * corr.robust)
 
+    def _plan(self, corr: Correspondences, coll: CollisionPairs) -> dict:
+        """Index bookkeeping of a correspondence set, shared by every residual evaluation of
+        an outer iteration: the vertices each part needs and the (part, camera) groups."""
+        key = (id(corr), len(corr), id(coll), len(coll))
+        if getattr(self, "_plan_key", None) == key:
+            return self._plan_cache
+        m = self.model
+        needed: dict[int, list[np.ndarray]] = {}
+        for p in np.unique(corr.part):
+            needed.setdefault(int(p), []).append(corr.vert[corr.part == p])
+        if len(coll):
+            for p in np.unique(coll.vert_part):
+                needed.setdefault(int(p), []).append(coll.vert[coll.vert_part == p])
+            for p in np.unique(coll.face_part):
+                needed.setdefault(int(p), []).append(
+                    m.faces[p][coll.face[coll.face_part == p]].reshape(-1))
+        idx = {p: np.unique(np.concatenate(v)) for p, v in needed.items()}
+        groups = []
+        for p in np.unique(corr.part):
+            for c in np.unique(corr.cam[corr.part == p]):
+                sel = np.flatnonzero((corr.part == p) & (corr.cam == c))
+                pos = np.searchsorted(idx[int(p)], corr.vert[sel])
+                groups.append((int(p), int(c), sel, pos))
+        plan = {"idx": idx, "groups": groups}
+        self._plan_key, self._plan_cache = key, plan
+        return plan
+
     def _residuals(self, params: np.ndarray, corr: Correspondences, coll: CollisionPairs,
                    cols: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
         """Stacked weighted residuals of eq. (2) and, when ``cols`` is given, their Jacobian
@@ -319,18 +346,9 @@ class LocalOptimizer:
         res = np.zeros(2 * n + len(coll))
         jac = None if cols is None else np.zeros((len(res), len(cols)))
         colpos = None if cols is None else {int(c): i for i, c in enumerate(cols)}
+        plan = self._plan(corr, coll)
         verts: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        needed: dict[int, list[np.ndarray]] = {}
-        for p in np.unique(corr.part):
-            needed.setdefault(int(p), []).append(corr.vert[corr.part == p])
-        if len(coll):
-            for p in np.unique(coll.vert_part):
-                needed.setdefault(int(p), []).append(coll.vert[coll.vert_part == p])
-            for p in np.unique(coll.face_part):
-                needed.setdefault(int(p), []).append(
-                    m.faces[p][coll.face[coll.face_part == p]].reshape(-1))
-        for p, lists in needed.items():
-            idx = np.unique(np.concatenate(lists))
+        for p, idx in plan["idx"].items():
             pts, J = m.linearize(params, p, idx)
             verts[p] = (idx, pts, J)
 
@@ -346,28 +364,26 @@ class LocalOptimizer:
             ok = dst >= 0
             return src[ok], dst[ok]
 
-        for p in np.unique(corr.part):
-            p = int(p)
-            pc = part_cols(p) if jac is not None else None
-            for c in np.unique(corr.cam[corr.part == p]):
-                sel = np.flatnonzero((corr.part == p) & (corr.cam == c))
-                pts, J = lookup(p, corr.vert[sel])
-                cam = self.rig.cameras[int(c)]
-                uv = m.project(cam, pts)[0]
-                r = (uv - corr.target[sel]) * sw[sel, None]
-                nrm = corr.normal[sel]
-                line = np.any(nrm != 0, axis=1)
-                # edges: the residual along the image edge's normal (point-to-line)
-                r0 = np.where(line, np.sum(r * nrm, axis=1), r[:, 0])
-                r1 = np.where(line, 0.0, r[:, 1])
-                res[2 * sel] = r0
-                res[2 * sel + 1] = r1
-                if jac is not None and len(pc[0]):
-                    Jp = (m.project_jacobian(cam, pts) @ J[:, :, pc[0]]) * sw[sel, None, None]
-                    j0 = np.where(line[:, None], np.einsum("ij,ijk->ik", nrm, Jp), Jp[:, 0])
-                    j1 = np.where(line[:, None], 0.0, Jp[:, 1])
-                    jac[np.ix_(2 * sel, pc[1])] = j0
-                    jac[np.ix_(2 * sel + 1, pc[1])] = j1
+        pcols = {p: part_cols(p) for p in verts} if jac is not None else {}
+        for p, c, sel, pos in plan["groups"]:
+            _, allpts, allJ = verts[p]
+            pts = allpts[pos]
+            cam = self.rig.cameras[c]
+            uv = m.project(cam, pts)[0]
+            r = (uv - corr.target[sel]) * sw[sel, None]
+            nrm = corr.normal[sel]
+            line = np.any(nrm != 0, axis=1)
+            # edges: the residual along the image edge's normal (point-to-line)
+            res[2 * sel] = np.where(line, np.sum(r * nrm, axis=1), r[:, 0])
+            res[2 * sel + 1] = np.where(line, 0.0, r[:, 1])
+            if jac is not None and len(pcols[p][0]):
+                src, dst = pcols[p]
+                Jp = np.einsum("nij,njk->nik", m.project_jacobian(cam, pts),
+                               allJ[pos][:, :, src]) * sw[sel, None, None]
+                j0 = np.where(line[:, None], np.einsum("ij,ijk->ik", nrm, Jp), Jp[:, 0])
+                j1 = np.where(line[:, None], 0.0, Jp[:, 1])
+                jac[2 * sel[:, None], dst[None, :]] = j0
+                jac[2 * sel[:, None] + 1, dst[None, :]] = j1
         if len(coll):
             k = self.cfg.collision_px_per_m
             base = 2 * n
@@ -472,7 +488,7 @@ class LocalOptimizer:
             state = m.pose(x)
             # the edge gate narrows over the iterations, from edge_max_px to a third of it
             gate = cfg.edge_max_px * (1.0 - (2.0 / 3.0) * it / max(n_iter - 1, 1))
-            corr, _, _ = self.correspondences(state, frame, parts, gate)
+            corr, _, _ = self.correspondences(state, frame, parts, gate, support=False)
             flow = frame.flow.subset(np.isin(frame.flow.part, parts))
             corr = Correspondences.concat([corr, flow])
             corr = self._reject_outliers(corr, state)

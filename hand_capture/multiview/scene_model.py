@@ -316,9 +316,15 @@ class SceneModel:
     @staticmethod
     def project(camera: RigCamera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels (N, 2) [px] of world points (N, 3) and a (N,) in-front mask (z > 2 cm)."""
-        uv, front = camera.project(np.asarray(points, dtype=float).reshape(-1, 3))
-        z = camera.to_camera(points)[:, 2] if len(points) else np.zeros(0)
-        return uv, front & (z > 0.02)
+        pc = (np.asarray(points, dtype=float).reshape(-1, 3) - camera.t_wc) @ camera.R_wc
+        z = pc[:, 2]
+        front = z > 0.02
+        zs = np.where(front, z, 1.0)
+        x, y = pc[:, 0] / zs, pc[:, 1] / zs
+        k = camera.intrinsics
+        if any(k.distortion):
+            x, y = distort(x, y, k.distortion)
+        return np.stack([k.fx * x + k.cx, k.fy * y + k.cy], axis=1), front
 
     @staticmethod
     def project_jacobian(camera: RigCamera, points: np.ndarray) -> np.ndarray:

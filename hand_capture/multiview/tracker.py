@@ -37,8 +37,8 @@ from hand_capture.multiview.lo import LocalOptimizer, LOConfig, LOResult
 from hand_capture.multiview.rig import Rig
 from hand_capture.multiview.scene_model import SceneModel, SceneState
 
-__all__ = ["GroupCheck", "MultiviewTracker", "MultiviewTrackerConfig", "PartEstimate",
-           "TrackResult", "check_group", "LOST", "TRACKED", "RECOVERED"]
+__all__ = ["GroupCheck", "GroupRunner", "LOST", "MultiviewTracker", "MultiviewTrackerConfig",
+           "PartEstimate", "RECOVERED", "TRACKED", "TrackResult", "check_group"]
 
 TRACKED, RECOVERED, LOST = "tracking", "recovering", "lost"
 
@@ -291,3 +291,50 @@ class MultiviewTracker:
         self._bad[p] = 0
         self._recovered_support = float(res.support[p])
         return True
+
+
+#: rejection reasons counted by :class:`GroupRunner` (a camera's view, or a whole group)
+REJECT_KEYS = {"missing from the group": "missing_camera", "empty image": "empty_image",
+               "non-finite CameraInfo": "bad_camera_info"}
+
+
+class GroupRunner:
+    """Screens each synchronised group (:func:`check_group`), counts and logs every dropped
+    view by reason (``missing_camera``, ``empty_image``, ``bad_image``, ``bad_camera_info``)
+    and every group with no usable view (``group``), and tracks the rest. The node and the
+    offline tool share it.
+
+    Args:
+        tracker: the tracker.
+        log: called with one line per rejection (default: this module's logger, WARNING).
+    """
+
+    def __init__(self, tracker: MultiviewTracker,
+                 log: Callable[[str], None] | None = None) -> None:
+        import logging
+        from collections import Counter
+
+        self.tracker = tracker
+        self.rejected: Counter[str] = Counter()
+        self.groups = 0
+        self.tracked = 0
+        self._log = log or logging.getLogger(__name__).warning
+
+    def process(self, images: Mapping[str, object], infos: Mapping[str, object] | None = None,
+                stamp: float = 0.0) -> TrackResult | None:
+        """Track one group; None when the whole group was rejected."""
+        self.groups += 1
+        chk = check_group(self.tracker.rig, images, infos)
+        for cam, why in chk.rejected.items():
+            key = REJECT_KEYS.get(why, "bad_image")
+            self.rejected[key] += 1
+            self._log(f"group at {stamp:.3f} s: camera {cam} dropped ({why}); "
+                      f"{key} = {self.rejected[key]}")
+        if chk.usable == 0:
+            self.rejected["group"] += 1
+            self._log(f"group at {stamp:.3f} s rejected: no usable view; "
+                      f"group = {self.rejected['group']}")
+            return None
+        res = self.tracker.step(chk.images)
+        self.tracked += 1
+        return res
