@@ -63,6 +63,9 @@ class MultiviewTrackerConfig:
                             lo=0.0, hi=1.0)
     recover_iterations: int = param(8, "local optimisation iterations of a recovery", lo=1,
                                     hi=100)
+    predict: float = param(0.0, "share of the last frame-to-frame motion added to the start "
+                           "of the next frame (0: start at the previous estimate, seed 002)",
+                           lo=0.0, hi=1.0)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -180,6 +183,7 @@ class MultiviewTracker:
         self._bad = np.zeros(n, dtype=np.int64)
         self._last_good: np.ndarray | None = None
         self._prev: tuple[Mapping[str, np.ndarray | None], SceneState] | None = None
+        self._velocity: np.ndarray | None = None
         self.frames = 0
 
     def reset(self, params: np.ndarray) -> None:
@@ -190,6 +194,7 @@ class MultiviewTracker:
         self.status = [TRACKED] * len(self.model.part_names)
         self._bad[:] = 0
         self._prev = None
+        self._velocity = None
 
     def _slice(self, p: int) -> slice:
         return self.model.slices[self.model.part_names[p]]
@@ -211,7 +216,11 @@ class MultiviewTracker:
         frame = self.lo.prepare(images, detections, self._prev, active)
         res = None
         if active:
-            res = self.lo.solve(self.params, frame, active)
+            start = self.params
+            if self._velocity is not None and self.cfg.predict > 0:
+                start = self.model.clip(self.params + self.cfg.predict * self._velocity)
+            res = self.lo.solve(start, frame, active)
+            self._velocity = res.params - self.params
             self.params = res.params
         support = np.zeros(len(m.part_names))
         recovered: set[int] = set()
