@@ -234,14 +234,17 @@ class LocalOptimizer:
                                axis=1).astype(np.int64)
                 pix[:, 0] = np.clip(pix[:, 0], 0, w - 1)
                 pix[:, 1] = np.clip(pix[:, 1], 0, h - 1)
-                on = (bins[pix[:, 1], pix[:, 0]] >= 0) & m.edge_usable[p][idx]
+                # outline vertices: on the contour generator (between faces turned to and
+                # away from the camera); others in the rendered edge band lie inside it
+                usable = m.edge_usable[p][idx] & m.contour(cam, state, p)[idx]
+                on = (bins[pix[:, 1], pix[:, 0]] >= 0) & usable
                 n_on = int(on.sum())
                 if n_on and support:
                     _, dist, _ = feats.nearest_edge(uv[on], bins[pix[on, 1], pix[on, 0]])
                     n_edge[p] += n_on
                     n_sup[p] += float(np.sum(dist <= cfg.support_px))
                 if cfg.use_edges:
-                    eb = np.where(m.edge_usable[p][idx][:, None], pix, -1)
+                    eb = np.where(usable[:, None], pix, -1)
                     sel, tgt, nrm = edge_correspondences(uv, eb, bins, feats, gate_px)
                     if len(sel) > cfg.edges_per_view:
                         pick = self._rng.choice(len(sel), cfg.edges_per_view, replace=False)

@@ -231,6 +231,7 @@ class SceneModel:
             *(h.rest_vertices[:, 0] > wrist_cut_m for h in hands),
             *(np.ones(len(o.vertices), bool) for o in self.objects))
         self._renderer = ZBufferRenderer(near=0.02)
+        self._edges = tuple(_edge_faces(f) for f in self.faces)
 
     # ------------------------------------------------------------------------ parameters
     def part_index(self, name: str) -> int:
@@ -368,6 +369,21 @@ class SceneModel:
         res = self._renderer.render(meshes, intr)
         return SceneRender(res.depth, res.label, scale)
 
+    def contour(self, camera: RigCamera, state: SceneState, part: int) -> np.ndarray:
+        """(V,) bool: the vertices of part ``part`` on its contour seen from ``camera``,
+        i.e. on a mesh edge between a face turned to the camera and one turned away. They
+        project exactly onto the part's outline (where it is not occluded); vertices merely
+        near the rendered outline lie up to a pixel inside it."""
+        v = state.vertices[part]
+        f = self.faces[part]
+        n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        front = np.einsum("ij,ij->i", n, v[f[:, 0]] - camera.t_wc) < 0
+        ev, ef = self._edges[part]
+        on = front[ef[:, 0]] != front[ef[:, 1]]
+        out = np.zeros(len(v), bool)
+        out[ev[on].ravel()] = True
+        return out
+
     def visible(self, camera: RigCamera, state: SceneState, render: SceneRender,
                 part: int, tol_m: float = 0.006) -> tuple[np.ndarray, np.ndarray]:
         """Visible vertices of part ``part`` in ``render``: (indices (n,), pixels (n, 2)).
@@ -389,6 +405,27 @@ class SceneModel:
         seen = (d == 0) | ((lab == part + 1) & (z[idx] <= d + tol_m)) | (z[idx] <= d + 1e-4)
         idx = idx[seen]
         return idx, uv[idx]
+
+
+def _edge_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Interior edges of a triangle mesh: (E, 2) vertex pairs and (E, 2) their two faces
+    (edges with one face or more than two are left out)."""
+    f = np.asarray(faces, dtype=np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    fid = np.tile(np.arange(len(f)), 3)
+    key = np.sort(e, axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    key, fid = key[order], fid[order]
+    same = np.all(key[1:] == key[:-1], axis=1)
+    i = np.flatnonzero(same)
+    # keep pairs that are exactly two faces (not part of a run of three or more)
+    ok = np.ones(len(i), bool)
+    if len(i) > 1:
+        run = np.diff(i) == 1
+        ok[1:] &= ~run
+        ok[:-1] &= ~run
+    i = i[ok]
+    return key[i], np.stack([fid[i], fid[i + 1]], axis=1)
 
 
 def scaled_intrinsics(intr: Intrinsics, scale: float) -> Intrinsics:
