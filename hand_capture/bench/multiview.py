@@ -10,7 +10,8 @@ px per image, added and removed) and synthetic salient detections (nail centres,
 deleted, 10 % false positives). Every sequence is tracked from its first frame's true pose.
 
 Rows, as seed 002 Table 1: the local optimiser with edges + collisions (E+C), + optical flow
-(E+C+O), + salient points (E+C+O+S); E+C+O+S on the tracker's own mesh (in-distribution);
+(E+C+O), + salient points (E+C+O+S); E+C+O+S on the tracker's own mesh (in-distribution),
+with and without the circles;
 ISA at 64 and 128 particles when the partner's ``hand_capture.multiview.isa`` is present.
 Joint position error [mm] over the 21 keypoints of every hand and frame (mean / std / max),
 bone orientation error [deg] over the 20 bones, object position [mm] / orientation [deg]
@@ -20,7 +21,8 @@ time: the machine is shared). Baseline in the same run: E+C's time per frame (th
 frames): frames flagged LOST while it is away and frames to recover once it is back.
 
 JSON keys: ``lo_full_mean_mm`` (held-out surfaces, worst sequence in ``lo_full_max_seq_mm``),
-``lo_full_own_mesh_mean_mm``, ``lo_ec_mean_mm``, ``lo_eco_mean_mm``, ``isa64_mean_mm``,
+``lo_full_own_mesh_mean_mm`` (``..._clean_...``: no circles), ``lo_ec_mean_mm``,
+``lo_eco_mean_mm``, ``isa64_mean_mm``,
 ``isa128_mean_mm``, ``object_err_mm``, ``object_err_deg``, ``s_per_frame`` (E+C+O+S, two
 hands + ball; ``cpu_s_per_frame`` its CPU time), ``isa128_s_per_frame``, ``render_ms``
 (one 640x480 model render, the cost ISA's particles pay), ``recover_frames``,
@@ -153,8 +155,9 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         t0 = time.perf_counter()
         held = list(render_sequence(seq, rig, surface="heldout", seed=1))
         own = list(render_sequence(seq, rig, surface="own", seed=2))
+        own_clean = list(render_sequence(seq, rig, surface="own", circles=0, seed=2))
         t_render = time.perf_counter() - t0
-        print(f"{name}: {seq.n_frames} frames x {len(rig)} cameras rendered twice in "
+        print(f"{name}: {seq.n_frames} frames x {len(rig)} cameras rendered 3 times in "
               f"{t_render:.1f} s")
         st = model.pose(seq.truth(model, 0))
         k = 5
@@ -170,6 +173,9 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         r = _track(seq, model, rig, own, base)
         results[("own", name)] = r
         rows.append(_row("LO E+C+O+S own mesh", name, r))
+        r = _track(seq, model, rig, own_clean, base)
+        results[("own_clean", name)] = r
+        rows.append(_row("LO E+C+O+S own mesh, no circles", name, r))
     isa = _isa()
     if isa is None:
         print("\nISA: hand_capture.multiview.isa is not on this branch; ISA rows left out")
@@ -188,6 +194,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         "lo_full_mean_mm": pooled("E+C+O+S"),
         "lo_full_max_seq_mm": max(full_seq.values()),
         "lo_full_own_mesh_mean_mm": pooled("own"),
+        "lo_full_own_mesh_clean_mean_mm": pooled("own_clean"),
         "lo_ec_mean_mm": pooled("E+C"),
         "lo_eco_mean_mm": pooled("E+C+O"),
         "lo_full_bone_deg": pooled("E+C+O+S", "bone"),

@@ -56,7 +56,8 @@ class MultiviewTrackerConfig:
                                 hi=1.0)
     min_edges: int = param(25, "model edge vertices in view below which a frame is bad",
                            lo=0, hi=100000)
-    lost_frames: int = param(2, "bad frames in a row that flag a part LOST", lo=1, hi=100)
+    lost_frames: int = param(1, "bad frames in a row that flag a part LOST (1: a bad frame "
+                             "is never reported as tracked)", lo=1, hi=100)
     recover_support: float = param(0.55, "support a re-found part must reach", lo=0.0,
                                    hi=1.0)
     search_m: float = param(0.08, "shift of the recovery candidates along each axis [m]",
