@@ -42,6 +42,7 @@ setup(
         (f"share/{PACKAGE}/config/scenarios", glob("config/scenarios/*.yaml")),
         (f"share/{PACKAGE}/data/touch", glob("data/touch/*.npz")),
         (f"share/{PACKAGE}/data/tracker", glob("data/tracker/*.npz")),
+        (f"share/{PACKAGE}/data/salient", glob("data/salient/*.npz")),
         (f"share/{PACKAGE}/data/teleop", glob("data/teleop/*.npz")),
         (f"share/{PACKAGE}/data/sample_capture", glob("data/sample_capture/*")),
         (f"share/{PACKAGE}/data/sample_rig_capture", glob("data/sample_rig_capture/*")),

@@ -227,7 +227,8 @@ def _capture_rig(a: argparse.Namespace) -> int:
     return 0
 
 
-TRAINERS = {"touch": "hand_capture.touch.train", "tracker": "hand_capture.tracking.train"}
+TRAINERS = {"touch": "hand_capture.touch.train", "tracker": "hand_capture.tracking.train",
+            "salient": "hand_capture.multiview.salient"}
 
 
 def cmd_train(a: argparse.Namespace) -> int:
@@ -385,7 +386,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="--rig: rate of a pose file without a time column [Hz]")
     cp.set_defaults(func=cmd_capture)
 
-    tr = sub.add_parser("train", help="train a learned component (touch, tracker)")
+    tr = sub.add_parser("train", help="train a learned component (touch, tracker, salient)")
     tr.add_argument("what")
     tr.add_argument("train_args", nargs=argparse.REMAINDER)
     tr.set_defaults(func=cmd_train)
