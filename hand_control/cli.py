@@ -291,7 +291,8 @@ def cmd_track_multiview(a: argparse.Namespace) -> int:
 
     res = track_bag(a.bag, a.output, rig=a.rig, hands=a.hands, objects=a.objects,
                     lo_config=LOConfig(iterations=a.iterations), max_groups=a.max_groups,
-                    overwrite=a.overwrite)
+                    overwrite=a.overwrite, detector=a.detector,
+                    hull_recovery=not a.no_hull)
     err = "no truth in the bag" if res.joint_err_mm is None else f"{res.joint_err_mm:.2f}"
     print_table(f"track-multiview {a.bag} -> {res.output}",
                 ["groups", "tracked", "rejected", "s/group", "joint err mm", "lost part-frames"],
@@ -413,6 +414,10 @@ def build_parser() -> argparse.ArgumentParser:
     tm.add_argument("--iterations", type=int, default=15, help="outer iterations a frame")
     tm.add_argument("--max-groups", type=int, default=None, help="track only the first N")
     tm.add_argument("--overwrite", action="store_true", help="replace -o if it exists")
+    tm.add_argument("--detector", default="learned", choices=["learned", "none"],
+                    help="salient points from the learned fingertip detector, or none")
+    tm.add_argument("--no-hull", action="store_true",
+                    help="search for a lost hand around its last pose only")
     tm.set_defaults(func=cmd_track_multiview)
 
     mj = sub.add_parser("mjcf", help="write the MuJoCo hand.xml and scenes",

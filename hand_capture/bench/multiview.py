@@ -12,7 +12,8 @@ deleted, 10 % false positives). Every sequence is tracked from its first frame's
 Rows, as seed 002 Table 1: the local optimiser with edges + collisions (E+C), + optical flow
 (E+C+O), + salient points (E+C+O+S); E+C+O+S on the tracker's own mesh (in-distribution),
 with and without the circles;
-ISA at 64 and 128 particles when the partner's ``hand_capture.multiview.isa`` is present.
+ISA at 64 and 128 particles (seed 000's cost, 25 iterations; full run only, on the box
+sequence's first 3 frames, with LO on the same frames beside it).
 Joint position error [mm] over the 21 keypoints of every hand and frame (mean / std / max),
 bone orientation error [deg] over the 20 bones, object position [mm] / orientation [deg]
 error (the box's; the ball is a sphere), seconds per frame (wall clock, and the process's CPU
@@ -148,12 +149,14 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     seqs = ["box"] if smoke else ["box", "ball"] if quick else ["fingers", "ball", "box"]
     base = LOConfig(iterations=4 if smoke else 10 if quick else 15)
     rows, results = [], {}
+    held_frames: dict[str, tuple[Any, Any, list]] = {}
     render_ms = float("nan")
     for name in seqs:
         seq = make_sequence(name, n)
         model = seq.model()
         t0 = time.perf_counter()
         held = list(render_sequence(seq, rig, surface="heldout", seed=1))
+        held_frames[name] = (seq, model, held)
         own = list(render_sequence(seq, rig, surface="own", seed=2))
         own_clean = list(render_sequence(seq, rig, surface="own", circles=0, seed=2))
         t_render = time.perf_counter() - t0
@@ -177,8 +180,35 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         results[("own_clean", name)] = r
         rows.append(_row("LO E+C+O+S own mesh, no circles", name, r))
     isa = _isa()
+    isa_out = {"isa64_mean_mm": float("nan"), "isa128_mean_mm": float("nan"),
+               "isa128_s_per_frame": float("nan"), "lo_isa_frames_mean_mm": float("nan")}
     if isa is None:
         print("\nISA: hand_capture.multiview.isa is not on this branch; ISA rows left out")
+    elif quick:
+        print("\nISA rows: full run only (about a minute or more a frame at 128 particles)")
+    else:
+        # seed 002's sampling baseline on the first frames of the box sequence (ISA costs
+        # 64 / 128 particles x 25 iterations x 6 renders a frame)
+        seq, model, held = held_frames["box"]
+        k = 3
+        r = _track(seq, model, rig, held[:k], base)
+        isa_out["lo_isa_frames_mean_mm"] = float(np.mean(r["joint"]))
+        rows.append(_row("LO E+C+O+S (ISA's frames)", "box", r))
+        for n in (64, 128):
+            t0 = time.process_time()
+            tr = isa.isa_track([f.images for f in held[:k]], rig, model, n_particles=n,
+                               n_iters=25, seed=0, init_params=seq.truth(model, 0))
+            cpu = (time.process_time() - t0) / k
+            errs: dict[str, list] = {"joint": [], "bone": [], "obj_mm": [], "obj_deg": []}
+            for t in range(1, k):
+                for key, v in _errors(model, tr.params[t], seq.truth(model, t)).items():
+                    errs[key].append(v)
+            rr = {key: np.concatenate(v) for key, v in errs.items()}
+            rr["s"], rr["cpu_s"] = tr.s_per_frame, cpu
+            rows.append(_row(f"ISA-{n} (25 iterations)", "box", rr))
+            isa_out[f"isa{n}_mean_mm"] = float(np.mean(rr["joint"]))
+            if n == 128:
+                isa_out["isa128_s_per_frame"] = tr.s_per_frame
     print_table(f"multi-view tracking, {len(rig)} cameras 640x480, {n} frames per sequence "
                 "(held-out surfaces unless 'own mesh')",
                 ["method", "sequence", "joint mean mm", "std", "max", "bone mean deg", "std",
@@ -198,14 +228,12 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         "lo_ec_mean_mm": pooled("E+C"),
         "lo_eco_mean_mm": pooled("E+C+O"),
         "lo_full_bone_deg": pooled("E+C+O+S", "bone"),
-        "isa64_mean_mm": float("nan"),
-        "isa128_mean_mm": float("nan"),
+        **isa_out,
         "object_err_mm": pooled("E+C+O+S", "obj_mm"),
         "object_err_deg": pooled("E+C+O+S", "obj_deg"),
         "s_per_frame": results[("E+C+O+S", timed)]["s"],
         "cpu_s_per_frame": results[("E+C+O+S", timed)]["cpu_s"],
         "s_per_frame_vs_ec": results[("E+C+O+S", timed)]["s"] / results[("E+C", timed)]["s"],
-        "isa128_s_per_frame": float("nan"),
         "render_ms": render_ms,
         "frames": n,
         "cameras": len(rig),

@@ -179,10 +179,13 @@ class SceneModel:
         reach_m: half-size of the workspace box every position is bounded to [m].
         wrist_cut_m: hand vertices closer than this to the wrist plane (rest x) [m] are not
             used as edge vertices (see :attr:`edge_usable`).
+        salient: per hand, the salient vertices (default: the nail centres,
+            :func:`salient_vertices`; a detector trained on other points gives its own).
     """
 
     def __init__(self, hands: Sequence[HandModel], objects: Sequence[SceneObject] = (),
-                 reach_m: float = 3.0, wrist_cut_m: float = 0.015) -> None:
+                 reach_m: float = 3.0, wrist_cut_m: float = 0.015,
+                 salient: Sequence[np.ndarray] | None = None) -> None:
         hands = tuple(hands)
         if not 1 <= len(hands) <= 2 or not all(isinstance(h, HandModel) for h in hands):
             raise ConfigError("a scene holds one or two HandModel hands")
@@ -220,7 +223,11 @@ class SceneModel:
         self.hi.setflags(write=False)
         self.faces: tuple[np.ndarray, ...] = (*(h.faces for h in hands),
                                               *(o.faces for o in self.objects))
-        self.salient: tuple[np.ndarray, ...] = tuple(salient_vertices(h) for h in hands)
+        self.salient: tuple[np.ndarray, ...] = tuple(
+            salient_vertices(h) for h in hands) if salient is None else tuple(
+            np.asarray(s, dtype=np.int64) for s in salient)
+        if len(self.salient) != len(hands):
+            raise ConfigError("give the salient vertices of every hand")
         self.vertex_bones: tuple[np.ndarray, ...] = (
             *(h.vertex_labels for h in hands),
             *(np.zeros(len(o.vertices), dtype=np.int64) for o in self.objects))

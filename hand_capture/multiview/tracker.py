@@ -166,7 +166,9 @@ class MultiviewTracker:
         config: lost / recovery settings.
         detector: salient point detector (``detect(rgb) -> (points, scores)``), or None
             (then detections may be passed to :meth:`step`).
-        initializer: first-frame initialiser (see :data:`Initializer`), or None.
+        initializer: first-frame initialiser (see :data:`Initializer`), or None; one with
+            ``learn(images, model, params)`` is taught on the first tracked frame and one
+            with ``set_prior(params)`` is told the configuration before each search.
     """
 
     def __init__(self, model: SceneModel, rig: Rig, lo_config: LOConfig | None = None,
@@ -211,6 +213,9 @@ class MultiviewTracker:
         if self.params is None:
             self._initialise(images)
         assert self.params is not None and self._last_good is not None
+        learn = getattr(self.initializer, "learn", None)
+        if callable(learn) and self.frames == 0:
+            learn(images, m, self.params)   # e.g. the hull's colour model, on a known frame
         if detections is None and self.detector is not None:
             detections = {c: np.asarray(self.detector.detect(images[c])[0]) for c in present}
         active = [p for p, s in enumerate(self.status) if s != LOST]
@@ -237,7 +242,10 @@ class MultiviewTracker:
             else:
                 self._bad[p] = 0
                 self._last_good[sl] = self.params[sl]
+        prior = getattr(self.initializer, "set_prior", None)
         for p in [p for p, s in enumerate(self.status) if s == LOST and p not in active]:
+            if callable(prior):
+                prior(self.params)
             if self._recover(p, images, frame):
                 recovered.add(p)
                 support[p] = self._recovered_support

@@ -62,7 +62,8 @@ from hand_capture.nodes.params import declare_config
 from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import HAND_LEFT, fill_pose_msg, pose_from_msg
 
-__all__ = ["MultiviewTrackerNode", "MultiviewTrackerNodeConfig", "main", "track_bag"]
+__all__ = ["MultiviewTrackerNode", "MultiviewTrackerNodeConfig", "build_model", "main",
+           "make_tracker", "track_bag"]
 
 
 @dataclass(frozen=True)
@@ -80,19 +81,46 @@ class MultiviewTrackerNodeConfig:
                                    lo=0.01, hi=10.0)
     init_from_truth: bool = param(True, "start from the first hand/pose_truth and "
                                   "object/pose_truth (studio captures)", read_only=True)
+    detector: str = param("learned", "salient points: 'learned' (data/salient, the "
+                          "fingertip detector; about 0.2-0.5 s a view) or 'none'",
+                          choices=("learned", "none"), read_only=True)
+    hull_recovery: bool = param(True, "search for a lost hand also where the visual hull "
+                                "puts it (colour model learned on the first frame)",
+                                read_only=True)
 
     def __post_init__(self) -> None:
         validate(self)
 
 
-def build_model(hands: str, objects: str) -> SceneModel:
-    """The combined model of comma lists of hand sides and object kinds."""
+def build_model(hands: str, objects: str, detector: str = "none") -> SceneModel:
+    """The combined model of comma lists of hand sides and object kinds; with the learned
+    detector its salient vertices are the fingertips the detector was trained on."""
+    from hand_capture.multiview.salient import tip_vertices
+
     sides = [s.strip() for s in hands.split(",") if s.strip()]
     bad = [s for s in sides if s not in ("right", "left")]
     if not sides or bad:
         raise InputError(f"hands must list right and/or left, got {hands!r}")
     kinds = [k.strip() for k in objects.split(",") if k.strip()]
-    return SceneModel([HandModel(side=s) for s in sides], [object_mesh(k) for k in kinds])
+    hm = [HandModel(side=s) for s in sides]
+    return SceneModel(hm, [object_mesh(k) for k in kinds],
+                      salient=[tip_vertices(h) for h in hm] if detector == "learned" else None)
+
+
+def make_tracker(model: SceneModel, rig: Rig, lo_cfg: LOConfig | None = None,
+                 tr_cfg: MultiviewTrackerConfig | None = None, detector: str = "none",
+                 hull_recovery: bool = False) -> MultiviewTracker:
+    """The tracker with the partner components the options ask for."""
+    det = init = None
+    if detector == "learned":
+        from hand_capture.multiview.salient import load_salient_detector
+
+        det = load_salient_detector()
+    if hull_recovery:
+        from hand_capture.multiview.hull import HullInitializer
+
+        init = HullInitializer(rig)
+    return MultiviewTracker(model, rig, lo_cfg, tr_cfg, detector=det, initializer=init)
 
 
 def default_params(model: SceneModel, root: Sequence[float] = (0.0, 0.0, 0.12)) -> np.ndarray:
@@ -167,8 +195,9 @@ class MultiviewTrackerNode(Node):
         lo_cfg = declare_config(self, LOConfig)
         tr_cfg = declare_config(self, MultiviewTrackerConfig)
         self.rig: Rig = load_rig(self.cfg.rig)
-        self.model = build_model(self.cfg.hands, self.cfg.objects)
-        self.tracker = MultiviewTracker(self.model, self.rig, lo_cfg, tr_cfg)
+        self.model = build_model(self.cfg.hands, self.cfg.objects, self.cfg.detector)
+        self.tracker = make_tracker(self.model, self.rig, lo_cfg, tr_cfg, self.cfg.detector,
+                                    self.cfg.hull_recovery)
         self.runner = GroupRunner(self.tracker, lambda s: self.get_logger().warning(
             s, throttle_duration_sec=1.0))
         self._pending: dict[int, dict[str, Any]] = {}
@@ -298,11 +327,13 @@ class TrackBagSummary:
 def track_bag(bag: str | Path, output: str | Path, *, rig: str = "studio6",
               hands: str = "right", objects: str = "box", lo_config: LOConfig | None = None,
               max_groups: int | None = None, overwrite: bool = False,
-              progress: bool = True) -> TrackBagSummary:
+              progress: bool = True, detector: str = "learned",
+              hull_recovery: bool = True) -> TrackBagSummary:
     """Track the ``<camera>/color/image_raw`` groups of a multi-view bag offline and write
     ``/hand/pose`` and ``/object/pose`` (plus the input's truth topics, when present) to a
     new bag at ``output``. The first group starts from the bag's ground truth when it has
-    one, else from :func:`default_params`."""
+    one, else from :func:`default_params`. ``detector`` / ``hull_recovery``: as the node's
+    parameters."""
     import shutil
 
     from rclpy.serialization import serialize_message
@@ -317,8 +348,10 @@ def track_bag(bag: str | Path, output: str | Path, *, rig: str = "studio6",
             raise InputError(f"{out} exists; choose another output or pass --overwrite")
         shutil.rmtree(out)
     r = load_rig(rig)
-    model = build_model(hands, objects)
-    tracker = MultiviewTracker(model, r, lo_config)
+    if detector not in ("learned", "none"):
+        raise InputError(f"detector must be 'learned' or 'none', got {detector!r}")
+    model = build_model(hands, objects, detector)
+    tracker = make_tracker(model, r, lo_config, None, detector, hull_recovery)
     runner = GroupRunner(tracker)
     suffix = "/color/image_raw"
     truth_h: dict[int, list[tuple[float, np.ndarray]]] = {}
