@@ -145,7 +145,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     rig = load_rig(RIG)
     if smoke:
         rig = Rig(rig.name, rig.cameras[:3], rig.world_frame)
-    n = 2 if smoke else 4 if quick else 12
+    n = 2 if smoke else 4 if quick else 10
     seqs = ["box"] if smoke else ["box", "ball"] if quick else ["fingers", "ball", "box"]
     base = LOConfig(iterations=4 if smoke else 10 if quick else 15)
     rows, results = [], {}
