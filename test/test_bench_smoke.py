@@ -34,6 +34,10 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
     "model": (("fk_lbs_ms", "baseline_fk_lbs_ms", "fk_lbs_speedup", "fk_lbs_batch_speedup",
                "fk_lbs_speedup_vs_naive", "vectorised_max_diff_m", "jacobian_speedup",
                "render_fps", "raycast_fps", "render_speedup_vs_raycast"), ()),
+    "multiview": (("lo_full_mean_mm", "lo_full_own_mesh_mean_mm", "lo_ec_mean_mm",
+                   "lo_eco_mean_mm", "isa128_mean_mm", "object_err_mm", "object_err_deg",
+                   "s_per_frame", "isa128_s_per_frame", "render_ms"),
+                  (pytest.mark.slow,)),  # renders and tracks 4 variants
     "pipeline": (("latency_p50_ms", "latency_p99_ms", "fps", "truth_latency_p50_ms",
                   "latency_vs_truth", "lift_mm"), (pytest.mark.slow,)),  # 3 graph runs
     "rig": (("views_per_s", "groups_per_s", "parallel_groups_per_s", "baseline_views_per_s",

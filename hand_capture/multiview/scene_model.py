@@ -177,10 +177,15 @@ class SceneModel:
         hands: one or two :class:`HandModel` (the subjects' shapes), at most one per side.
         objects: the rigid objects (:class:`SceneObject`, e.g. from :func:`object_mesh`).
         reach_m: half-size of the workspace box every position is bounded to [m].
+        wrist_cut_m: hand vertices closer than this to the wrist plane (rest x) [m] are not
+            used as edge vertices (see :attr:`edge_usable`).
+        salient: per hand, the salient vertices (default: the nail centres,
+            :func:`salient_vertices`; a detector trained on other points gives its own).
     """
 
     def __init__(self, hands: Sequence[HandModel], objects: Sequence[SceneObject] = (),
-                 reach_m: float = 3.0) -> None:
+                 reach_m: float = 3.0, wrist_cut_m: float = 0.015,
+                 salient: Sequence[np.ndarray] | None = None) -> None:
         hands = tuple(hands)
         if not 1 <= len(hands) <= 2 or not all(isinstance(h, HandModel) for h in hands):
             raise ConfigError("a scene holds one or two HandModel hands")
@@ -218,12 +223,22 @@ class SceneModel:
         self.hi.setflags(write=False)
         self.faces: tuple[np.ndarray, ...] = (*(h.faces for h in hands),
                                               *(o.faces for o in self.objects))
-        self.salient: tuple[np.ndarray, ...] = tuple(salient_vertices(h) for h in hands)
+        self.salient: tuple[np.ndarray, ...] = tuple(
+            salient_vertices(h) for h in hands) if salient is None else tuple(
+            np.asarray(s, dtype=np.int64) for s in salient)
+        if len(self.salient) != len(hands):
+            raise ConfigError("give the salient vertices of every hand")
         self.vertex_bones: tuple[np.ndarray, ...] = (
             *(h.vertex_labels for h in hands),
             *(np.zeros(len(o.vertices), dtype=np.int64) for o in self.objects))
         self.n_vertices = tuple(len(b) for b in self.vertex_bones)
+        #: per part, the vertices whose outline can be matched to image edges: not the
+        #: hand's wrist cap, where the real forearm continues the silhouette
+        self.edge_usable: tuple[np.ndarray, ...] = (
+            *(h.rest_vertices[:, 0] > wrist_cut_m for h in hands),
+            *(np.ones(len(o.vertices), bool) for o in self.objects))
         self._renderer = ZBufferRenderer(near=0.02)
+        self._edges = tuple(_edge_faces(f) for f in self.faces)
 
     # ------------------------------------------------------------------------ parameters
     def part_index(self, name: str) -> int:
@@ -309,9 +324,15 @@ class SceneModel:
     @staticmethod
     def project(camera: RigCamera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pixels (N, 2) [px] of world points (N, 3) and a (N,) in-front mask (z > 2 cm)."""
-        uv, front = camera.project(np.asarray(points, dtype=float).reshape(-1, 3))
-        z = camera.to_camera(points)[:, 2] if len(points) else np.zeros(0)
-        return uv, front & (z > 0.02)
+        pc = (np.asarray(points, dtype=float).reshape(-1, 3) - camera.t_wc) @ camera.R_wc
+        z = pc[:, 2]
+        front = z > 0.02
+        zs = np.where(front, z, 1.0)
+        x, y = pc[:, 0] / zs, pc[:, 1] / zs
+        k = camera.intrinsics
+        if any(k.distortion):
+            x, y = distort(x, y, k.distortion)
+        return np.stack([k.fx * x + k.cx, k.fy * y + k.cy], axis=1), front
 
     @staticmethod
     def project_jacobian(camera: RigCamera, points: np.ndarray) -> np.ndarray:
@@ -341,16 +362,34 @@ class SceneModel:
         return (f * dd) @ dn @ camera.R_wc.T[None]
 
     # -------------------------------------------------------------------------- rendering
-    def render(self, camera: RigCamera, state: SceneState, scale: float = 1.0) -> SceneRender:
+    def render(self, camera: RigCamera, state: SceneState, scale: float = 1.0,
+               parts: Sequence[int] | None = None) -> SceneRender:
         """Depth and part labels of ``state`` seen by ``camera`` (lens distortion ignored),
-        at ``scale`` times the camera's resolution; see the module docstring for its cost."""
+        at ``scale`` times the camera's resolution, drawing ``parts`` (default: all); see the
+        module docstring for its cost."""
         if not 0.05 <= scale <= 1.0:
             raise InputError(f"render scale must be in [0.05, 1], got {scale}")
         intr = scaled_intrinsics(camera.intrinsics, scale)
-        meshes = [Mesh(camera.to_camera(v), f, label=i + 1, closed=True)
-                  for i, (v, f) in enumerate(zip(state.vertices, self.faces, strict=True))]
+        draw = range(len(self.part_names)) if parts is None else parts
+        meshes = [Mesh(camera.to_camera(state.vertices[i]), self.faces[i], label=i + 1,
+                       closed=True) for i in draw]
         res = self._renderer.render(meshes, intr)
         return SceneRender(res.depth, res.label, scale)
+
+    def contour(self, camera: RigCamera, state: SceneState, part: int) -> np.ndarray:
+        """(V,) bool: the vertices of part ``part`` on its contour seen from ``camera``,
+        i.e. on a mesh edge between a face turned to the camera and one turned away. They
+        project exactly onto the part's outline (where it is not occluded); vertices merely
+        near the rendered outline lie up to a pixel inside it."""
+        v = state.vertices[part]
+        f = self.faces[part]
+        n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        front = np.einsum("ij,ij->i", n, v[f[:, 0]] - camera.t_wc) < 0
+        ev, ef = self._edges[part]
+        on = front[ef[:, 0]] != front[ef[:, 1]]
+        out = np.zeros(len(v), bool)
+        out[ev[on].ravel()] = True
+        return out
 
     def visible(self, camera: RigCamera, state: SceneState, render: SceneRender,
                 part: int, tol_m: float = 0.006) -> tuple[np.ndarray, np.ndarray]:
@@ -373,6 +412,27 @@ class SceneModel:
         seen = (d == 0) | ((lab == part + 1) & (z[idx] <= d + tol_m)) | (z[idx] <= d + 1e-4)
         idx = idx[seen]
         return idx, uv[idx]
+
+
+def _edge_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Interior edges of a triangle mesh: (E, 2) vertex pairs and (E, 2) their two faces
+    (edges with one face or more than two are left out)."""
+    f = np.asarray(faces, dtype=np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    fid = np.tile(np.arange(len(f)), 3)
+    key = np.sort(e, axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    key, fid = key[order], fid[order]
+    same = np.all(key[1:] == key[:-1], axis=1)
+    i = np.flatnonzero(same)
+    # keep pairs that are exactly two faces (not part of a run of three or more)
+    ok = np.ones(len(i), bool)
+    if len(i) > 1:
+        run = np.diff(i) == 1
+        ok[1:] &= ~run
+        ok[:-1] &= ~run
+    i = i[ok]
+    return key[i], np.stack([fid[i], fid[i + 1]], axis=1)
 
 
 def scaled_intrinsics(intr: Intrinsics, scale: float) -> Intrinsics:
