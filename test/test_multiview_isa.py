@@ -97,6 +97,15 @@ def test_every_term_is_lowest_at_the_true_pose(scene_views):
     parts = cost(P, obs, parts=True)
     for term in ("silh", "color", "edge", "total"):
         assert np.all(parts[term][1:] > parts[term][0]), (term, parts[term])
+    # the same with the maps cut to the search box around the scene (what isa_track does)
+    from hand_capture.multiview.imageterms import hand_rois, observe_group
+
+    boxed = observe_group({n: views[n].rgb for n in names}, rig, cm, cfg,
+                          hand_rois(scene, rig, truth))
+    assert all(b.silh.size < o.silh.size for b, o in zip(boxed, obs, strict=True))
+    cut = cost(P, boxed, parts=True)
+    assert np.all(cut["total"][1:] > cut["total"][0])
+    assert np.allclose(cut["color"], parts["color"])
     # weights of eq. (3): 1.0 / 0.6 / 1.0
     cfg = ImageTermsConfig()
     assert cfg.scale == 0.25

@@ -204,6 +204,8 @@ class ObservedView:
         shifted: (k*k, h, w, 3) float32 the image shifted over the colour window.
         inv_w: (k*k,) 1 / w_ij of each shift (eq. 6).
         scale: evaluation scale; ``fx`` etc. of the camera times it.
+        origin: (row, col) of the maps' first pixel in the scaled image (a search box cuts
+            the maps to the part of the image the hands and objects can be in).
     """
 
     camera: RigCamera
@@ -214,6 +216,7 @@ class ObservedView:
     shifted: np.ndarray
     inv_w: np.ndarray
     scale: float
+    origin: tuple[int, int] = (0, 0)
 
 
 def _dt(edges: np.ndarray, clip: float) -> np.ndarray:
@@ -232,8 +235,10 @@ def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel,
     """Precompute one view's observation (see :class:`ObservedView`).
 
     ``roi`` (u0, v0, u1, v1) [px]: the hand's silhouette and edges are looked for only in
-    this box (e.g. around the previous frame's hands), so that skin-coloured clutter
-    elsewhere does not enter eq. (5) and (7).
+    this box (e.g. around the previous frame's hands and objects, :func:`hand_rois`), so
+    that skin-coloured clutter elsewhere does not enter eq. (5) and (7); the maps are cut to
+    the box plus the reach of the distance clip and the colour window (less work per
+    particle; hypotheses must stay inside it).
 
     Raises:
         InputError: not an (H, W, 3) uint8 image of the camera's resolution.
@@ -271,10 +276,18 @@ def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel,
             shifts.append(pad[r + dy: r + dy + h, r + dx: r + dx + w])
             # eq. (6): w_ij = exp(-|i-j|^2), distance in units of the half window
             inv_w.append(np.exp((dy * dy + dx * dx) / max(r, 1) ** 2))
-    return ObservedView(camera, silh, _dt(hand_edges, cfg.edge_clip_px),
-                        _dt(edges, cfg.edge_clip_px), np.argwhere(hand_edges),
-                        np.stack(shifts).astype(np.float32), np.array(inv_w, np.float32),
-                        cfg.scale)
+    d_hand, d_all = _dt(hand_edges, cfg.edge_clip_px), _dt(edges, cfg.edge_clip_px)
+    shifted = np.stack(shifts).astype(np.float32)
+    r0 = c0 = 0
+    if roi is not None:  # every map cut to the box + the reach of the distances and window
+        m = int(np.ceil(cfg.edge_clip_px)) + r + 1
+        r0, c0 = max(v0 - m, 0), max(u0 - m, 0)
+        r1, c1 = min(max(v1 + m + 1, r0 + 1), h), min(max(u1 + m + 1, c0 + 1), w)
+        silh, hand_edges = silh[r0:r1, c0:c1], hand_edges[r0:r1, c0:c1]
+        d_hand, d_all = d_hand[r0:r1, c0:c1], d_all[r0:r1, c0:c1]
+        shifted = shifted[:, r0:r1, c0:c1]
+    return ObservedView(camera, silh, d_hand, d_all, np.argwhere(hand_edges), shifted,
+                        np.array(inv_w, np.float32), cfg.scale, (r0, c0))
 
 
 # ----------------------------------------------------------------------- the terms alone
@@ -413,8 +426,8 @@ class ImageCost:
         inv = 1.0 / np.where(ok, z, 1.0)
         k = cam.intrinsics
         s = view.scale
-        col = np.floor((k.fx * x * inv + k.cx + 0.5) * s).astype(np.int64)
-        row = np.floor((k.fy * y * inv + k.cy + 0.5) * s).astype(np.int64)
+        col = np.floor((k.fx * x * inv + k.cx + 0.5) * s).astype(np.int64) - view.origin[1]
+        row = np.floor((k.fy * y * inv + k.cy + 0.5) * s).astype(np.int64) - view.origin[0]
         ok &= (col >= 0) & (col < w) & (row >= 0) & (row < h)
         flat = np.where(ok, row * w + col, -1).reshape(B, n)
         return flat, z.reshape(B, n), row.reshape(B, n), col.reshape(B, n)
@@ -527,10 +540,11 @@ def observe_group(group: Mapping[str, np.ndarray], rig: object, colour: ColourMo
 
 def hand_rois(scene: object, rig: object, params: np.ndarray, margin_px: float = 40.0
               ) -> dict[str, tuple[float, float, float, float]]:
-    """Per camera the box (u0, v0, u1, v1) [px] around the hands posed at ``params``,
-    widened by ``margin_px`` and by a quarter of its size (the next frame's search area)."""
+    """Per camera the box (u0, v0, u1, v1) [px] around the hands and objects posed at
+    ``params``, widened by ``margin_px`` and by a quarter of its size (the next frame's
+    search area)."""
     state = scene.pose(params)
-    pts = np.concatenate(state.vertices[: scene.n_hands])
+    pts = np.concatenate(state.vertices)
     out = {}
     for cam in rig.cameras:
         uv, front = cam.project(pts)
