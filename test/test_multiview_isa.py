@@ -197,19 +197,29 @@ def test_isa_track_runs_a_short_sequence(scene_views):
 def test_visual_hull_and_icp_recover_the_global_pose():
     from hand_capture.multiview.hull import initialise
     from hand_capture.multiview.rig import load_rig
-    from hand_capture.multiview.scene_model import SceneModel
+    from hand_capture.multiview.scene_model import SceneModel, object_mesh
     from hand_capture.multiview.studio import Studio, studio_scene
 
     rig = load_rig("studio6")
     q = np.zeros(27)                               # the flat hand (sec. 4.3)
     q[:3] = [0.02, -0.03, 0.12]
     q[3:6] = [0.2, -0.1, 0.8]
-    with Studio(rig, studio_scene([]), None) as st:
+    with Studio(rig, studio_scene(["box"]), None) as st:
         st.set_state(q)
         views = st.render_all()
-    scene = SceneModel([HandModel()])
+        box = st.object_pose("box")
+    scene = SceneModel([HandModel()], [object_mesh("box")])
     res = initialise(views, scene, rig, hand_masks={n: v.labels == 1 for n, v in views.items()},
-                     voxel_m=0.008)
+                     voxel_m=0.008,
+                     object_masks={"box": {n: v.labels == 2 for n, v in views.items()}})
+    # the object by the same hull + ICP: its surface within 6 mm (a box: symmetric, so the
+    # surfaces are compared, not the angles)
+    from scipy.spatial import cKDTree
+
+    est = scene.object_transform(res.params[scene.slices["box"]])
+    v = scene.objects[0].vertices
+    d, _ = cKDTree(v @ box[:3, :3].T + box[:3, 3]).query(v @ est[:3, :3].T + est[:3, 3])
+    assert d.mean() < 0.006 and np.linalg.norm(est[:3, 3] - box[:3, 3]) < 0.015
     h = HandModel()
     err = np.linalg.norm(h.joint_positions(res.params[:27]) - h.joint_positions(q), axis=1)
     R = root_rotation_matrix(res.params[3:6]).T @ root_rotation_matrix(q[3:6])
@@ -225,7 +235,7 @@ def test_visual_hull_and_icp_recover_the_global_pose():
     images["cam5"] = None                          # a camera missing from the group
     init = HullInitializer(rig)
     assert init(images, scene, 0) is None          # no colour model yet
-    init.learn(images, scene, scene.pack([q]))
+    init.learn(images, scene, scene.pack([q], [box]))
     init.prior = None
     got = init(images, scene, 0)
     assert got is not None and got.shape == (27,)

@@ -188,13 +188,12 @@ def default_sigma(scene: object, config: ISAConfig | None = None) -> np.ndarray:
     """(n_params,) initial deviations: positions, hand roots and object angles, fingers."""
     cfg = config or ISAConfig()
     s = np.empty(scene.n_params)
-    for i, name in enumerate(scene.part_names):
+    for name in scene.part_names:
         sl = scene.slices[name]
         block = np.full(sl.stop - sl.start, cfg.sigma_finger_rad)
         block[:3] = cfg.sigma_pos_m
         block[3:6] = cfg.sigma_root_rad
         s[sl] = block
-        del i
     return s
 
 
