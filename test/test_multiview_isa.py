@@ -136,9 +136,7 @@ def test_colour_window_and_cut_off():
     cam = ring_rig("c", 1, width=40, height=40).cameras[0]
     img = np.zeros((40, 40, 3), np.uint8)
     img[20, 21] = (255, 0, 0)                 # the red pixel right of the centre
-    cm = ColourModel.__new__(ColourModel)
-    cm.lut = np.zeros((32, 32, 32), bool)
-    v = observe(img, cam, cm, ImageTermsConfig(scale=1.0))
+    v = observe(img, cam, None, ImageTermsConfig(scale=1.0), silhouette=np.zeros((40, 40), bool))
     assert isinstance(v, ObservedView) and len(v.inv_w) == 25
     centre = len(v.inv_w) // 2
     red = np.array([1.0, 0.0, 0.0], np.float32)
@@ -152,10 +150,14 @@ def test_colour_window_and_cut_off():
 
 def test_bad_image_is_refused(scene_views):
     rig, *_ = scene_views
-    cm = ColourModel.__new__(ColourModel)
-    cm.lut = np.zeros((32, 32, 32), bool)
     with pytest.raises(InputError, match="expected"):
-        observe(np.zeros((10, 10, 3), np.uint8), rig.cameras[0], cm)
+        observe(np.zeros((10, 10, 3), np.uint8), rig.cameras[0], None)
+    k = rig.cameras[0].intrinsics
+    img = np.zeros((k.height, k.width, 3), np.uint8)
+    with pytest.raises(InputError, match="colour model or a silhouette"):
+        observe(img, rig.cameras[0], None)
+    with pytest.raises(InputError, match="does not fit"):
+        observe(img, rig.cameras[0], None, silhouette=np.zeros((5, 5), bool))
 
 
 # ------------------------------------------------------------------ ISA
@@ -225,6 +227,12 @@ def test_visual_hull_and_icp_recover_the_global_pose():
     R = root_rotation_matrix(res.params[3:6]).T @ root_rotation_matrix(q[3:6])
     angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
     assert err.mean() < 0.02 and angle < 10.0, (err.mean(), angle)
+    # ISA refinement on eq. (5) + (7) from the ICP result never ends at a higher cost
+    ref = initialise(views, scene, rig, hand_masks={n: v.labels == 1 for n, v in views.items()},
+                     voxel_m=0.008, refine_particles=8, refine_iters=2)
+    assert ref.refined and np.all(ref.params[27:] == 0)   # no object masks: the prior
+    err = np.linalg.norm(h.joint_positions(ref.params[:27]) - h.joint_positions(q), axis=1)
+    assert err.mean() < 0.02
     with pytest.raises(InputError, match="hull"):
         initialise(views, scene, rig,
                    hand_masks={n: np.zeros_like(v.labels, bool) for n, v in views.items()})

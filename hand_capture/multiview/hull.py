@@ -289,22 +289,9 @@ def initialise(group: Mapping[str, object], scene: object, rig: object, *,
         from hand_capture.multiview.imageterms import ImageCost, ImageTermsConfig, observe
         from hand_capture.multiview.isa import ISAConfig, default_sigma, isa_minimise
 
-        class _Masks:  # the given silhouettes as the colour model of eq. (5)
-            def __init__(self, m: Mapping[str, np.ndarray]) -> None:
-                self.m = m
-                self.name = ""
-
-            def silhouette(self, rgb: np.ndarray) -> np.ndarray:
-                return self.m[self.name]
-
-        cm = _Masks(masks)
-        views = []
         tcfg = ImageTermsConfig(w_color=0.0)
-        for name in masks:
-            if name in group:
-                cm.name = name
-                views.append(observe(np.asarray(getattr(group[name], "rgb", group[name])),
-                                     rig.camera(name), cm, tcfg))
+        views = [observe(np.asarray(getattr(group[n], "rgb", group[n])), rig.camera(n), None,
+                         tcfg, silhouette=masks[n]) for n in masks if n in group]
         cost = ImageCost(scene, tcfg)
         sig = default_sigma(scene) * 2.0
         keep = np.zeros(scene.n_params, bool)

@@ -229,10 +229,14 @@ def _dt(edges: np.ndarray, clip: float) -> np.ndarray:
     return np.minimum(d, clip).astype(np.float32)
 
 
-def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel,
+def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel | None,
             config: ImageTermsConfig | None = None,
-            roi: tuple[float, float, float, float] | None = None) -> ObservedView:
+            roi: tuple[float, float, float, float] | None = None,
+            silhouette: np.ndarray | None = None) -> ObservedView:
     """Precompute one view's observation (see :class:`ObservedView`).
+
+    The observed hand silhouette is ``colour.silhouette(rgb)`` (eq. 4), or ``silhouette``
+    (H, W) bool when given (e.g. from background subtraction at the first frame).
 
     ``roi`` (u0, v0, u1, v1) [px]: the hand's silhouette and edges are looked for only in
     this box (e.g. around the previous frame's hands and objects, :func:`hand_rois`), so
@@ -253,7 +257,15 @@ def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel,
                          f"image, got {img.shape} {img.dtype}")
     h, w = max(1, round(k.height * cfg.scale)), max(1, round(k.width * cfg.scale))
     small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
-    silh_full = colour.silhouette(img)
+    if silhouette is not None:
+        silh_full = np.asarray(silhouette, bool)
+        if silh_full.shape != img.shape[:2]:
+            raise InputError(f"camera {camera.name!r}: silhouette {silh_full.shape} does not "
+                             f"fit the image {img.shape[:2]}")
+    elif colour is not None:
+        silh_full = colour.silhouette(img)
+    else:
+        raise InputError("observe needs a colour model or a silhouette")
     silh = cv2.resize(silh_full.astype(np.uint8), (w, h), interpolation=cv2.INTER_AREA) > 0
     if roi is not None:
         keep = np.zeros_like(silh)
