@@ -335,7 +335,8 @@ class HullInitializer:
 
         names = [n for n in self.rig.names if images.get(n) is not None]
         masks = first_frame_masks(model, self.rig, params, names)
-        self.colour = ColourModel.fit([np.asarray(images[n]) for n in names], masks)
+        self.colour = ColourModel.fit([np.asarray(images[n]) for n in names], masks,
+                                      margin_px=3)
         self.prior = np.asarray(params, float).copy()
 
     def set_prior(self, params: np.ndarray) -> None:

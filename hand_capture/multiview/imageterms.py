@@ -161,9 +161,13 @@ class ColourModel:
 
     @classmethod
     def fit(cls, images: Sequence[np.ndarray], hand_masks: Sequence[np.ndarray],
-            components: int = 4, seed: int = 0) -> ColourModel:
+            components: int = 4, seed: int = 0, margin_px: int = 0) -> ColourModel:
         """Fit both mixtures on the first frame: ``images`` (H, W, 3) uint8 and their hand
-        masks (H, W) bool (e.g. the rendered silhouette of the initial pose)."""
+        masks (H, W) bool (e.g. the rendered silhouette of the initial pose). ``margin_px``
+        > 0 leaves out a band that wide on both sides of each mask's outline (a rendered
+        mask of a model that does not fit the subject exactly)."""
+        import cv2
+
         if len(images) != len(hand_masks) or not images:
             raise InputError("ColourModel.fit needs one hand mask per image")
         fg, bg = [], []
@@ -173,8 +177,15 @@ class ColourModel:
             if a.shape[:2] != mask.shape:
                 raise InputError(f"mask {mask.shape} does not fit image {a.shape}")
             px = colour_features(a.reshape(-1, 3).astype(float) / 255.0)
-            fg.append(px[mask.ravel()])
-            bg.append(px[~mask.ravel()][::7])
+            inner, outer = mask, mask
+            if margin_px > 0:
+                k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1,) * 2)
+                inner = cv2.erode(mask.astype(np.uint8), k) > 0
+                outer = cv2.dilate(mask.astype(np.uint8), k) > 0
+                if not inner.any():
+                    inner = mask
+            fg.append(px[inner.ravel()])
+            bg.append(px[~outer.ravel()][::7])
         return cls(SGMM.fit(np.concatenate(fg), components, seed=seed),
                    SGMM.fit(np.concatenate(bg), components, seed=seed + 1))
 

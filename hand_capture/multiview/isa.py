@@ -293,7 +293,7 @@ def isa_track(frames: Sequence[Mapping[str, object]], rig: object, scene: object
     if not names:
         raise InputError("the first group holds none of the rig's cameras")
     colour = ColourModel.fit([g0[n] for n in names], first_frame_masks(scene, rig, p0, names),
-                             seed=seed)
+                             seed=seed, margin_px=3)
     cost_fn = ImageCost(scene, terms)
     views0 = observe_group(g0, rig, colour, cost_fn.config, hand_rois(scene, rig, p0))
     cost_fn.learn_colours(p0, views0)
