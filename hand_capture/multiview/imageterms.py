@@ -413,7 +413,7 @@ class ImageCost:
     # ------------------------------------------------------------------ geometry batches
     def points(self, params: np.ndarray) -> list[np.ndarray]:
         """Splatted points per part (B, n_i, 3) [m, world] of configurations (B, n_params)."""
-        from hand_capture.multiview.scene_model import OBJECT_DOF
+        from hand_capture.model.joints import root_rotation_matrix
 
         sc = self.scene
         P = np.atleast_2d(np.asarray(params, float))
@@ -422,11 +422,8 @@ class ImageCost:
             q = P[:, sc.slices[sc.part_names[i]]]
             out.append(h.vertices(q, self.point_idx[i]))
         for j, o in enumerate(sc.objects):
-            p6 = P[:, sc.slices[o.name]]
-            assert p6.shape[1] == OBJECT_DOF
-            from hand_capture.model.joints import root_rotation_matrix
-
-            R = np.stack([root_rotation_matrix(a) for a in p6[:, 3:6]])
+            p6 = P[:, sc.slices[o.name]]        # position, XYZ angles (SceneModel layout)
+            R = root_rotation_matrix(p6[:, 3:6])                       # (B, 3, 3)
             local = o.vertices[self.point_idx[sc.n_hands + j]]
             out.append(np.einsum("bij,nj->bni", R, local) + p6[:, None, :3])
         return out
