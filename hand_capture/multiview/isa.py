@@ -3,9 +3,10 @@
 Seed 000 tracks the hand and object frame by frame by minimising its image cost, eq. (3)
 (:mod:`hand_capture.multiview.imageterms`), plus a smoothness term on the accelerations,
 ``|q_t - 2 q_{t-1} + q_{t-2}|^2``, with ISA (Gall et al. 2008): particles are sampled around
-the previous frames' estimate (here: its constant-velocity prediction), weighted by the
-annealed cost, resampled and diffused, 25 times with 300 particles; the estimate is the
-weighted mean of the last particle set (here: or the best particle, when its cost is lower).
+the previous frame's estimate (or, as an option, its constant-velocity prediction), weighted
+by the annealed cost, resampled and diffused, 25 times with 300 particles; the estimate is
+the weighted mean of the last particle set (here: or the best particle, when its cost is
+lower).
 
 :func:`isa_minimise` is the optimiser for any batch cost function; :func:`isa_track` runs it
 over a sequence of synchronised colour groups with seed 000's cost (the sampling baseline
@@ -50,12 +51,15 @@ class ISAConfig:
                              hi=5.0)
     min_sigma: float = param(0.03, "floor of the mutation deviation / initial deviation",
                              lo=0.0, hi=1.0)
-    w_smooth: float = param(0.3, "weight of the smoothness term (per parameter, in units of "
-                            "the acceleration scale)", lo=0.0, hi=100.0)
+    w_smooth: float = param(0.1, "weight of the smoothness term (sum over the parameters "
+                            "of the squared acceleration / its scale)", lo=0.0, hi=100.0)
     acc_pos_m: float = param(0.01, "acceleration scale of positions [m / frame^2]",
                              lo=1e-5, hi=1.0)
     acc_ang_rad: float = param(0.15, "acceleration scale of angles [rad / frame^2]",
                                lo=1e-4, hi=3.0)
+    start: str = param("previous", "where a frame's particles start: the previous estimate "
+                       "(seed 000) or its constant-velocity prediction",
+                       choices=("previous", "prediction"))
     sigma_pos_m: float = param(0.01, "initial sampling deviation of positions [m]",
                                lo=1e-5, hi=0.5)
     sigma_root_rad: float = param(0.1, "initial deviation of hand / object angles [rad]",
@@ -208,9 +212,9 @@ def _acc_scale(scene: object, config: ISAConfig) -> np.ndarray:
 def smoothness_term(params: np.ndarray, prev: np.ndarray, prev2: np.ndarray,
                     scale: np.ndarray) -> np.ndarray:
     """Seed 000 sec. 4.3: ``|q_t - 2 q_{t-1} + q_{t-2}|^2`` per particle (B,), each parameter
-    divided by its acceleration scale and the sum by the number of parameters."""
+    divided by its acceleration scale (metres and radians made comparable)."""
     a = (np.atleast_2d(params) - 2.0 * prev + prev2) / scale
-    return np.mean(a * a, axis=1)
+    return np.sum(a * a, axis=1)
 
 
 @dataclass
@@ -314,10 +318,10 @@ def isa_track(frames: Sequence[Mapping[str, object]], rig: object, scene: object
             e = cost_fn(X, views) if views else np.zeros(len(X))
             return e + cfg.w_smooth * smoothness_term(X, prev, prev2, acc)
 
-        # particles start around the constant-velocity prediction, where the smoothness
-        # term is zero; the estimate is the weighted mean, or the best particle if lower
-        pred = scene.clip(2.0 * prev - prev2)
-        res = isa_minimise(cost, pred, sig, scene.lo, scene.hi, config=cfg, seed=rng)
+        # particles start around the previous estimate (or its constant-velocity
+        # prediction); the estimate is the weighted mean, or the best particle if lower
+        start = scene.clip(2.0 * prev - prev2) if cfg.start == "prediction" else prev
+        res = isa_minimise(cost, start, sig, scene.lo, scene.hi, config=cfg, seed=rng)
         x, e = (res.x, res.cost) if res.cost <= res.best_cost else (res.best_x, res.best_cost)
         out.append(x)
         costs.append(e)
