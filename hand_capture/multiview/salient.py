@@ -547,6 +547,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="detector file (default: data/salient/salient.npz; with --quick a "
                          "file in the temporary folder)")
     ap.add_argument("--seed", type=int, default=TRAIN_SEED)
+    ap.add_argument("--trees", type=int, default=None,
+                    help="trees per forest (default: 8; 4 with --quick)")
     a = ap.parse_args(argv)
     import os
     import tempfile
@@ -560,7 +562,10 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     views = list(render_views(n_train, a.seed))
     t1 = time.perf_counter()
-    det = train_detector(views, seed=a.seed, n_trees=4 if a.quick else 8)
+    trees = a.trees if a.trees is not None else 4 if a.quick else 8
+    if not 1 <= trees <= 64:
+        raise InputError(f"--trees must be in [1, 64], got {trees}")
+    det = train_detector(views, seed=a.seed, n_trees=trees)
     from dataclasses import replace
 
     val = list(render_views(max(2, n_train // 6), a.seed + 500))
