@@ -51,7 +51,7 @@ class ISAConfig:
                              hi=5.0)
     min_sigma: float = param(0.03, "floor of the mutation deviation / initial deviation",
                              lo=0.0, hi=1.0)
-    w_smooth: float = param(0.1, "weight of the smoothness term (sum over the parameters "
+    w_smooth: float = param(1.0, "weight of the smoothness term (sum over the parameters "
                             "of the squared acceleration / its scale)", lo=0.0, hi=100.0)
     acc_pos_m: float = param(0.01, "acceleration scale of positions [m / frame^2]",
                              lo=1e-5, hi=1.0)
