@@ -97,6 +97,15 @@ def test_every_term_is_lowest_at_the_true_pose(scene_views):
     parts = cost(P, obs, parts=True)
     for term in ("silh", "color", "edge", "total"):
         assert np.all(parts[term][1:] > parts[term][0]), (term, parts[term])
+    # the same with the maps cut to the search box around the scene (what isa_track does)
+    from hand_capture.multiview.imageterms import hand_rois, observe_group
+
+    boxed = observe_group({n: views[n].rgb for n in names}, rig, cm, cfg,
+                          hand_rois(scene, rig, truth))
+    assert all(b.silh.size < o.silh.size for b, o in zip(boxed, obs, strict=True))
+    cut = cost(P, boxed, parts=True)
+    assert np.all(cut["total"][1:] > cut["total"][0])
+    assert np.allclose(cut["color"], parts["color"])
     # weights of eq. (3): 1.0 / 0.6 / 1.0
     cfg = ImageTermsConfig()
     assert cfg.scale == 0.25
@@ -127,9 +136,7 @@ def test_colour_window_and_cut_off():
     cam = ring_rig("c", 1, width=40, height=40).cameras[0]
     img = np.zeros((40, 40, 3), np.uint8)
     img[20, 21] = (255, 0, 0)                 # the red pixel right of the centre
-    cm = ColourModel.__new__(ColourModel)
-    cm.lut = np.zeros((32, 32, 32), bool)
-    v = observe(img, cam, cm, ImageTermsConfig(scale=1.0))
+    v = observe(img, cam, None, ImageTermsConfig(scale=1.0), silhouette=np.zeros((40, 40), bool))
     assert isinstance(v, ObservedView) and len(v.inv_w) == 25
     centre = len(v.inv_w) // 2
     red = np.array([1.0, 0.0, 0.0], np.float32)
@@ -143,10 +150,14 @@ def test_colour_window_and_cut_off():
 
 def test_bad_image_is_refused(scene_views):
     rig, *_ = scene_views
-    cm = ColourModel.__new__(ColourModel)
-    cm.lut = np.zeros((32, 32, 32), bool)
     with pytest.raises(InputError, match="expected"):
-        observe(np.zeros((10, 10, 3), np.uint8), rig.cameras[0], cm)
+        observe(np.zeros((10, 10, 3), np.uint8), rig.cameras[0], None)
+    k = rig.cameras[0].intrinsics
+    img = np.zeros((k.height, k.width, 3), np.uint8)
+    with pytest.raises(InputError, match="colour model or a silhouette"):
+        observe(img, rig.cameras[0], None)
+    with pytest.raises(InputError, match="does not fit"):
+        observe(img, rig.cameras[0], None, silhouette=np.zeros((5, 5), bool))
 
 
 # ------------------------------------------------------------------ ISA
@@ -188,24 +199,40 @@ def test_isa_track_runs_a_short_sequence(scene_views):
 def test_visual_hull_and_icp_recover_the_global_pose():
     from hand_capture.multiview.hull import initialise
     from hand_capture.multiview.rig import load_rig
-    from hand_capture.multiview.scene_model import SceneModel
+    from hand_capture.multiview.scene_model import SceneModel, object_mesh
     from hand_capture.multiview.studio import Studio, studio_scene
 
     rig = load_rig("studio6")
     q = np.zeros(27)                               # the flat hand (sec. 4.3)
     q[:3] = [0.02, -0.03, 0.12]
     q[3:6] = [0.2, -0.1, 0.8]
-    with Studio(rig, studio_scene([]), None) as st:
+    with Studio(rig, studio_scene(["box"]), None) as st:
         st.set_state(q)
         views = st.render_all()
-    scene = SceneModel([HandModel()])
+        box = st.object_pose("box")
+    scene = SceneModel([HandModel()], [object_mesh("box")])
     res = initialise(views, scene, rig, hand_masks={n: v.labels == 1 for n, v in views.items()},
-                     voxel_m=0.008)
+                     voxel_m=0.008,
+                     object_masks={"box": {n: v.labels == 2 for n, v in views.items()}})
+    # the object by the same hull + ICP: its surface within 6 mm (a box: symmetric, so the
+    # surfaces are compared, not the angles)
+    from scipy.spatial import cKDTree
+
+    est = scene.object_transform(res.params[scene.slices["box"]])
+    v = scene.objects[0].vertices
+    d, _ = cKDTree(v @ box[:3, :3].T + box[:3, 3]).query(v @ est[:3, :3].T + est[:3, 3])
+    assert d.mean() < 0.006 and np.linalg.norm(est[:3, 3] - box[:3, 3]) < 0.015
     h = HandModel()
     err = np.linalg.norm(h.joint_positions(res.params[:27]) - h.joint_positions(q), axis=1)
     R = root_rotation_matrix(res.params[3:6]).T @ root_rotation_matrix(q[3:6])
     angle = np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1)))
     assert err.mean() < 0.02 and angle < 10.0, (err.mean(), angle)
+    # ISA refinement on eq. (5) + (7) from the ICP result never ends at a higher cost
+    ref = initialise(views, scene, rig, hand_masks={n: v.labels == 1 for n, v in views.items()},
+                     voxel_m=0.008, refine_particles=8, refine_iters=2)
+    assert ref.refined and np.all(ref.params[27:] == 0)   # no object masks: the prior
+    err = np.linalg.norm(h.joint_positions(ref.params[:27]) - h.joint_positions(q), axis=1)
+    assert err.mean() < 0.02
     with pytest.raises(InputError, match="hull"):
         initialise(views, scene, rig,
                    hand_masks={n: np.zeros_like(v.labels, bool) for n, v in views.items()})
@@ -216,7 +243,7 @@ def test_visual_hull_and_icp_recover_the_global_pose():
     images["cam5"] = None                          # a camera missing from the group
     init = HullInitializer(rig)
     assert init(images, scene, 0) is None          # no colour model yet
-    init.learn(images, scene, scene.pack([q]))
+    init.learn(images, scene, scene.pack([q], [box]))
     init.prior = None
     got = init(images, scene, 0)
     assert got is not None and got.shape == (27,)
@@ -240,6 +267,8 @@ def test_shipped_detector_finds_fingertips_on_heldout_renders():
     assert r["recall"] >= 0.3 and r["precision"] >= 0.3, r
     pts, sc = det.detect(views[0].rgb)
     assert pts.shape[1] == 2 and len(pts) == len(sc) and np.all(np.diff(sc) <= 0)
+    whole = det.detect(views[0].rgb, crop=False)          # the crop changes nothing
+    assert np.array_equal(pts, whole[0]) and np.allclose(sc, whole[1])
     with pytest.raises(InputError, match="uint8"):
         det.detect(np.zeros((48, 64, 3), np.float32))
     blank = det.detect(np.full((48, 64, 3), 40, np.uint8))   # nothing skin-coloured

@@ -173,7 +173,8 @@ class InitResult:
     Attributes:
         params: (n_params,) the initial configuration.
         hull: (N, 3) the hull's surface points [m, world].
-        rms_m: per initialised hand, the ICP's trimmed RMS distance [m].
+        rms_m: per initialised part (hand index, or n_hands + object index), the ICP's
+            trimmed RMS distance [m].
         refined: whether ISA refined the ICP result.
     """
 
@@ -187,7 +188,9 @@ def initialise(group: Mapping[str, object], scene: object, rig: object, *,
                hand_masks: Mapping[str, np.ndarray] | None = None, colour: object = None,
                prior: np.ndarray | None = None, parts: Sequence[int] | None = None,
                refine_particles: int = 0, refine_iters: int = 10, seed: int = 0,
-               voxel_m: float = 0.006) -> InitResult:
+               voxel_m: float = 0.006,
+               object_masks: Mapping[str, Mapping[str, np.ndarray]] | None = None
+               ) -> InitResult:
     """Initial configuration of hands from one synchronised group (seed 000 sec. 4.3).
 
     Args:
@@ -204,6 +207,9 @@ def initialise(group: Mapping[str, object], scene: object, rig: object, *,
             colour term is left out (its model is learned on this very frame).
         seed: random seed of the refinement.
         voxel_m: voxel size of the hull [m].
+        object_masks: object name -> (camera name -> (H, W) bool silhouette): those objects
+            are placed by the same hull + ICP (their mesh onto their hull); the others keep
+            ``prior``.
 
     Returns:
         the configuration, the hull and the ICP residuals.
@@ -265,28 +271,27 @@ def initialise(group: Mapping[str, object], scene: object, rig: object, *,
         q[3:6] = root_angles_from_matrix(R)
         p[scene.slices[scene.part_names[i]]] = q
         rms[i] = r
+    for name, om in (object_masks or {}).items():
+        j = scene.part_index(name) - scene.n_hands
+        if j < 0:
+            raise InputError(f"object_masks: {name!r} is a hand, not an object")
+        oh = visual_hull({k: v for k, v in om.items() if k in rig.names}, rig, voxel_m=voxel_m,
+                         keep_components=1)
+        if len(oh) < 10:
+            raise InputError(f"the visual hull of object {name!r} has {len(oh)} points")
+        verts = scene.objects[j].vertices
+        R, t, r = register(verts[:: max(1, len(verts) // 600)], oh)
+        p[scene.slices[name]] = np.concatenate([t, root_angles_from_matrix(R)])
+        rms[scene.n_hands + j] = r
     p = scene.clip(p)
     refined = False
     if refine_particles > 0:
         from hand_capture.multiview.imageterms import ImageCost, ImageTermsConfig, observe
         from hand_capture.multiview.isa import ISAConfig, default_sigma, isa_minimise
 
-        class _Masks:  # the given silhouettes as the colour model of eq. (5)
-            def __init__(self, m: Mapping[str, np.ndarray]) -> None:
-                self.m = m
-                self.name = ""
-
-            def silhouette(self, rgb: np.ndarray) -> np.ndarray:
-                return self.m[self.name]
-
-        cm = _Masks(masks)
-        views = []
         tcfg = ImageTermsConfig(w_color=0.0)
-        for name in masks:
-            if name in group:
-                cm.name = name
-                views.append(observe(np.asarray(getattr(group[name], "rgb", group[name])),
-                                     rig.camera(name), cm, tcfg))
+        views = [observe(np.asarray(getattr(group[n], "rgb", group[n])), rig.camera(n), None,
+                         tcfg, silhouette=masks[n]) for n in masks if n in group]
         cost = ImageCost(scene, tcfg)
         sig = default_sigma(scene) * 2.0
         keep = np.zeros(scene.n_params, bool)
@@ -330,7 +335,8 @@ class HullInitializer:
 
         names = [n for n in self.rig.names if images.get(n) is not None]
         masks = first_frame_masks(model, self.rig, params, names)
-        self.colour = ColourModel.fit([np.asarray(images[n]) for n in names], masks)
+        self.colour = ColourModel.fit([np.asarray(images[n]) for n in names], masks,
+                                      margin_px=3)
         self.prior = np.asarray(params, float).copy()
 
     def set_prior(self, params: np.ndarray) -> None:

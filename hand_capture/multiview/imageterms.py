@@ -49,7 +49,8 @@ from hand_capture.errors import InputError
 from hand_capture.multiview.rig import RigCamera
 
 __all__ = ["SGMM", "ColourModel", "ImageCost", "ImageTermsConfig", "ObservedView",
-           "edge_term", "observe", "silhouette_term", "surface_points"]
+           "colour_features", "edge_term", "hand_rois", "observe", "observe_group",
+           "silhouette_term", "surface_points"]
 
 _EPS = 1e-6
 
@@ -68,6 +69,8 @@ class ImageTermsConfig:
     canny_high: float = param(100.0, "Canny upper threshold [grey levels]", lo=1.0, hi=1000.0)
     edge_clip_px: float = param(10.0, "largest edge distance counted, eq. (7) [px at scale]",
                                 lo=1.0, hi=1000.0)
+    depth_edge_m: float = param(0.015, "depth step of a rendered occlusion edge [m]",
+                                lo=0.001, hi=1.0)
     point_spacing_m: float = param(0.005, "spacing of the splatted surface points [m]",
                                    lo=0.001, hi=0.05)
     color_points: int = param(400, "hand points per hand the colour term samples, eq. (6)",
@@ -119,7 +122,7 @@ class SGMM:
             mu = (r.T @ x) / nk[:, None]
             d = np.linalg.norm(x[:, None, :] - mu[None], axis=2)
             # scale: the mean of d^0.8 of the members sets s^0.8 (3/0.8 per 3-D sample)
-            s = np.maximum((0.8 / 3.0 * (r * d ** 0.8).sum(axis=0) / nk) ** (1 / 0.8), 0.01)
+            s = np.maximum((0.8 / 3.0 * (r * d ** 0.8).sum(axis=0) / nk) ** (1 / 0.8), 0.003)
         return cls(mu, lam, s)
 
     def density(self, x: np.ndarray) -> np.ndarray:
@@ -127,6 +130,15 @@ class SGMM:
         x = np.asarray(x, float)
         d = np.linalg.norm(x[..., None, :] - self.mu, axis=-1)
         return np.sum(self.lam / self.s ** 3 * np.exp(-(d / self.s) ** 0.8), axis=-1)
+
+
+def colour_features(rgb: np.ndarray) -> np.ndarray:
+    """The colour coordinates the mixtures of eq. (4) live in, (..., 3) from RGB in [0, 1]:
+    chromaticity r/(r+g+b), g/(r+g+b) and a quarter of the intensity, so that a camera's
+    exposure changes (a common gain) hardly move a colour."""
+    x = np.asarray(rgb, float)
+    tot = x.sum(axis=-1, keepdims=True) + 1e-3
+    return np.concatenate([x[..., :2] / tot, 0.25 * tot / 3.0], axis=-1)
 
 
 class ColourModel:
@@ -144,13 +156,18 @@ class ColourModel:
         n = self.LEVELS
         c = (np.arange(n) + 0.5) / n
         grid = np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1)          # (n, n, n, 3)
-        self.lut = hand.density(grid) > background.density(grid)
+        f = colour_features(grid)
+        self.lut = hand.density(f) > background.density(f)
 
     @classmethod
     def fit(cls, images: Sequence[np.ndarray], hand_masks: Sequence[np.ndarray],
-            components: int = 4, seed: int = 0) -> ColourModel:
+            components: int = 4, seed: int = 0, margin_px: int = 0) -> ColourModel:
         """Fit both mixtures on the first frame: ``images`` (H, W, 3) uint8 and their hand
-        masks (H, W) bool (e.g. the rendered silhouette of the initial pose)."""
+        masks (H, W) bool (e.g. the rendered silhouette of the initial pose). ``margin_px``
+        > 0 leaves out a band that wide on both sides of each mask's outline (a rendered
+        mask of a model that does not fit the subject exactly)."""
+        import cv2
+
         if len(images) != len(hand_masks) or not images:
             raise InputError("ColourModel.fit needs one hand mask per image")
         fg, bg = [], []
@@ -159,9 +176,16 @@ class ColourModel:
             mask = np.asarray(m, bool)
             if a.shape[:2] != mask.shape:
                 raise InputError(f"mask {mask.shape} does not fit image {a.shape}")
-            px = a.reshape(-1, 3).astype(float) / 255.0
-            fg.append(px[mask.ravel()])
-            bg.append(px[~mask.ravel()][::7])
+            px = colour_features(a.reshape(-1, 3).astype(float) / 255.0)
+            inner, outer = mask, mask
+            if margin_px > 0:
+                k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1,) * 2)
+                inner = cv2.erode(mask.astype(np.uint8), k) > 0
+                outer = cv2.dilate(mask.astype(np.uint8), k) > 0
+                if not inner.any():
+                    inner = mask
+            fg.append(px[inner.ravel()])
+            bg.append(px[~outer.ravel()][::7])
         return cls(SGMM.fit(np.concatenate(fg), components, seed=seed),
                    SGMM.fit(np.concatenate(bg), components, seed=seed + 1))
 
@@ -191,6 +215,8 @@ class ObservedView:
         shifted: (k*k, h, w, 3) float32 the image shifted over the colour window.
         inv_w: (k*k,) 1 / w_ij of each shift (eq. 6).
         scale: evaluation scale; ``fx`` etc. of the camera times it.
+        origin: (row, col) of the maps' first pixel in the scaled image (a search box cuts
+            the maps to the part of the image the hands and objects can be in).
     """
 
     camera: RigCamera
@@ -201,6 +227,7 @@ class ObservedView:
     shifted: np.ndarray
     inv_w: np.ndarray
     scale: float
+    origin: tuple[int, int] = (0, 0)
 
 
 def _dt(edges: np.ndarray, clip: float) -> np.ndarray:
@@ -213,9 +240,20 @@ def _dt(edges: np.ndarray, clip: float) -> np.ndarray:
     return np.minimum(d, clip).astype(np.float32)
 
 
-def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel,
-            config: ImageTermsConfig | None = None) -> ObservedView:
+def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel | None,
+            config: ImageTermsConfig | None = None,
+            roi: tuple[float, float, float, float] | None = None,
+            silhouette: np.ndarray | None = None) -> ObservedView:
     """Precompute one view's observation (see :class:`ObservedView`).
+
+    The observed hand silhouette is ``colour.silhouette(rgb)`` (eq. 4), or ``silhouette``
+    (H, W) bool when given (e.g. from background subtraction at the first frame).
+
+    ``roi`` (u0, v0, u1, v1) [px]: the hand's silhouette and edges are looked for only in
+    this box (e.g. around the previous frame's hands and objects, :func:`hand_rois`), so
+    that skin-coloured clutter elsewhere does not enter eq. (5) and (7); the maps are cut to
+    the box plus the reach of the distance clip and the colour window (less work per
+    particle; hypotheses must stay inside it).
 
     Raises:
         InputError: not an (H, W, 3) uint8 image of the camera's resolution.
@@ -230,8 +268,21 @@ def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel,
                          f"image, got {img.shape} {img.dtype}")
     h, w = max(1, round(k.height * cfg.scale)), max(1, round(k.width * cfg.scale))
     small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
-    silh_full = colour.silhouette(img)
+    if silhouette is not None:
+        silh_full = np.asarray(silhouette, bool)
+        if silh_full.shape != img.shape[:2]:
+            raise InputError(f"camera {camera.name!r}: silhouette {silh_full.shape} does not "
+                             f"fit the image {img.shape[:2]}")
+    elif colour is not None:
+        silh_full = colour.silhouette(img)
+    else:
+        raise InputError("observe needs a colour model or a silhouette")
     silh = cv2.resize(silh_full.astype(np.uint8), (w, h), interpolation=cv2.INTER_AREA) > 0
+    if roi is not None:
+        keep = np.zeros_like(silh)
+        u0, v0, u1, v1 = (int(np.floor(c * cfg.scale)) for c in roi)
+        keep[max(v0, 0): max(v1 + 1, 0), max(u0, 0): max(u1 + 1, 0)] = True
+        silh &= keep
     grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
     edges = cv2.Canny(grey, cfg.canny_low, cfg.canny_high) > 0
     # hand edges: the image edges on or next to the observed hand silhouette
@@ -248,10 +299,18 @@ def observe(rgb: np.ndarray, camera: RigCamera, colour: ColourModel,
             shifts.append(pad[r + dy: r + dy + h, r + dx: r + dx + w])
             # eq. (6): w_ij = exp(-|i-j|^2), distance in units of the half window
             inv_w.append(np.exp((dy * dy + dx * dx) / max(r, 1) ** 2))
-    return ObservedView(camera, silh, _dt(hand_edges, cfg.edge_clip_px),
-                        _dt(edges, cfg.edge_clip_px), np.argwhere(hand_edges),
-                        np.stack(shifts).astype(np.float32), np.array(inv_w, np.float32),
-                        cfg.scale)
+    d_hand, d_all = _dt(hand_edges, cfg.edge_clip_px), _dt(edges, cfg.edge_clip_px)
+    shifted = np.stack(shifts).astype(np.float32)
+    r0 = c0 = 0
+    if roi is not None:  # every map cut to the box + the reach of the distances and window
+        m = int(np.ceil(cfg.edge_clip_px)) + r + 1
+        r0, c0 = max(v0 - m, 0), max(u0 - m, 0)
+        r1, c1 = min(max(v1 + m + 1, r0 + 1), h), min(max(u1 + m + 1, c0 + 1), w)
+        silh, hand_edges = silh[r0:r1, c0:c1], hand_edges[r0:r1, c0:c1]
+        d_hand, d_all = d_hand[r0:r1, c0:c1], d_all[r0:r1, c0:c1]
+        shifted = shifted[:, r0:r1, c0:c1]
+    return ObservedView(camera, silh, d_hand, d_all, np.argwhere(hand_edges), shifted,
+                        np.array(inv_w, np.float32), cfg.scale, (r0, c0))
 
 
 # ----------------------------------------------------------------------- the terms alone
@@ -278,6 +337,18 @@ def _border(mask: np.ndarray) -> np.ndarray:
     inner[..., 0, :] = inner[..., -1, :] = False
     inner[..., :, 0] = inner[..., :, -1] = False
     return m & ~inner
+
+
+def _depth_edges(depth: np.ndarray, step_m: float) -> np.ndarray:
+    """Pixels of depth maps (..., h, w) (inf = empty) whose 4-neighbour is nearer by more
+    than ``step_m``: the far side of an occlusion boundary inside the silhouette."""
+    d = np.where(np.isfinite(depth), depth, 1e6)  # empty: far (no inf - inf)
+    out = np.zeros(d.shape, bool)
+    out[..., 1:, :] |= d[..., 1:, :] - d[..., :-1, :] > step_m
+    out[..., :-1, :] |= d[..., :-1, :] - d[..., 1:, :] > step_m
+    out[..., :, 1:] |= d[..., :, 1:] - d[..., :, :-1] > step_m
+    out[..., :, :-1] |= d[..., :, :-1] - d[..., :, 1:] > step_m
+    return out & np.isfinite(depth)
 
 
 def edge_term(hand_edges_r: np.ndarray, view: ObservedView, obj_edges_r: np.ndarray | None,
@@ -342,7 +413,7 @@ class ImageCost:
     # ------------------------------------------------------------------ geometry batches
     def points(self, params: np.ndarray) -> list[np.ndarray]:
         """Splatted points per part (B, n_i, 3) [m, world] of configurations (B, n_params)."""
-        from hand_capture.multiview.scene_model import OBJECT_DOF
+        from hand_capture.model.joints import root_rotation_matrix
 
         sc = self.scene
         P = np.atleast_2d(np.asarray(params, float))
@@ -351,11 +422,8 @@ class ImageCost:
             q = P[:, sc.slices[sc.part_names[i]]]
             out.append(h.vertices(q, self.point_idx[i]))
         for j, o in enumerate(sc.objects):
-            p6 = P[:, sc.slices[o.name]]
-            assert p6.shape[1] == OBJECT_DOF
-            from hand_capture.model.joints import root_rotation_matrix
-
-            R = np.stack([root_rotation_matrix(a) for a in p6[:, 3:6]])
+            p6 = P[:, sc.slices[o.name]]        # position, XYZ angles (SceneModel layout)
+            R = root_rotation_matrix(p6[:, 3:6])                       # (B, 3, 3)
             local = o.vertices[self.point_idx[sc.n_hands + j]]
             out.append(np.einsum("bij,nj->bni", R, local) + p6[:, None, :3])
         return out
@@ -367,15 +435,19 @@ class ImageCost:
         B, n, _ = pts.shape
         cam = view.camera
         h, w = view.silh.shape
-        R = cam.R_wc
-        pc = pts.reshape(-1, 3) @ R - cam.t_wc @ R  # world -> camera (RigCamera.to_camera)
-        z = pc[:, 2]
+        R, t = cam.R_wc, cam.t_wc
+        X, Y, Z = (pts[..., i].reshape(-1) - t[i] for i in range(3))
+        # world -> camera, pc = (p - t) R, column by column (a (N, 3) @ (3, 3) matmul is
+        # several times slower than these three products on this machine)
+        x = X * R[0, 0] + Y * R[1, 0] + Z * R[2, 0]
+        y = X * R[0, 1] + Y * R[1, 1] + Z * R[2, 1]
+        z = X * R[0, 2] + Y * R[1, 2] + Z * R[2, 2]
         ok = z > 0.02
-        zz = np.where(ok, z, 1.0)
+        inv = 1.0 / np.where(ok, z, 1.0)
         k = cam.intrinsics
         s = view.scale
-        col = np.floor((k.fx * pc[:, 0] / zz + k.cx + 0.5) * s).astype(np.int64)
-        row = np.floor((k.fy * pc[:, 1] / zz + k.cy + 0.5) * s).astype(np.int64)
+        col = np.floor((k.fx * x * inv + k.cx + 0.5) * s).astype(np.int64) - view.origin[1]
+        row = np.floor((k.fy * y * inv + k.cy + 0.5) * s).astype(np.int64) - view.origin[0]
         ok &= (col >= 0) & (col < w) & (row >= 0) & (row < h)
         flat = np.where(ok, row * w + col, -1).reshape(B, n)
         return flat, z.reshape(B, n), row.reshape(B, n), col.reshape(B, n)
@@ -389,14 +461,22 @@ class ImageCost:
         m[idx.ravel()] = True
         return m[:-1].reshape(B, h, w)
 
-    def _visible(self, flat: np.ndarray, z: np.ndarray, shape: tuple[int, int],
-                 tol_m: float = 0.012) -> np.ndarray:
-        """(B, n) points not behind the nearest splatted point of their pixel by > tol."""
+    @staticmethod
+    def _zbuffer(flat: np.ndarray, z: np.ndarray, shape: tuple[int, int]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest splatted depth per pixel (B, h, w) [m] (inf where empty) and each point's
+        index into it (B, n) (the dummy last cell for points outside the image)."""
         B = len(flat)
         h, w = shape
         zb = np.full(B * h * w + 1, np.inf)
         idx = np.where(flat >= 0, flat + (np.arange(B) * h * w)[:, None], B * h * w)
         np.minimum.at(zb, idx.ravel(), z.ravel())
+        return zb, idx
+
+    def _visible(self, flat: np.ndarray, z: np.ndarray, shape: tuple[int, int],
+                 tol_m: float = 0.012) -> np.ndarray:
+        """(B, n) points not behind the nearest splatted point of their pixel by > tol."""
+        zb, idx = self._zbuffer(flat, z, shape)
         return (flat >= 0) & (z <= zb[idx] + tol_m)
 
     def learn_colours(self, params: np.ndarray, views: Sequence[ObservedView]) -> None:
@@ -439,15 +519,20 @@ class ImageCost:
         for v in views:
             shape = v.silh.shape
             flat, z, row, col = self._splat(v, hand_pts)
-            S_r = self._masks(flat, shape)
+            zb, zidx = self._zbuffer(flat, z, shape)
+            depth = zb[:-1].reshape(B, *shape)
+            S_r = np.isfinite(depth)
             e_s += silhouette_term(S_r, v.silh)                                  # eq. (5)
             obj_e = None
             if sc.objects:
                 oflat = self._splat(v, np.concatenate(pts[sc.n_hands:], axis=1))[0]
                 obj_e = _border(self._masks(oflat, shape))
-            e_e += edge_term(_border(S_r), v, obj_e, cfg.edge_clip_px)           # eq. (7)
+            # rendered hand edges: the outline and the occlusion boundaries inside it (what
+            # Canny finds in a rendered image: a finger in front of the palm)
+            e_r = _border(S_r) | _depth_edges(depth, cfg.depth_edge_m)
+            e_e += edge_term(e_r, v, obj_e, cfg.edge_clip_px)                    # eq. (7)
             if cols is not None and cfg.w_color > 0:                             # eq. (6)
-                vis = self._visible(flat, z, shape)[:, self.color_sel]
+                vis = ((flat >= 0) & (z <= zb[zidx] + 0.012))[:, self.color_sel]
                 bb, jj = np.nonzero(vis)
                 jj = self.color_sel[jj]
                 obs = v.shifted[:, row[bb, jj], col[bb, jj]]                     # (k*k, m, 3)
@@ -464,6 +549,28 @@ class ImageCost:
 
 
 def observe_group(group: Mapping[str, np.ndarray], rig: object, colour: ColourModel,
-                  config: ImageTermsConfig | None = None) -> list[ObservedView]:
-    """:func:`observe` for every camera of ``rig`` present in ``group`` (name -> rgb)."""
-    return [observe(group[c.name], c, colour, config) for c in rig.cameras if c.name in group]
+                  config: ImageTermsConfig | None = None,
+                  rois: Mapping[str, tuple[float, float, float, float]] | None = None
+                  ) -> list[ObservedView]:
+    """:func:`observe` for every camera of ``rig`` present in ``group`` (name -> rgb), with
+    each camera's ``rois`` entry if given."""
+    return [observe(group[c.name], c, colour, config, (rois or {}).get(c.name))
+            for c in rig.cameras if c.name in group]
+
+
+def hand_rois(scene: object, rig: object, params: np.ndarray, margin_px: float = 40.0
+              ) -> dict[str, tuple[float, float, float, float]]:
+    """Per camera the box (u0, v0, u1, v1) [px] around the hands and objects posed at
+    ``params``, widened by ``margin_px`` and by a quarter of its size (the next frame's
+    search area)."""
+    state = scene.pose(params)
+    pts = np.concatenate(state.vertices)
+    out = {}
+    for cam in rig.cameras:
+        uv, front = cam.project(pts)
+        if not front.any():
+            continue
+        lo, hi = uv[front].min(axis=0), uv[front].max(axis=0)
+        pad = margin_px + 0.25 * (hi - lo)
+        out[cam.name] = (*(lo - pad), *(hi + pad))
+    return out

@@ -3,8 +3,10 @@
 Seed 000 tracks the hand and object frame by frame by minimising its image cost, eq. (3)
 (:mod:`hand_capture.multiview.imageterms`), plus a smoothness term on the accelerations,
 ``|q_t - 2 q_{t-1} + q_{t-2}|^2``, with ISA (Gall et al. 2008): particles are sampled around
-the previous frame's estimate, weighted by the annealed cost, resampled and diffused, 25
-times with 300 particles; the estimate is the weighted mean of the last particle set.
+the previous frame's estimate (or, as an option, its constant-velocity prediction), weighted
+by the annealed cost, resampled and diffused, 25 times with 300 particles; the estimate is
+the weighted mean of the last particle set (here: or the best particle, when its cost is
+lower).
 
 :func:`isa_minimise` is the optimiser for any batch cost function; :func:`isa_track` runs it
 over a sequence of synchronised colour groups with seed 000's cost (the sampling baseline
@@ -49,12 +51,15 @@ class ISAConfig:
                              hi=5.0)
     min_sigma: float = param(0.03, "floor of the mutation deviation / initial deviation",
                              lo=0.0, hi=1.0)
-    w_smooth: float = param(0.3, "weight of the smoothness term (per parameter, in units of "
-                            "the acceleration scale)", lo=0.0, hi=100.0)
+    w_smooth: float = param(0.1, "weight of the smoothness term (sum over the parameters "
+                            "of the squared acceleration / its scale)", lo=0.0, hi=100.0)
     acc_pos_m: float = param(0.01, "acceleration scale of positions [m / frame^2]",
                              lo=1e-5, hi=1.0)
     acc_ang_rad: float = param(0.15, "acceleration scale of angles [rad / frame^2]",
                                lo=1e-4, hi=3.0)
+    start: str = param("previous", "where a frame's particles start: the previous estimate "
+                       "(seed 000) or its constant-velocity prediction",
+                       choices=("previous", "prediction"))
     sigma_pos_m: float = param(0.01, "initial sampling deviation of positions [m]",
                                lo=1e-5, hi=0.5)
     sigma_root_rad: float = param(0.1, "initial deviation of hand / object angles [rad]",
@@ -187,13 +192,12 @@ def default_sigma(scene: object, config: ISAConfig | None = None) -> np.ndarray:
     """(n_params,) initial deviations: positions, hand roots and object angles, fingers."""
     cfg = config or ISAConfig()
     s = np.empty(scene.n_params)
-    for i, name in enumerate(scene.part_names):
+    for name in scene.part_names:
         sl = scene.slices[name]
         block = np.full(sl.stop - sl.start, cfg.sigma_finger_rad)
         block[:3] = cfg.sigma_pos_m
         block[3:6] = cfg.sigma_root_rad
         s[sl] = block
-        del i
     return s
 
 
@@ -208,9 +212,9 @@ def _acc_scale(scene: object, config: ISAConfig) -> np.ndarray:
 def smoothness_term(params: np.ndarray, prev: np.ndarray, prev2: np.ndarray,
                     scale: np.ndarray) -> np.ndarray:
     """Seed 000 sec. 4.3: ``|q_t - 2 q_{t-1} + q_{t-2}|^2`` per particle (B,), each parameter
-    divided by its acceleration scale and the sum by the number of parameters."""
+    divided by its acceleration scale (metres and radians made comparable)."""
     a = (np.atleast_2d(params) - 2.0 * prev + prev2) / scale
-    return np.mean(a * a, axis=1)
+    return np.sum(a * a, axis=1)
 
 
 @dataclass
@@ -275,7 +279,12 @@ def isa_track(frames: Sequence[Mapping[str, object]], rig: object, scene: object
     """
     from dataclasses import replace
 
-    from hand_capture.multiview.imageterms import ColourModel, ImageCost, observe_group
+    from hand_capture.multiview.imageterms import (
+        ColourModel,
+        ImageCost,
+        hand_rois,
+        observe_group,
+    )
 
     if not frames:
         raise InputError("isa_track needs at least one frame")
@@ -288,9 +297,9 @@ def isa_track(frames: Sequence[Mapping[str, object]], rig: object, scene: object
     if not names:
         raise InputError("the first group holds none of the rig's cameras")
     colour = ColourModel.fit([g0[n] for n in names], first_frame_masks(scene, rig, p0, names),
-                             seed=seed)
+                             seed=seed, margin_px=3)
     cost_fn = ImageCost(scene, terms)
-    views0 = observe_group(g0, rig, colour, cost_fn.config)
+    views0 = observe_group(g0, rig, colour, cost_fn.config, hand_rois(scene, rig, p0))
     cost_fn.learn_colours(p0, views0)
     sig = default_sigma(scene, cfg)
     acc = _acc_scale(scene, cfg)
@@ -299,17 +308,22 @@ def isa_track(frames: Sequence[Mapping[str, object]], rig: object, scene: object
     secs = [time.perf_counter() - t0]
     for t in range(1, len(frames)):
         t0 = time.perf_counter()
-        views = observe_group(_rgb_group(frames[t]), rig, colour, cost_fn.config)
         prev = out[-1]
         prev2 = out[-2] if len(out) > 1 else out[-1]
+        views = observe_group(_rgb_group(frames[t]), rig, colour, cost_fn.config,
+                              hand_rois(scene, rig, prev))
 
         def cost(X: np.ndarray, views: list = views, prev: np.ndarray = prev,
                  prev2: np.ndarray = prev2) -> np.ndarray:
             e = cost_fn(X, views) if views else np.zeros(len(X))
             return e + cfg.w_smooth * smoothness_term(X, prev, prev2, acc)
 
-        res = isa_minimise(cost, prev, sig, scene.lo, scene.hi, config=cfg, seed=rng)
-        out.append(res.x)
-        costs.append(res.cost)
+        # particles start around the previous estimate (or its constant-velocity
+        # prediction); the estimate is the weighted mean, or the best particle if lower
+        start = scene.clip(2.0 * prev - prev2) if cfg.start == "prediction" else prev
+        res = isa_minimise(cost, start, sig, scene.lo, scene.hi, config=cfg, seed=rng)
+        x, e = (res.x, res.cost) if res.cost <= res.best_cost else (res.best_x, res.best_cost)
+        out.append(x)
+        costs.append(e)
         secs.append(time.perf_counter() - t0)
     return ISATrackResult(np.array(out), np.array(secs), np.array(costs))

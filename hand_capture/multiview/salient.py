@@ -133,11 +133,13 @@ class SalientDetector:
         return ys.astype(np.intp) * st, xs.astype(np.intp) * st
 
     # ------------------------------------------------------------------------- detect
-    def detect(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def detect(self, rgb: np.ndarray, crop: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Fingertip detections in one colour image.
 
         Args:
             rgb: (H, W, 3) uint8 image.
+            crop: work only in the box around the skin-coloured pixels (same detections,
+                less work; False: the whole image).
 
         Returns:
             (points, scores): (k, 2) pixel positions (u, v) [px, full resolution] and (k,)
@@ -150,7 +152,22 @@ class SalientDetector:
 
         cfg = self.config
         s = cfg.downsample
-        maps = self._channel_maps(rgb)
+        img = _check_rgb(rgb)
+        x0 = y0 = 0
+        if crop and s == 1:  # the box around the skin-coloured pixels + the feature reach
+            q = (img[::cfg.stride, ::cfg.stride] >> 4).astype(np.intp)
+            sk = self.lut[q[..., 0], q[..., 1], q[..., 2]] >= cfg.candidate_prob
+            if not sk.any():
+                return np.zeros((0, 2)), np.zeros(0)
+            r, c = np.nonzero(sk)
+            m = self._pad + 4 + cfg.stride
+            y0, x0 = max(0, r.min() * cfg.stride - m), max(0, c.min() * cfg.stride - m)
+            y1 = min(img.shape[0], r.max() * cfg.stride + m + 1)
+            x1 = min(img.shape[1], c.max() * cfg.stride + m + 1)
+            y0 -= y0 % cfg.stride  # keep the candidate grid of the whole image
+            x0 -= x0 % cfg.stride
+            img = img[y0:y1, x0:x1]
+        maps = self._channel_maps(img)
         ys, xs = self._candidates(maps)
         h, w = maps.shape[1] - 2 * self._pad, maps.shape[2] - 2 * self._pad
         if len(ys) == 0:
@@ -178,7 +195,7 @@ class SalientDetector:
         sc = sm[py, px]
         order = np.argsort(-sc, kind="stable")[: cfg.max_detections]
         pts = np.column_stack([px[order], py[order]]).astype(float) * s + (s - 1) / 2.0
-        return pts, sc[order].astype(float)
+        return pts + np.array([x0, y0], float), sc[order].astype(float)
 
     # ---------------------------------------------------------------------------- I/O
     def save(self, path: str | Path) -> Path:
@@ -530,6 +547,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="detector file (default: data/salient/salient.npz; with --quick a "
                          "file in the temporary folder)")
     ap.add_argument("--seed", type=int, default=TRAIN_SEED)
+    ap.add_argument("--trees", type=int, default=None,
+                    help="trees per forest (default: 8; 4 with --quick)")
     a = ap.parse_args(argv)
     import os
     import tempfile
@@ -543,7 +562,10 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     views = list(render_views(n_train, a.seed))
     t1 = time.perf_counter()
-    det = train_detector(views, seed=a.seed, n_trees=4 if a.quick else 8)
+    trees = a.trees if a.trees is not None else 4 if a.quick else 8
+    if not 1 <= trees <= 64:
+        raise InputError(f"--trees must be in [1, 64], got {trees}")
+    det = train_detector(views, seed=a.seed, n_trees=trees)
     from dataclasses import replace
 
     val = list(render_views(max(2, n_train // 6), a.seed + 500))
