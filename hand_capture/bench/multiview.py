@@ -194,9 +194,9 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         r = _track(seq, model, rig, held[:k], base)
         isa_out["lo_isa_frames_mean_mm"] = float(np.mean(r["joint"]))
         rows.append(_row("LO E+C+O+S (ISA's frames)", "box", r))
-        for n in (64, 128):
+        for n_part in (64, 128):
             t0 = time.process_time()
-            tr = isa.isa_track([f.images for f in held[:k]], rig, model, n_particles=n,
+            tr = isa.isa_track([f.images for f in held[:k]], rig, model, n_particles=n_part,
                                n_iters=25, seed=0, init_params=seq.truth(model, 0))
             cpu = (time.process_time() - t0) / k
             errs: dict[str, list] = {"joint": [], "bone": [], "obj_mm": [], "obj_deg": []}
@@ -205,9 +205,9 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
                     errs[key].append(v)
             rr = {key: np.concatenate(v) for key, v in errs.items()}
             rr["s"], rr["cpu_s"] = tr.s_per_frame, cpu
-            rows.append(_row(f"ISA-{n} (25 iterations)", "box", rr))
-            isa_out[f"isa{n}_mean_mm"] = float(np.mean(rr["joint"]))
-            if n == 128:
+            rows.append(_row(f"ISA-{n_part} (25 iterations)", "box", rr))
+            isa_out[f"isa{n_part}_mean_mm"] = float(np.mean(rr["joint"]))
+            if n_part == 128:
                 isa_out["isa128_s_per_frame"] = tr.s_per_frame
     print_table(f"multi-view tracking, {len(rig)} cameras 640x480, {n} frames per sequence "
                 "(held-out surfaces unless 'own mesh')",

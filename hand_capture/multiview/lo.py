@@ -53,14 +53,14 @@ class LOConfig:
 
     iterations: int = param(15, "outer iterations per frame (render + correspondences)",
                             lo=1, hi=200)
-    inner_steps: int = param(2, "Levenberg-Marquardt steps per outer iteration", lo=1, hi=20)
+    inner_steps: int = param(4, "Levenberg-Marquardt steps per outer iteration", lo=1, hi=20)
     render_scale: float = param(0.5, "resolution of the model renders (share of the image)",
                                 lo=0.1, hi=1.0)
     use_edges: bool = param(True, "edge correspondences E")
     use_flow: bool = param(True, "optical flow correspondences O")
     use_salient: bool = param(True, "salient point correspondences S")
     use_collisions: bool = param(True, "collision term C (eq. 4)")
-    edge_max_px: float = param(20.0, "farthest image edge matched to a model edge [px]",
+    edge_max_px: float = param(30.0, "farthest image edge matched to a model edge [px]",
                                lo=1.0, hi=200.0)
     edges_per_view: int = param(120, "edge correspondences kept per part and camera",
                                 lo=5, hi=5000)
