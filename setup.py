@@ -44,6 +44,7 @@ setup(
         (f"share/{PACKAGE}/config/scenarios", glob("config/scenarios/*.yaml")),
         (f"share/{PACKAGE}/data/touch", glob("data/touch/*.npz")),
         (f"share/{PACKAGE}/data/tracker", glob("data/tracker/*.npz")),
+        (f"share/{PACKAGE}/data/salient", glob("data/salient/*.npz")),
         (f"share/{PACKAGE}/data/teleop", glob("data/teleop/*.npz")),
         (f"share/{PACKAGE}/data/webcam", glob("data/webcam/*.mp4")),
         (f"share/{PACKAGE}/data/grasp", glob("data/grasp/*.npz") + glob("data/grasp/*.json")),

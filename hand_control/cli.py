@@ -7,9 +7,10 @@
     hand-suite bench NAME [--quick | --smoke] | bench --list
     hand-suite capture [-o DIR] [--clip C] [--seconds S] [--fps F] [--shape-seed N]
     hand-suite capture --rig studio6 [-o DIR] [--seconds S] [--fps F] [--objects box]
-    hand-suite train touch|tracker|grasps [ARGS]  fit the touch encodings / the tracker's
-        forest / build the grasp database and the closing-phase models
+    hand-suite train touch|tracker|grasps|salient [ARGS]  fit the touch encodings / the
+        tracker's forest / the grasp database and closing-phase models / the fingertip detector
     hand-suite calibrate rig BAG_OR_DIR -o config/rigs/NAME.yaml [--board 7x5:0.05:0.036]
+    hand-suite track-multiview BAG -o OUT [--rig studio6] [--hands right] [--objects box]
     hand-suite mjcf OUT_DIR [--hand left] [--shape-seed N]   MuJoCo hand.xml + scenes
     hand-suite report BAG [-o DIR]       HTML report of a recorded bag
     hand-suite grasp OBJECT [--grip MODE] [-o OUT] [--play]   grasp synthesis (III.4)
@@ -231,7 +232,7 @@ def _capture_rig(a: argparse.Namespace) -> int:
 
 
 TRAINERS = {"touch": "hand_capture.touch.train", "tracker": "hand_capture.tracking.train",
-            "grasps": "hand_control.grasp.train"}
+            "grasps": "hand_control.grasp.train", "salient": "hand_capture.multiview.salient"}
 
 
 def cmd_train(a: argparse.Namespace) -> int:
@@ -284,6 +285,23 @@ def cmd_calibrate(a: argparse.Namespace) -> int:
         f"written by: hand-suite calibrate rig {a.input} --board {a.board}",
         f"world frame: the board at view {a.reference_view}, z up when it lies face up"])
     print(f"\nwrote {out}")
+    return 0
+
+
+def cmd_track_multiview(a: argparse.Namespace) -> int:
+    from hand_capture.bench import print_table
+    from hand_capture.multiview.lo import LOConfig
+    from hand_capture.nodes.multiview_tracker import track_bag
+
+    res = track_bag(a.bag, a.output, rig=a.rig, hands=a.hands, objects=a.objects,
+                    lo_config=LOConfig(iterations=a.iterations), max_groups=a.max_groups,
+                    overwrite=a.overwrite, detector=a.detector,
+                    hull_recovery=not a.no_hull)
+    err = "no truth in the bag" if res.joint_err_mm is None else f"{res.joint_err_mm:.2f}"
+    print_table(f"track-multiview {a.bag} -> {res.output}",
+                ["groups", "tracked", "rejected", "s/group", "joint err mm", "lost part-frames"],
+                [[res.groups, res.tracked, sum(res.rejected.values()), res.seconds_per_group,
+                  err, res.lost_frames]])
     return 0
 
 
@@ -373,7 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="--rig: rate of a pose file without a time column [Hz]")
     cp.set_defaults(func=cmd_capture)
 
-    tr = sub.add_parser("train", help="train a learned component (touch, tracker, grasps)")
+    tr = sub.add_parser("train",
+                        help="train a learned component (touch, tracker, grasps, salient)")
     tr.add_argument("what")
     tr.add_argument("train_args", nargs=argparse.REMAINDER)
     tr.set_defaults(func=cmd_train)
@@ -390,6 +409,21 @@ def build_parser() -> argparse.ArgumentParser:
                     help="view whose board (lying face up) defines the world frame")
     ca.add_argument("--name", default="", help="rig name (default: the output's stem)")
     ca.set_defaults(func=cmd_calibrate)
+
+    tm = sub.add_parser("track-multiview", help="track hands and objects in a multi-view bag")
+    tm.add_argument("bag", help="bag with <cam>/color/image_raw topics of the rig's cameras")
+    tm.add_argument("-o", "--output", required=True, help="bag to write the estimates to")
+    tm.add_argument("--rig", default="studio6", help="rig name or rig file")
+    tm.add_argument("--hands", default="right", help="right, left or right,left")
+    tm.add_argument("--objects", default="box", help="comma list of object kinds ('' none)")
+    tm.add_argument("--iterations", type=int, default=15, help="outer iterations a frame")
+    tm.add_argument("--max-groups", type=int, default=None, help="track only the first N")
+    tm.add_argument("--overwrite", action="store_true", help="replace -o if it exists")
+    tm.add_argument("--detector", default="learned", choices=["learned", "none"],
+                    help="salient points from the learned fingertip detector, or none")
+    tm.add_argument("--no-hull", action="store_true",
+                    help="search for a lost hand around its last pose only")
+    tm.set_defaults(func=cmd_track_multiview)
 
     mj = sub.add_parser("mjcf", help="write the MuJoCo hand.xml and scenes",
                         add_help=False)

@@ -41,6 +41,10 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                  "pd_only_success", "object_err_mm", "hand_err_mm", "retarget_success",
                  "low_friction_slipped", "dask_speedup_2w"),
                 (pytest.mark.slow,)),  # 3 optimisations + a 1- and a 2-worker Dask cluster
+    "multiview": (("lo_full_mean_mm", "lo_full_own_mesh_mean_mm", "lo_ec_mean_mm",
+                   "lo_eco_mean_mm", "isa128_mean_mm", "object_err_mm", "object_err_deg",
+                   "s_per_frame", "isa128_s_per_frame", "render_ms"),
+                  (pytest.mark.slow,)),  # renders and tracks 4 variants
     "pipeline": (("latency_p50_ms", "latency_p99_ms", "fps", "truth_latency_p50_ms",
                   "latency_vs_truth", "lift_mm"), (pytest.mark.slow,)),  # 3 graph runs
     "retarget": (("tip_err_mm", "joint_map_tip_err_mm", "pinch_err_mm", "joint_map_pinch_err_mm",

@@ -1,0 +1,358 @@
+"""Frame-to-frame multi-view tracking of hands and objects (seed 002 Algorithm 1 per frame).
+
+:class:`MultiviewTracker` holds the combined model's estimate and, per synchronised group of
+images, runs the local optimiser (:mod:`hand_capture.multiview.lo`) from the previous frame's
+estimate (theta_0 of Algorithm 1), with optical flow from the previous group's images.
+
+Lost parts. After each frame every part gets a *support*: the share of its rendered model
+edge vertices (over all cameras) that an image edge of similar orientation lies within
+``support_px`` of. A part with too few model edges in view or too little support for
+``lost_frames`` frames in a row is flagged LOST: its parameters go back to its last good
+estimate, it is no longer optimised nor rendered, and its status and confidence say so (a lost
+part is never reported as tracked). Every frame, each lost part is searched for: candidates
+are its last good pose, that pose shifted by +-``search_m`` along each world axis, and the
+first-frame initialiser's proposal when one is given; the best-supported candidate is refined
+by a short local optimisation and the part is TRACKED again when the support passes
+``recover_support``.
+
+Confidence of a tracked part: its support times the share of the rig's cameras present in
+the group (a camera missing from a group lowers it; tracking continues on the others).
+
+:func:`check_group` screens a group before tracking: a missing camera, an empty or malformed
+image or non-finite calibration drop that camera's view, each counted with its reason; a group
+with no usable view is rejected as a whole.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hand_capture.config import param, validate
+from hand_capture.errors import InputError
+from hand_capture.multiview.lo import LocalOptimizer, LOConfig, LOResult
+from hand_capture.multiview.rig import Rig
+from hand_capture.multiview.scene_model import SceneModel, SceneState
+
+__all__ = ["GroupCheck", "GroupRunner", "LOST", "MultiviewTracker", "MultiviewTrackerConfig",
+           "PartEstimate", "RECOVERED", "TRACKED", "TrackResult", "check_group"]
+
+TRACKED, RECOVERED, LOST = "tracking", "recovering", "lost"
+
+#: a detector of salient image points: ``detect(rgb) -> (points (k, 2) [px], scores (k,))``
+Detector = object
+#: a first-frame initialiser: ``(images, model, part) -> the part's parameters or None``
+Initializer = Callable[[Mapping[str, np.ndarray | None], SceneModel, int], np.ndarray | None]
+
+
+@dataclass(frozen=True)
+class MultiviewTrackerConfig:
+    """Lost-part flagging and recovery (see the module docstring)."""
+
+    lost_support: float = param(0.3, "support below which a frame counts as bad", lo=0.0,
+                                hi=1.0)
+    min_edges: int = param(25, "model edge vertices in view below which a frame is bad",
+                           lo=0, hi=100000)
+    lost_frames: int = param(1, "bad frames in a row that flag a part LOST (1: a bad frame "
+                             "is never reported as tracked)", lo=1, hi=100)
+    recover_support: float = param(0.55, "support a re-found part must reach", lo=0.0,
+                                   hi=1.0)
+    search_m: float = param(0.08, "shift of the recovery candidates along each axis [m]",
+                            lo=0.0, hi=1.0)
+    recover_iterations: int = param(8, "local optimisation iterations of a recovery", lo=1,
+                                    hi=100)
+    predict: float = param(0.0, "share of the last frame-to-frame motion added to the start "
+                           "of the next frame (0: start at the previous estimate, seed 002)",
+                           lo=0.0, hi=1.0)
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+
+@dataclass(frozen=True)
+class PartEstimate:
+    """One part's estimate of a frame.
+
+    Attributes:
+        name: ``'right'``, ``'left'`` or the object's name.
+        status: :data:`TRACKED`, :data:`RECOVERED` (re-found this frame) or :data:`LOST`.
+        confidence: 0..1 (0 when lost).
+        params: the part's parameters (hand: 27-DoF world pose; object: 6 values).
+        support: share of its model edges supported by image edges.
+    """
+
+    name: str
+    status: str
+    confidence: float
+    params: np.ndarray
+    support: float
+
+    @property
+    def tracked(self) -> bool:
+        return self.status != LOST
+
+
+@dataclass
+class TrackResult:
+    """One frame's output of :meth:`MultiviewTracker.step`."""
+
+    params: np.ndarray
+    parts: list[PartEstimate]
+    cameras_present: int
+    seconds: float
+    lo: LOResult | None = None
+    state: SceneState | None = None
+
+
+@dataclass
+class GroupCheck:
+    """Outcome of :func:`check_group`: the usable images (None = dropped) and the reasons."""
+
+    images: dict[str, np.ndarray | None]
+    rejected: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def usable(self) -> int:
+        return sum(v is not None for v in self.images.values())
+
+
+def check_group(rig: Rig, images: Mapping[str, object],
+                infos: Mapping[str, object] | None = None) -> GroupCheck:
+    """Screen one synchronised group: each rig camera's image must be present, an
+    (H, W, 3) uint8 array of the rig's resolution, not empty; its calibration (``infos``:
+    camera -> any of ``k``/``d``/``p`` arrays, e.g. a CameraInfo's fields) finite.
+    Unusable views become None with a reason."""
+    out: dict[str, np.ndarray | None] = {}
+    why: dict[str, str] = {}
+    for cam in rig.cameras:
+        img = images.get(cam.name)
+        reason = ""
+        if img is None:
+            reason = "missing from the group"
+        else:
+            a = np.asarray(img)
+            k = cam.intrinsics
+            if a.size == 0:
+                reason = "empty image"
+            elif a.ndim != 3 or a.shape[2] != 3 or a.dtype != np.uint8:
+                reason = f"not an (H, W, 3) uint8 image: {a.shape} {a.dtype}"
+            elif a.shape[:2] != (k.height, k.width):
+                reason = f"size {a.shape[1]}x{a.shape[0]}, the rig says {k.width}x{k.height}"
+        if not reason and infos is not None and cam.name in infos:
+            info = infos[cam.name]
+            vals = [np.asarray(v, dtype=float).ravel() for v in
+                    (getattr(info, f, None) if not isinstance(info, Mapping) else info.get(f)
+                     for f in ("k", "d", "p")) if v is not None]
+            if any(not np.all(np.isfinite(v)) for v in vals):
+                reason = "non-finite CameraInfo"
+        if reason:
+            out[cam.name] = None
+            why[cam.name] = reason
+        else:
+            out[cam.name] = np.asarray(img)
+    return GroupCheck(out, why)
+
+
+class MultiviewTracker:
+    """Tracks the scene frame to frame; see the module docstring.
+
+    Args:
+        model: the combined model.
+        rig: the cameras (names as in the groups).
+        lo_config: local optimiser settings.
+        config: lost / recovery settings.
+        detector: salient point detector (``detect(rgb) -> (points, scores)``), or None
+            (then detections may be passed to :meth:`step`).
+        initializer: first-frame initialiser (see :data:`Initializer`), or None; one with
+            ``learn(images, model, params)`` is taught on the first tracked frame and one
+            with ``set_prior(params)`` is told the configuration before each search.
+    """
+
+    def __init__(self, model: SceneModel, rig: Rig, lo_config: LOConfig | None = None,
+                 config: MultiviewTrackerConfig | None = None, detector: Detector | None = None,
+                 initializer: Initializer | None = None) -> None:
+        self.model = model
+        self.rig = rig
+        self.lo = LocalOptimizer(model, rig, lo_config)
+        self.cfg = config or MultiviewTrackerConfig()
+        self.detector = detector
+        self.initializer = initializer
+        n = len(model.part_names)
+        self.params: np.ndarray | None = None
+        self.status = [TRACKED] * n
+        self._bad = np.zeros(n, dtype=np.int64)
+        self._last_good: np.ndarray | None = None
+        self._prev: tuple[Mapping[str, np.ndarray | None], SceneState] | None = None
+        self._velocity: np.ndarray | None = None
+        self.frames = 0
+
+    def reset(self, params: np.ndarray) -> None:
+        """Start from a known configuration (the first frame's pose, e.g. from ISA)."""
+        p = self.model.clip(self.model.check(params))
+        self.params = p.copy()
+        self._last_good = p.copy()
+        self.status = [TRACKED] * len(self.model.part_names)
+        self._bad[:] = 0
+        self._prev = None
+        self._velocity = None
+
+    def _slice(self, p: int) -> slice:
+        return self.model.slices[self.model.part_names[p]]
+
+    def step(self, images: Mapping[str, np.ndarray | None],
+             detections: Mapping[str, np.ndarray] | None = None) -> TrackResult:
+        """Track one synchronised group (camera name -> RGB image, None = missing)."""
+        t0 = time.perf_counter()
+        m = self.model
+        present = [c.name for c in self.rig.cameras if images.get(c.name) is not None]
+        if not present:
+            raise InputError("a group with no usable camera image")
+        if self.params is None:
+            self._initialise(images)
+        assert self.params is not None and self._last_good is not None
+        learn = getattr(self.initializer, "learn", None)
+        if callable(learn) and self.frames == 0:
+            learn(images, m, self.params)   # e.g. the hull's colour model, on a known frame
+        if detections is None and self.detector is not None:
+            detections = {c: np.asarray(self.detector.detect(images[c])[0]) for c in present}
+        active = [p for p, s in enumerate(self.status) if s != LOST]
+        frame = self.lo.prepare(images, detections, self._prev, active)
+        res = None
+        if active:
+            start = self.params
+            if self._velocity is not None and self.cfg.predict > 0:
+                start = self.model.clip(self.params + self.cfg.predict * self._velocity)
+            res = self.lo.solve(start, frame, active)
+            self._velocity = res.params - self.params
+            self.params = res.params
+        support = np.zeros(len(m.part_names))
+        recovered: set[int] = set()
+        for p in active:
+            sl = self._slice(p)
+            s, n_edge = float(res.support[p]), float(res.model_edges[p])
+            support[p] = s
+            if n_edge < self.cfg.min_edges or s < self.cfg.lost_support:
+                self._bad[p] += 1
+                if self._bad[p] >= self.cfg.lost_frames:
+                    self.status[p] = LOST
+                    self.params[sl] = self._last_good[sl]
+            else:
+                self._bad[p] = 0
+                self._last_good[sl] = self.params[sl]
+        prior = getattr(self.initializer, "set_prior", None)
+        for p in [p for p, s in enumerate(self.status) if s == LOST and p not in active]:
+            if callable(prior):
+                prior(self.params)
+            if self._recover(p, images, frame):
+                recovered.add(p)
+                support[p] = self._recovered_support
+        share = len(present) / len(self.rig.cameras)
+        parts = []
+        for p, name in enumerate(m.part_names):
+            st = RECOVERED if p in recovered else self.status[p]
+            conf = 0.0 if st == LOST else float(np.clip(support[p] * share, 0.0, 1.0))
+            parts.append(PartEstimate(name, st, conf, self.params[self._slice(p)].copy(),
+                                      float(support[p])))
+        state = m.pose(self.params)
+        self._prev = (dict(images), state)
+        self.frames += 1
+        return TrackResult(self.params.copy(), parts, len(present), time.perf_counter() - t0,
+                           res, state)
+
+    def _initialise(self, images: Mapping[str, np.ndarray | None]) -> None:
+        if self.initializer is None:
+            raise InputError("no initial pose: call reset(params) with the first frame's "
+                             "configuration or give the tracker an initializer")
+        p = np.zeros(self.model.n_params)
+        for k in range(len(self.model.part_names)):
+            got = self.initializer(images, self.model, k)
+            if got is None:
+                raise InputError(f"the initializer found no {self.model.part_names[k]}")
+            p[self._slice(k)] = got
+        self.reset(p)
+
+    def _recover(self, p: int, images: Mapping[str, np.ndarray | None], frame: object) -> bool:
+        """Search for lost part ``p`` around its last good pose (and the initialiser's
+        proposal); True when it is found again."""
+        cfg = self.cfg
+        sl = self._slice(p)
+        base = self._last_good[sl].copy()
+        cands = [base]
+        for ax in range(3):
+            for sgn in (-1.0, 1.0):
+                c = base.copy()
+                c[ax] += sgn * cfg.search_m
+                cands.append(c)
+        if self.initializer is not None:
+            got = self.initializer(images, self.model, p)
+            if got is not None:
+                cands.append(np.asarray(got, dtype=float))
+        tracked = [q for q, s in enumerate(self.status) if s != LOST]
+        best, best_s = None, -1.0
+        for c in cands:
+            x = self.params.copy()
+            x[sl] = c
+            s, n_edge = self.lo.support(x, frame, [*tracked, p])
+            if n_edge[p] >= cfg.min_edges and s[p] > best_s:
+                best, best_s = x, float(s[p])
+        if best is None or best_s < 0.5 * cfg.recover_support:
+            return False
+        res = self.lo.solve(best, frame, [p], iterations=cfg.recover_iterations)
+        if res.model_edges[p] < cfg.min_edges or res.support[p] < cfg.recover_support:
+            return False
+        self.params[sl] = res.params[sl]
+        self._last_good[sl] = res.params[sl]
+        self.status[p] = TRACKED
+        self._bad[p] = 0
+        self._recovered_support = float(res.support[p])
+        return True
+
+
+#: rejection reasons counted by :class:`GroupRunner` (a camera's view, or a whole group)
+REJECT_KEYS = {"missing from the group": "missing_camera", "empty image": "empty_image",
+               "non-finite CameraInfo": "bad_camera_info"}
+
+
+class GroupRunner:
+    """Screens each synchronised group (:func:`check_group`), counts and logs every dropped
+    view by reason (``missing_camera``, ``empty_image``, ``bad_image``, ``bad_camera_info``)
+    and every group with no usable view (``group``), and tracks the rest. The node and the
+    offline tool share it.
+
+    Args:
+        tracker: the tracker.
+        log: called with one line per rejection (default: this module's logger, WARNING).
+    """
+
+    def __init__(self, tracker: MultiviewTracker,
+                 log: Callable[[str], None] | None = None) -> None:
+        import logging
+        from collections import Counter
+
+        self.tracker = tracker
+        self.rejected: Counter[str] = Counter()
+        self.groups = 0
+        self.tracked = 0
+        self._log = log or logging.getLogger(__name__).warning
+
+    def process(self, images: Mapping[str, object], infos: Mapping[str, object] | None = None,
+                stamp: float = 0.0) -> TrackResult | None:
+        """Track one group; None when the whole group was rejected."""
+        self.groups += 1
+        chk = check_group(self.tracker.rig, images, infos)
+        for cam, why in chk.rejected.items():
+            key = REJECT_KEYS.get(why, "bad_image")
+            self.rejected[key] += 1
+            self._log(f"group at {stamp:.3f} s: camera {cam} dropped ({why}); "
+                      f"{key} = {self.rejected[key]}")
+        if chk.usable == 0:
+            self.rejected["group"] += 1
+            self._log(f"group at {stamp:.3f} s rejected: no usable view; "
+                      f"group = {self.rejected['group']}")
+            return None
+        res = self.tracker.step(chk.images)
+        self.tracked += 1
+        return res

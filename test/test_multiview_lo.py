@@ -1,0 +1,227 @@
+"""Multi-view local optimisation (seed 002): the combined model, eq. (3) matching, the
+collision term of eq. (4), Levenberg-Marquardt tracking and the screening of bad groups."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from hand_capture.errors import InputError
+from hand_capture.model import HandModel
+from hand_capture.model.mjcf import home_pose
+from hand_capture.multiview.collision import (
+    CollisionPairs,
+    collision_energy,
+    detect_collisions,
+)
+from hand_capture.multiview.correspondences import match_salient
+from hand_capture.multiview.lo import FrameData, LocalOptimizer, LOConfig
+from hand_capture.multiview.rig import Rig, RigCamera, load_rig, look_at
+from hand_capture.multiview.scene_model import SceneModel, object_mesh
+from hand_capture.multiview.tracker import (
+    GroupRunner,
+    MultiviewTracker,
+    check_group,
+)
+
+
+@pytest.fixture(scope="module")
+def scene() -> SceneModel:
+    return SceneModel([HandModel(), HandModel(side="left")], [object_mesh("ball")])
+
+
+def _params(scene: SceneModel, ball_at=(0.27, 0.02, 0.035)) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    T[:3, 3] = ball_at
+    return scene.pack([home_pose(), home_pose((0.0, 0.3, 0.12))], [T])
+
+
+def test_layout_and_limits(scene):
+    assert scene.n_params == 27 + 27 + 6
+    assert scene.slices["right"] == slice(0, 27) and scene.slices["ball"] == slice(54, 60)
+    assert np.all(scene.lo <= scene.hi)
+    p = _params(scene)
+    assert np.allclose(scene.pose(p).object_poses[0][:3, 3], (0.27, 0.02, 0.035))
+    with pytest.raises(InputError):
+        scene.pose(np.full(scene.n_params, np.nan))
+    with pytest.raises(InputError):
+        scene.pose(p[:-1])
+
+
+@pytest.mark.parametrize("distortion", [(0.0,) * 5, (-0.2, 0.05, 0.001, -0.002, 0.0)])
+def test_projected_vertex_jacobians_match_finite_differences(scene, distortion):
+    """d Pi_c(v_k(theta)) / d theta: analytic chain vs central differences, every part."""
+    from hand_capture.cameras.base import Intrinsics
+
+    pos = np.array([0.6, -0.3, 0.5])
+    cam = RigCamera("c", Intrinsics(640, 480, 520.0, 515.0, 320.0, 240.0,
+                                    distortion=distortion), look_at(pos, (0.1, 0.1, 0.1)), pos)
+    p = _params(scene)
+    p[3:6] = (0.3, -0.4, 0.7)            # a general wrist orientation
+    p[57:60] = (0.4, 0.2, -0.3)          # and object orientation
+    for part in range(3):
+        idx = np.arange(0, scene.n_vertices[part], 53)
+        pts, J = scene.linearize(p, part, idx)
+        analytic = scene.project_jacobian(cam, pts) @ J
+        sl = scene.slices[scene.part_names[part]]
+        h = 1e-6
+        for k in range(sl.stop - sl.start):
+            e = np.zeros(scene.n_params)
+            e[sl.start + k] = h
+            up = scene.project(cam, scene.pose(p + e).vertices[part][idx])[0]
+            dn = scene.project(cam, scene.pose(p - e).vertices[part][idx])[0]
+            fd = (up - dn) / (2 * h)
+            assert np.allclose(analytic[:, :, k], fd, atol=1e-3 * (1 + np.abs(fd).max())), \
+                (scene.part_names[part], k)
+
+
+def test_render_sees_each_part_and_its_visible_vertices(scene):
+    rig = load_rig("studio6")
+    st = scene.pose(_params(scene))
+    ren = scene.render(rig.cameras[0], st, 0.5)
+    assert ren.depth.shape == (240, 320)
+    for part in range(3):
+        assert np.any(ren.labels == part + 1)
+        idx, uv = scene.visible(rig.cameras[0], st, ren, part)
+        # about half a closed surface faces a camera
+        assert 0.2 * scene.n_vertices[part] < len(idx) < 0.8 * scene.n_vertices[part]
+
+
+# --------------------------------------------------------------------------- eq. (3)
+def test_matching_recovers_a_permutation():
+    P = np.array([[100.0, 100.0], [200.0, 120.0], [150.0, 300.0]])
+    s, t = match_salient(P, P[[2, 0, 1]] + 1.0, lam=60.0)
+    assert dict(zip(s.tolist(), t.tolist(), strict=True)) == {0: 1, 1: 2, 2: 0}
+
+
+def test_matching_rejects_a_far_false_detection_and_a_missed_one():
+    P = np.array([[100.0, 100.0], [200.0, 100.0], [300.0, 100.0]])
+    D = np.array([[101.0, 99.0], [299.0, 101.0], [600.0, 400.0]])  # vertex 1 missed
+    s, t = match_salient(P, D, lam=60.0)
+    assert dict(zip(s.tolist(), t.tolist(), strict=True)) == {0: 0, 2: 1}
+
+
+def test_matching_with_more_detections_than_vertices_takes_the_nearest():
+    P = np.array([[100.0, 100.0]])
+    D = np.array([[130.0, 100.0], [104.0, 100.0], [90.0, 130.0], [250.0, 250.0]])
+    s, t = match_salient(P, D, lam=60.0)
+    assert s.tolist() == [0] and t.tolist() == [1]
+
+
+def test_matching_threshold_is_twice_lambda():
+    """Matching a pair costs its distance, leaving both out costs 2 lambda (eq. 3)."""
+    P = np.zeros((1, 2))
+    assert len(match_salient(P, np.array([[110.0, 0.0]]), lam=60.0)[0]) == 1
+    assert len(match_salient(P, np.array([[130.0, 0.0]]), lam=60.0)[0]) == 0
+    assert len(match_salient(np.zeros((0, 2)), np.array([[1.0, 1.0]]))[0]) == 0
+
+
+# --------------------------------------------------------------------------- eq. (4)
+def test_collision_term_is_zero_apart_and_positive_in_contact(scene):
+    parts = [(0, 1), (0, 2), (1, 2)]
+    apart = scene.pose(_params(scene, ball_at=(0.3, -0.3, 0.035)))
+    assert len(detect_collisions(scene, apart, parts)) == 0
+    palm = scene.pose(_params(scene)).keypoints[0][[0, 5, 9, 13, 17]].mean(axis=0)
+    inside = scene.pose(_params(scene, ball_at=palm - np.array([0.0, 0.0, 0.03])))
+    pairs = detect_collisions(scene, inside, parts)
+    assert len(pairs) > 0 and set(pairs.face_part.tolist()) <= {0, 2}
+    assert collision_energy(scene, inside, pairs) > 0.0
+    assert collision_energy(scene, apart, pairs) == 0.0
+
+
+def test_levenberg_marquardt_pushes_colliding_meshes_apart(scene):
+    """With no image evidence, the collision term alone separates a ball sunk 3 cm into
+    the palm: the penetration energy falls (to near zero) and the ball moves out."""
+    p0 = _params(scene)
+    palm = scene.pose(p0).keypoints[0][[0, 5, 9, 13, 17]].mean(axis=0)
+    p = _params(scene, ball_at=palm - np.array([0.0, 0.0, 0.03]))
+    lo = LocalOptimizer(scene, load_rig("studio6"), LOConfig(iterations=8))
+    before = scene.pose(p)
+    pairs = detect_collisions(scene, before, [(0, 2)])
+    e0 = collision_energy(scene, before, pairs)
+    res = lo.solve(p, FrameData({}, {}, _empty_flow()), parts=[0, 2])
+    after = scene.pose(res.params)
+    pairs = pairs.union(detect_collisions(scene, after, [(0, 2)]))
+    assert collision_energy(scene, after, pairs) < 0.05 * e0
+    assert res.collisions > 0
+    moved = res.params[54:57] - p[54:57]
+    assert np.linalg.norm(moved) > 0.005
+
+
+def _empty_flow():
+    from hand_capture.multiview.lo import Correspondences
+
+    return Correspondences.concat([])
+
+
+# --------------------------------------------------------------------------- tracking
+@pytest.fixture(scope="module")
+def clean_box_frames():
+    from hand_capture.multiview.sequences import make_sequence, render_sequence
+
+    rig = load_rig("studio6")
+    seq = make_sequence("box", 3)
+    frames = list(render_sequence(seq, rig, surface="own", noise=False, circles=0,
+                                  salient_miss=0.0, salient_fp=0.0, seed=3))
+    return rig, seq, frames
+
+
+def test_tracks_a_short_clean_sequence_to_a_few_millimetres(clean_box_frames):
+    rig, seq, frames = clean_box_frames
+    model = seq.model()
+    tr = MultiviewTracker(model, rig, LOConfig(iterations=10))
+    start = seq.truth(model, 0)
+    start[:3] += (0.006, -0.004, 0.005)      # a wrong first guess
+    start[6:27] += 0.08
+    tr.reset(start)
+    errs = []
+    for t, fr in enumerate(frames):
+        res = tr.step(fr.images, fr.detections)
+        kt = model.pose(seq.truth(model, t)).keypoints[0]
+        errs.append(np.linalg.norm(res.state.keypoints[0] - kt, axis=1).mean() * 1e3)
+        assert all(p.status == "tracking" for p in res.parts)
+    first = np.linalg.norm(model.pose(start).keypoints[0] -
+                           model.pose(seq.truth(model, 0)).keypoints[0], axis=1).mean() * 1e3
+    assert first > 7.0
+    assert max(errs) < 4.0, errs
+
+
+def test_bad_groups_are_counted_logged_and_lower_confidence(clean_box_frames, caplog):
+    rig, seq, frames = clean_box_frames
+    model = seq.model()
+    tr = MultiviewTracker(model, rig, LOConfig(iterations=3))
+    tr.reset(seq.truth(model, 0))
+    runner = GroupRunner(tr)
+    full = runner.process(frames[0].images, stamp=0.0)
+    images = dict(frames[1].images)
+    images.pop("cam2")                                   # a missing camera
+    images["cam3"] = np.zeros((0, 0, 3), np.uint8)       # an empty image
+    infos = {"cam4": {"k": [np.nan] * 9, "d": [0.0] * 5}}  # NaN calibration
+    with caplog.at_level(logging.WARNING):
+        res = runner.process(images, infos, stamp=0.1)
+    assert res is not None and res.cameras_present == 3
+    assert dict(runner.rejected) == {"missing_camera": 1, "empty_image": 1,
+                                     "bad_camera_info": 1}
+    assert "cam2" in caplog.text and "empty image" in caplog.text
+    assert res.parts[0].confidence < full.parts[0].confidence
+    assert res.parts[0].status == "tracking"
+    none = runner.process({c: None for c in rig.names}, stamp=0.2)
+    assert none is None and runner.rejected["group"] == 1
+    assert runner.tracked == 2
+
+
+def test_check_group_names_each_problem():
+    rig = Rig("r", load_rig("studio6").cameras[:2])
+    ok = np.zeros((480, 640, 3), np.uint8)
+    chk = check_group(rig, {"cam0": ok, "cam1": np.zeros((480, 640), np.uint8)})
+    assert chk.usable == 1 and "uint8" in chk.rejected["cam1"]
+    chk = check_group(rig, {"cam0": np.zeros((240, 320, 3), np.uint8), "cam1": ok})
+    assert "640x480" in chk.rejected["cam0"]
+
+
+def test_collision_pairs_union_drops_duplicates():
+    a = CollisionPairs(*(np.array([x]) for x in (0, 5, 2, 7)))
+    assert len(a.union(a)) == 1 and len(a.union(CollisionPairs.empty())) == 1
