@@ -156,10 +156,10 @@ def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
     """The whole graph with the tracker in the loop (grasp_phase and the controller see only
     the tracked hand/pose, never the camera's ground truth) and the operator's performance made
     from human keyframes, not from the grasp plan: every topic is recorded and the box is
-    lifted and held. The performance lifts it 100 mm; five runs on the loaded 2-core host held
-    it 93-97 mm for 1 s. The simulated wrist follows its command at the grasp (0.1-0.2 deg off
-    in those runs; before the wrist armature was sized from its servo damping, the clamped
-    wrist servos chattered and the wrist swung 27-45 deg off in 2 of 8 runs, which missed)."""
+    lifted and held. The performance lifts it 100 mm; on the loaded 2-core host (load 5-7)
+    four runs held it 93-95 mm for 1 s, the wrist 6-7 deg off its command over the approach
+    (the servos' lag). Before the wrist armature was sized from its servo damping, the clamped
+    wrist servos chattered: 32-93 deg off in five of five runs, and three of four missed."""
     from hand_control.report.series import load_bag, positions
 
     p = hand_suite("run", "teleop", "-p", f"bag_recorder.output:={tmp_path}/bag")
@@ -176,9 +176,9 @@ def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
     held = _held_lift_mm(np.asarray(box.t_ns), positions(box.msgs))
     swing = _root_swing_deg(data)
     # the box held clearly off the table for a second (not flung on release), with the wrist
-    # on its command when the grasp closed
+    # following its command over the approach and the grasp
     assert held > 50.0, (held, swing, out[-4000:])
-    assert swing < 10.0, (held, swing)
+    assert swing < 15.0, (held, swing)
 
 
 def _held_lift_mm(t_ns: np.ndarray, pos: np.ndarray, hold_s: float = 1.0) -> float:
@@ -193,8 +193,9 @@ def _held_lift_mm(t_ns: np.ndarray, pos: np.ndarray, hold_s: float = 1.0) -> flo
 
 def _root_swing_deg(data) -> float:
     """Largest angle [deg] by which the simulated wrist's root hinges were off the last joint
-    command received before each state, around the grasp (0.3 s before to 0.1 s after the
-    first reported manipulation; bag receive times)."""
+    command received before each state, over the approach and the grasp (1.5 s before to
+    0.1 s after the first reported manipulation; bag receive times). It includes the servos'
+    lag (kd / kp = 83 ms with Table 1's wrist gains: 5-7 deg as the approach turns the wrist)."""
     cmd, js = data.topics["control/joint_command"], data.topics["sim/joint_states"]
     ph = data.topics["control/grasp_phase"]
     t_grasp = next((t for t, m in zip(ph.t_ns, ph.msgs, strict=True)
@@ -203,7 +204,7 @@ def _root_swing_deg(data) -> float:
         return 0.0
     c = np.array([m.positions[3:6] for m in cmd.msgs])
     t_js = np.asarray(js.t_ns)
-    near = (t_js > t_grasp - 300_000_000) & (t_js < t_grasp + 100_000_000)
+    near = (t_js > t_grasp - 1_500_000_000) & (t_js < t_grasp + 100_000_000)
     q = np.array([m.position[3:6] for m in js.msgs])[near]
     k = np.searchsorted(np.asarray(cmd.t_ns), t_js[near], side="right") - 1
     ok = k >= 0
