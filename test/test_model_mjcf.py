@@ -26,6 +26,7 @@ from hand_capture.model.mjcf import (
     finger_torque_limits,
     gain_row,
     home_pose,
+    root_rot_armature,
 )
 
 mujoco = pytest.importorskip("mujoco")
@@ -193,6 +194,39 @@ def test_armature_is_small_against_the_links() -> None:
             if "_mcp_" in n or "_tm_" in n]
     assert (FINGER_ARMATURE <= link[root]).all()
     assert FINGER_ARMATURE <= 1e-3 / 50
+
+
+@pytest.mark.parametrize("kd", [None, 200.0])
+def test_a_force_clamped_wrist_servo_saturates_without_chatter(kd: float | None) -> None:
+    """A wrist target 0.5 rad away asks 300 N m of the 20 N m wrist servos. MuJoCo integrates
+    a clamped actuator's damping explicitly; on the hand's own inertia (~1e-3 kg m^2) the Table
+    1 damping (50 N m s/rad) then flipped the torque from one limit to the other 40-240 times
+    in this step response (a moving wrist target, replayed from a teleop run, was lost by
+    67 deg). With the armature sized from the damping (also for a larger kd) the servo pushes
+    one way, at its limit, and arrives."""
+    kp0, kd0 = dof_gains()
+    kd_all = kd0.copy()
+    if kd is not None:
+        kd_all[3:6] = kd
+    m, d = _load(build_scene(("box",), servo_kd=kd_all))
+    np.testing.assert_allclose(m.dof_armature[3:6], root_rot_armature(kd_all[3:6]))
+    assert (kd_all[3:6] * m.opt.timestep <= m.dof_armature[3:6]).all()
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    target = d.ctrl.copy()
+    target[3:6] += (0.5, -0.3, 0.5)
+    d.ctrl[:] = target
+    force = []
+    for _ in range(1500):
+        mujoco.mj_step(m, d)
+        force.append(d.actuator_force[3:6].copy())
+    f = np.array(force)
+    lim = m.actuator_forcerange[3:6, 1]
+    assert np.isclose(np.abs(f[:5]), lim).all()  # the step clamps all three at first
+    flips = ((np.abs(f[1:]) > 0.9 * lim) & (np.abs(f[:-1]) > 0.9 * lim)
+             & (np.sign(f[1:]) != np.sign(f[:-1]))).sum(axis=0)
+    assert (flips == 0).all(), flips  # never from one limit to the other in a step
+    assert np.degrees(np.abs(d.qpos[3:6] - target[3:6])).max() < 2.0
+    assert all(int(w.number) == 0 for w in d.warning)
 
 
 def test_object_spec_validation() -> None:

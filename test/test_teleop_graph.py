@@ -156,12 +156,11 @@ def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
     """The whole graph with the tracker in the loop (grasp_phase and the controller see only
     the tracked hand/pose, never the camera's ground truth) and the operator's performance made
     from human keyframes, not from the grasp plan: every topic is recorded and the box is
-    lifted off the table. On the loaded 2-core host (load average 10-13) four runs lifted it
-    95, 98, 127, 15 and 0 mm: in the last two the simulated wrist's root hinges swung 30-45 deg
-    off their command during the approach (a sim-side issue, open, see the README). The bound
-    is the box clearly off the table (a resting box moves < 1 mm); a miss with such a swing is
-    reported as that known failure (xfail), any other miss fails."""
-    from hand_control.report.series import load_bag, max_lift_mm, positions
+    lifted and held. The performance lifts it 100 mm; on the loaded 2-core host (load 5-7)
+    four runs held it 93-95 mm for 1 s, the wrist 6-7 deg off its command over the approach
+    (the servos' lag). Before the wrist armature was sized from its servo damping, the clamped
+    wrist servos chattered: 32-93 deg off in five of five runs, and three of four missed."""
+    from hand_control.report.series import load_bag, positions
 
     p = hand_suite("run", "teleop", "-p", f"bag_recorder.output:={tmp_path}/bag")
     out, _ = p.communicate(timeout=300)
@@ -173,20 +172,30 @@ def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
     assert not missing, (missing, counts, out[-4000:])
     data = load_bag(tmp_path / "bag", skip=("camera/depth/image_raw", "hand/markers",
                                             "control/contact_markers"))
-    lift = max_lift_mm(positions(data.topics["sim/object_pose"].msgs))
-    if lift <= 10.0 and _root_swing_deg(data) > 15.0:
-        # known and open (README, teleop): the simulated wrist's root hinges swing away from
-        # their command while the approach turns the wrist, and the hand meets the box off
-        # its grasp; any other miss still fails
-        pytest.xfail(f"sim root hinges swung {_root_swing_deg(data):.0f} deg off their "
-                     f"command (lift {lift:.1f} mm)")
-    assert lift > 10.0, (lift, _root_swing_deg(data), out[-4000:])
+    box = data.topics["sim/object_pose"]
+    held = _held_lift_mm(np.asarray(box.t_ns), positions(box.msgs))
+    swing = _root_swing_deg(data)
+    # the box held clearly off the table for a second (not flung on release), with the wrist
+    # following its command over the approach and the grasp
+    assert held > 50.0, (held, swing, out[-4000:])
+    assert swing < 15.0, (held, swing)
+
+
+def _held_lift_mm(t_ns: np.ndarray, pos: np.ndarray, hold_s: float = 1.0) -> float:
+    """Highest rise [mm] of the box above its first position that it kept for ``hold_s``
+    seconds (the lowest rise over each window of that length; receive times)."""
+    t = (t_ns - t_ns[0]) * 1e-9
+    rise = (pos[:, 2] - pos[0, 2]) * 1000.0
+    end = np.searchsorted(t, t + hold_s)
+    return max((float(rise[i:e].min()) for i, e in enumerate(end) if e < len(t)),
+               default=0.0)
 
 
 def _root_swing_deg(data) -> float:
     """Largest angle [deg] by which the simulated wrist's root hinges were off the last joint
-    command received before each state, around the grasp (0.3 s before to 0.1 s after the
-    first reported manipulation; bag receive times)."""
+    command received before each state, over the approach and the grasp (1.5 s before to
+    0.1 s after the first reported manipulation; bag receive times). It includes the servos'
+    lag (kd / kp = 83 ms with Table 1's wrist gains: 5-7 deg as the approach turns the wrist)."""
     cmd, js = data.topics["control/joint_command"], data.topics["sim/joint_states"]
     ph = data.topics["control/grasp_phase"]
     t_grasp = next((t for t, m in zip(ph.t_ns, ph.msgs, strict=True)
@@ -195,7 +204,7 @@ def _root_swing_deg(data) -> float:
         return 0.0
     c = np.array([m.positions[3:6] for m in cmd.msgs])
     t_js = np.asarray(js.t_ns)
-    near = (t_js > t_grasp - 300_000_000) & (t_js < t_grasp + 100_000_000)
+    near = (t_js > t_grasp - 1_500_000_000) & (t_js < t_grasp + 100_000_000)
     q = np.array([m.position[3:6] for m in js.msgs])[near]
     k = np.searchsorted(np.asarray(cmd.t_ns), t_js[near], side="right") - 1
     ok = k >= 0

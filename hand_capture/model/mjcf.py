@@ -27,6 +27,8 @@ joint axes, limits and DoF order), so MuJoCo's ``mj_kinematics`` body positions 
   objects and the table collide with everything.
 * Inertia: finger joints carry an ``armature`` below the MCP links' own inertia
   (:data:`FINGER_ARMATURE`, the reasons there); the servo damping is integrated implicitly.
+  The wrist hinges carry an armature sized from their servos' damping (at least kd x the
+  timestep, :func:`root_rot_armature`), which keeps a force-clamped wrist servo stable.
 """
 
 from __future__ import annotations
@@ -89,8 +91,17 @@ FINGER_ARMATURE: float = 2e-5
 #: noisy-teleop lift of test_teleop_graph.
 HAND_SOLREF: tuple[float, float] = (0.004, 1.0)
 HAND_SOLIMP: tuple[float, float, float] = (0.9, 0.95, 0.001)
-#: wrist rotation armature [kg m^2] (the hand's inertia about the wrist axes: 5e-4 - 3e-3)
-ROOT_ROT_ARMATURE: float = 1e-4
+#: wrist rotation armature [kg m^2], the least one; a root hinge gets
+#: ``max(ROOT_ROT_ARMATURE, kd * TIMESTEP)`` (:func:`root_rot_armature`). The hand's own
+#: inertia about the wrist axes is only 5e-4 - 3e-3, and the servo's damping (Table 1: kd =
+#: 50 N m s/rad) on it is a 20-100 us time constant: stable only while MuJoCo integrates the
+#: damping implicitly, which it does not for an actuator clamped at its force range. Then the
+#: damping acts explicitly, kd dt / I = 15-100 >> 2, and the clamped servo flips between +-20 N
+#: m every step (measured: +-20 rad/s chatter) and loses its joint: replaying a teleop run's
+#: commands, the wrist swung 67 deg off its command (raising the limit makes it diverge). With
+#: kd dt / I <= 1 a clamped servo only saturates; 0.05 kg m^2 is also what a geared wrist drive
+#: reflects (a 5e-6 kg m^2 rotor through a 100:1 gear).
+ROOT_ROT_ARMATURE: float = 0.05
 #: default height of the wrist above the table top at qpos0 [m]
 DEFAULT_ROOT_POS: tuple[float, float, float] = (0.0, 0.0, 0.12)
 #: largest fingertip force of a finger's flexors [N], for the finger torque limits
@@ -343,8 +354,10 @@ def _hand_defaults() -> str:
 """
 
 
-def _hand_body(model: HandModel, root_pos: Sequence[float], indent: str = "    ",
-               gravcomp: bool = False) -> str:
+def _hand_body(model: HandModel, root_pos: Sequence[float], root_kd: np.ndarray,
+               indent: str = "    ", gravcomp: bool = False) -> str:
+    """The hand's bodies and joints; ``root_kd``: (6,) the root servos' damping, which sizes
+    the wrist hinges' armature (:func:`root_rot_armature`)."""
     sk = model.skeleton
     off = model.bone_offsets
     caps_by_bone: dict[int, list] = {}
@@ -391,8 +404,10 @@ def _hand_body(model: HandModel, root_pos: Sequence[float], indent: str = "    "
     for k, ax in enumerate(("1 0 0", "0 1 0", "0 0 1")):
         lines.append(f'{p1}<joint name="{JOINT_NAMES[k]}" class="root_slide" axis="{ax}" '
                      f'ref="{_f(rp[k])}"/>')
+    arm = root_rot_armature(root_kd[3:6])
     for k, ax in enumerate(("1 0 0", "0 1 0", "0 0 1")):
-        lines.append(f'{p1}<joint name="{JOINT_NAMES[3 + k]}" class="root_hinge" axis="{ax}"/>')
+        lines.append(f'{p1}<joint name="{JOINT_NAMES[3 + k]}" class="root_hinge" axis="{ax}" '
+                     f'armature="{_f(arm[k])}"/>')
     geoms(0, p1)
     lines.append(f'{p1}<site name="palm_center" pos="{_v(com)}"/>')
     for c in range(1, N_BONES):
@@ -400,6 +415,13 @@ def _hand_body(model: HandModel, root_pos: Sequence[float], indent: str = "    "
             body(c, p1)
     lines.append(f"{indent}</body>")
     return "\n".join(lines)
+
+
+def root_rot_armature(kd: Sequence[float]) -> np.ndarray:
+    """(3,) armature [kg m^2] of the wrist hinges for their servos' damping ``kd`` (3,) [N m
+    s/rad]: at least ``kd * TIMESTEP``, so that the damping stays stable at the timestep when
+    MuJoCo integrates it explicitly (a force-clamped servo; :data:`ROOT_ROT_ARMATURE`)."""
+    return np.maximum(ROOT_ROT_ARMATURE, np.asarray(kd, dtype=np.float64) * TIMESTEP)
 
 
 def _servo_gains(servo_kp: Sequence[float] | None, servo_kd: Sequence[float] | None
@@ -490,7 +512,7 @@ def build_hand(shape: HandShape | None = None, hand: str = "right",
   <option timestep="{_f(TIMESTEP)}" integrator="implicitfast" cone="elliptic" impratio="10"/>
 {_hand_defaults()}
   <worldbody>
-{_hand_body(model, root_pos)}
+{_hand_body(model, root_pos, kd[:6])}
   </worldbody>
 {_actuators(root_pos, kp, kd, finger_torque_limits(model))}
 {_sensors()}
@@ -631,7 +653,7 @@ def build_scene(objects: Sequence[ObjectSpec | str] = (), shape: HandShape | Non
           contype="1" conaffinity="3"/>
     <geom name="table" type="box" size="0.4 0.4 0.02" pos="0.15 0 -0.02" rgba="0.55 0.4 0.3 1"
           contype="1" conaffinity="3" condim="4" friction="{_f(table_friction)} 0.005 0.0001"/>
-{_hand_body(model, root_pos, gravcomp=hand_gravcomp)}
+{_hand_body(model, root_pos, kd[:6], gravcomp=hand_gravcomp)}
 {objs}
   </worldbody>
 {_actuators(root_pos, kp, kd, finger_torque_limits(model))}
