@@ -171,6 +171,18 @@ def save_capture_npz(c: Capture, path: str | os.PathLike[str]) -> Path:
     return p
 
 
+def read_npz(path: Path, what: str, error: type[Exception]) -> dict[str, np.ndarray]:
+    """Every array of the npz file ``path`` (no pickles), or ``error`` naming the file: missing
+    (``no such {what} file``) or unreadable (``not a readable {what} npz``)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except FileNotFoundError as e:
+        raise error(f"{path}: no such {what} file") from e
+    except (OSError, ValueError, EOFError) as e:
+        raise error(f"{path}: not a readable {what} npz ({e})") from e
+
+
 def load_capture_npz(path: str | os.PathLike[str]) -> Capture:
     """Read a capture written by :func:`save_capture_npz`.
 
@@ -179,13 +191,7 @@ def load_capture_npz(path: str | os.PathLike[str]) -> Capture:
             (the message names the file).
     """
     p = Path(path)
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            d = {k: z[k] for k in z.files}
-    except FileNotFoundError as e:
-        raise CaptureError(f"{p}: no such capture file") from e
-    except (OSError, ValueError, EOFError) as e:
-        raise CaptureError(f"{p}: not a readable capture npz ({e})") from e
+    d = read_npz(p, "capture", CaptureError)
     need = ("name", "times", "hand_q", "object_pose", "obj_kind", "obj_size", "obj_mass",
             "obj_friction")
     missing = [k for k in need if k not in d]

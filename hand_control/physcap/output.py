@@ -47,6 +47,7 @@ from hand_control.physcap.capture import (
     CapturedObject,
     PhysCapConfig,
     PhysCapResult,
+    read_npz,
 )
 
 __all__ = ["OUTPUT_TOPICS", "RESULT_FORMAT", "ResultFiles", "read_result", "replay_contacts",
@@ -130,13 +131,7 @@ def read_result(path: str | Path) -> PhysCapResult:
     path = Path(path)
     if path.is_dir():
         path = result_files(path).npz
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            d = {k: z[k] for k in z.files}
-    except FileNotFoundError as e:
-        raise InputError(f"{path}: no such result file") from e
-    except (OSError, ValueError, EOFError) as e:
-        raise InputError(f"{path}: not a readable result npz ({e})") from e
+    d = read_npz(path, "result", InputError)
     if str(d.get("format", "")) != RESULT_FORMAT:
         raise InputError(f"{path}: not a physcap result (format "
                          f"{str(d.get('format', 'missing'))!r}, expected {RESULT_FORMAT!r})")
