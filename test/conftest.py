@@ -21,6 +21,12 @@ if str(ROOT) not in sys.path:
 
 import time  # noqa: E402  (after the environment set-up above)
 
+from ros_helpers import restore_ctrl_c  # noqa: E402
+
+# Launched in the background by a shell (`cmd &`), this process ignores SIGINT and so would
+# every child a test interrupts: restore Ctrl-C first (see restore_ctrl_c).
+restore_ctrl_c()
+
 import pytest  # noqa: E402
 
 _LOAD_ENV = "HAND_SUITE_TEST_LOAD"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -11,6 +12,20 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
+
+
+def restore_ctrl_c() -> bool:
+    """Give SIGINT back its default (KeyboardInterrupt) handler if it is ignored; True if it was.
+
+    A shell without job control starts a background command (``cmd &``, ``nohup cmd &``) with
+    SIGINT and SIGQUIT ignored, every child inherits that, and Python then installs no
+    KeyboardInterrupt handler: a child that should stop on Ctrl-C ignores the SIGINT a test
+    sends it. Called once from conftest, so the suite behaves the same however it is launched.
+    """
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:
+        return False
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    return True
 
 
 def hand_suite(*args: str, **kwargs: object) -> subprocess.Popen:
