@@ -56,6 +56,16 @@ def pytest_report_header(config: pytest.Config) -> str | None:
 
 
 @pytest.fixture
+def rclpy_up():
+    """rclpy initialised for the test, shut down after it (nodes are the test's own)."""
+    import rclpy
+
+    rclpy.init()
+    yield
+    rclpy.shutdown()
+
+
+@pytest.fixture
 def ros():
     """An in-process ROS graph: yields ``(peer, add, spin_until)``.
 

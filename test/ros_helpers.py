@@ -43,3 +43,18 @@ def wait_for(cond: Callable[[], bool], timeout: float, period: float = 0.05) -> 
             return True
         time.sleep(period)
     return cond()
+
+
+def spin_nodes(nodes: list, seconds: float, until: Callable[[], bool] | None = None) -> None:
+    """Spin ``nodes`` on a fresh single-threaded executor for ``seconds`` [s] or until
+    ``until()`` holds; the nodes are removed from it afterwards."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    ex = SingleThreadedExecutor()
+    for n in nodes:
+        ex.add_node(n)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end and not (until is not None and until()):
+        ex.spin_once(timeout_sec=0.01)
+    for n in nodes:
+        ex.remove_node(n)

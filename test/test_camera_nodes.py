@@ -12,9 +12,9 @@ import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from hand_msgs.msg import HandPose
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
+from ros_helpers import spin_nodes
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -36,13 +36,6 @@ TOPICS = {"camera/depth/image_raw": Image, "camera/depth/camera_info": CameraInf
           "camera/color/image_raw": Image, "camera/color/camera_info": CameraInfo}
 
 
-@pytest.fixture
-def ros():
-    rclpy.init()
-    yield
-    rclpy.shutdown()
-
-
 class _Listener:
     def __init__(self, topics=TOPICS, truth=True):
         self.node = rclpy.create_node("camera_test_listener")
@@ -59,33 +52,22 @@ class _Listener:
                                       self.got["diagnostics"].append, 10)
 
 
-def _spin(nodes, seconds, until=None):
-    ex = SingleThreadedExecutor()
-    for n in nodes:
-        ex.add_node(n)
-    end = time.monotonic() + seconds
-    while time.monotonic() < end and not (until and until()):
-        ex.spin_once(timeout_sec=0.01)
-    for n in nodes:
-        ex.remove_node(n)
-
-
 def _stamp(msg) -> int:
     return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
 
 
-def test_synthetic_camera_node_publishes_at_its_rate_with_consistent_info(ros):
+def test_synthetic_camera_node_publishes_at_its_rate_with_consistent_info(rclpy_up):
     fps = 20.0
     cam = SyntheticCameraNode(parameter_overrides=[
         Parameter("fps", value=fps), Parameter("width", value=160),
         Parameter("height", value=120), Parameter("clip", value="fist"),
         Parameter("noise.flying_prob", value=0.5)])
     lis = _Listener()
-    _spin([cam, lis.node], 0.5)  # discovery
+    spin_nodes([cam, lis.node], 0.5)  # discovery
     for v in lis.got.values():
         v.clear()
     t0 = time.monotonic()
-    _spin([cam, lis.node], 1.5)
+    spin_nodes([cam, lis.node], 1.5)
     dt = time.monotonic() - t0
     n = len(lis.got["camera/depth/image_raw"])
     # behaviour check of the timer configuration: a loose band, no tight timing assert
@@ -119,7 +101,7 @@ def test_synthetic_camera_node_publishes_at_its_rate_with_consistent_info(ros):
     assert 0.3 < m.wrist_pose.position.z < 0.6
     q = m.wrist_pose.orientation
     assert q.x**2 + q.y**2 + q.z**2 + q.w**2 == pytest.approx(1.0)
-    _spin([cam, lis.node], 1.2, until=lambda: bool(lis.got["diagnostics"]))
+    spin_nodes([cam, lis.node], 1.2, until=lambda: bool(lis.got["diagnostics"]))
     st = lis.got["diagnostics"][-1].status[0]
     assert st.name == "synthetic_camera"
     assert {kv.key for kv in st.values} >= {"published", "dropped", "rate_hz"}
@@ -127,13 +109,13 @@ def test_synthetic_camera_node_publishes_at_its_rate_with_consistent_info(ros):
     lis.node.destroy_node()
 
 
-def test_synthetic_camera_node_follows_sim_time(ros):
+def test_synthetic_camera_node_follows_sim_time(rclpy_up):
     cam = SyntheticCameraNode(parameter_overrides=[
         Parameter("use_sim_time", value=True), Parameter("fps", value=10.0),
         Parameter("width", value=80), Parameter("height", value=60)])
     lis = _Listener(topics={"camera/depth/image_raw": Image})
     clock_pub = lis.node.create_publisher(Clock, "/clock", 10)
-    _spin([cam, lis.node], 0.6)
+    spin_nodes([cam, lis.node], 0.6)
     assert not lis.got["camera/depth/image_raw"]  # no /clock yet: time stands still
     sent = []
     for k in range(40):  # 2 s of sim time at 20 Hz
@@ -142,8 +124,8 @@ def test_synthetic_camera_node_follows_sim_time(ros):
         msg.clock.sec, msg.clock.nanosec = divmod(t_ns, 10**9)
         clock_pub.publish(msg)
         sent.append(t_ns)
-        _spin([cam, lis.node], 0.03)
-    _spin([cam, lis.node], 0.3)
+        spin_nodes([cam, lis.node], 0.03)
+    spin_nodes([cam, lis.node], 0.3)
     stamps = [_stamp(m) for m in lis.got["camera/depth/image_raw"]]
     assert stamps, "no frames under sim time"
     assert all(min(sent) <= s <= max(sent) for s in stamps)  # stamped with the sim clock
@@ -152,7 +134,7 @@ def test_synthetic_camera_node_follows_sim_time(ros):
     lis.node.destroy_node()
 
 
-def test_camera_node_missing_devices_give_clear_errors(ros, monkeypatch):
+def test_camera_node_missing_devices_give_clear_errors(rclpy_up, monkeypatch):
     with pytest.raises(DeviceError, match="index 57"):
         CameraNode(parameter_overrides=[Parameter("driver", value="opencv"),
                                         Parameter("opencv.device", value="57"),
@@ -166,7 +148,7 @@ def test_camera_node_missing_devices_give_clear_errors(ros, monkeypatch):
                                            Parameter("retry_s", value=0.05),
                                            Parameter("max_retry_s", value=0.1)])
     lis = _Listener(topics={}, truth=False)
-    _spin([node, lis.node], 2.5, until=lambda: bool(lis.got["diagnostics"]))
+    spin_nodes([node, lis.node], 2.5, until=lambda: bool(lis.got["diagnostics"]))
     node.on_shutdown()
     assert node.supervisor.stats.open_failures >= 2
     st = lis.got["diagnostics"][-1].status[0]
@@ -175,7 +157,7 @@ def test_camera_node_missing_devices_give_clear_errors(ros, monkeypatch):
     lis.node.destroy_node()
 
 
-def test_camera_node_streams_a_uvc_source_and_survives_its_end(ros, tmp_path):
+def test_camera_node_streams_a_uvc_source_and_survives_its_end(rclpy_up, tmp_path):
     path = tmp_path / "cam.avi"
     w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (64, 48))
     for k in range(10):
@@ -187,7 +169,7 @@ def test_camera_node_streams_a_uvc_source_and_survives_its_end(ros, tmp_path):
         Parameter("retry_s", value=0.05), Parameter("max_retry_s", value=0.05)])
     lis = _Listener(topics={"camera/color/image_raw": Image,
                             "camera/color/camera_info": CameraInfo}, truth=False)
-    _spin([node, lis.node], 3.0,
+    spin_nodes([node, lis.node], 3.0,
           until=lambda: node.supervisor.stats.reconnects >= 1
           and len(lis.got["camera/color/image_raw"]) >= 5)
     node.on_shutdown()
@@ -225,7 +207,7 @@ def test_image_and_camera_info_conversions_round_trip():
     assert intrinsics_from_msg(camera_info_msg(intr)) == intr
 
 
-def test_synthetic_camera_holds_the_motion_until_awaited_topics_carry_messages(ros):
+def test_synthetic_camera_holds_the_motion_until_awaited_topics_carry_messages(rclpy_up):
     """wait_for_topics: a publisher alone (a node still setting up) does not start the
     motion; the first message on every awaited topic does, start_delay_s later, and the
     probes are dropped."""
@@ -238,21 +220,21 @@ def test_synthetic_camera_holds_the_motion_until_awaited_topics_carry_messages(r
         Parameter("wait_for_topics", value=["probe/a", "probe/b"]),
         Parameter("start_delay_s", value=0.3)])
     peer = rclpy.create_node("camera_wait_peer")
-    _spin([cam, peer], 0.3)
+    spin_nodes([cam, peer], 0.3)
     assert cam._start_ns is None  # no publishers yet
     pub_a = peer.create_publisher(String, "probe/a", 10)
     pub_b = peer.create_publisher(String, "probe/b", 10)
-    _spin([cam, peer], 0.5, until=lambda: len(cam._waiter.subs) == 2)
+    spin_nodes([cam, peer], 0.5, until=lambda: len(cam._waiter.subs) == 2)
     assert set(cam._waiter.subs) == {"probe/a", "probe/b"}
-    _spin([cam, peer], 0.3)
+    spin_nodes([cam, peer], 0.3)
     assert cam._start_ns is None  # publishers, but no message
     for _ in range(3):
         pub_a.publish(String(data="up"))
-        _spin([cam, peer], 0.1)
+        spin_nodes([cam, peer], 0.1)
     assert cam._start_ns is None and cam._waiter.heard == {"probe/a"}  # b has said nothing
     pub_b.publish(String(data="up"))
     t_heard = time.monotonic()
-    _spin([cam, peer], 2.0, until=lambda: cam._start_ns is not None)
+    spin_nodes([cam, peer], 2.0, until=lambda: cam._start_ns is not None)
     assert cam._start_ns is not None
     assert time.monotonic() - t_heard >= 0.3  # start_delay_s after the last first message
     assert not cam._waiter.subs and cam.count_subscribers("probe/a") == 0

@@ -19,13 +19,6 @@ from hand_capture.errors import BagError
 from hand_capture.nodes.player import PlayerNode
 
 
-@pytest.fixture()
-def ros():
-    rclpy.init()
-    yield
-    rclpy.shutdown()
-
-
 def _play(bag: Path, **params: object) -> tuple[PlayerNode, list[float], list[int], float]:
     """Play ``bag``; returns the node, receive times [s] of hand/pose (the middleware's, so
     that a slow executor on a loaded machine does not shift them), /clock stamps [ns], and the
@@ -59,7 +52,7 @@ def _play(bag: Path, **params: object) -> tuple[PlayerNode, list[float], list[in
     return player, times, clocks, elapsed
 
 
-def test_rate_scales_timing_and_clock_follows_bag_time(ros, tmp_path: Path) -> None:
+def test_rate_scales_timing_and_clock_follows_bag_time(rclpy_up, tmp_path: Path) -> None:
     bag = tmp_path / "s"
     write_sample_bag(bag, duration=2.0, rate=30.0)
     player, times, clocks, _ = _play(bag, rate=2.0)
@@ -73,7 +66,7 @@ def test_rate_scales_timing_and_clock_follows_bag_time(ros, tmp_path: Path) -> N
     assert clocks == sorted(clocks)
 
 
-def test_start_skips_the_beginning(ros, tmp_path: Path) -> None:
+def test_start_skips_the_beginning(rclpy_up, tmp_path: Path) -> None:
     bag = tmp_path / "s"
     write_sample_bag(bag, duration=2.0, rate=30.0)
     player, times, _, _ = _play(bag, start=1.0, rate=4.0)
@@ -81,7 +74,7 @@ def test_start_skips_the_beginning(ros, tmp_path: Path) -> None:
     assert len(times) == pytest.approx(30, abs=1)
 
 
-def test_corrupt_message_stops_playback_before_publishing_it(ros, tmp_path: Path) -> None:
+def test_corrupt_message_stops_playback_before_publishing_it(rclpy_up, tmp_path: Path) -> None:
     from rclpy.serialization import serialize_message
 
     bag = tmp_path / "c"
@@ -96,7 +89,7 @@ def test_corrupt_message_stops_playback_before_publishing_it(ros, tmp_path: Path
     assert len(times) == 5
 
 
-def test_corrupt_first_message_refused_at_start(ros, tmp_path: Path) -> None:
+def test_corrupt_first_message_refused_at_start(rclpy_up, tmp_path: Path) -> None:
     bag = tmp_path / "c"
     w = BagWriter(bag)
     w.add_topic("/hand/pose", "hand_msgs/msg/HandPose")
@@ -106,7 +99,7 @@ def test_corrupt_first_message_refused_at_start(ros, tmp_path: Path) -> None:
         PlayerNode(parameter_overrides=[Parameter("bag", value=str(bag))])
 
 
-def test_mcap_without_qos_metadata_is_played(ros, tmp_path: Path) -> None:
+def test_mcap_without_qos_metadata_is_played(rclpy_up, tmp_path: Path) -> None:
     """Issue #20 item 10: an MCAP file from the mcap tools (no QoS metadata, channels not
     repeated in the summary) was refused as a 'truncated bag'."""
     from mcap.writer import Writer
@@ -146,7 +139,7 @@ def test_mcap_without_qos_metadata_is_played(ros, tmp_path: Path) -> None:
             n.destroy_node()
 
 
-def test_latched_topic_is_replayed_transient_local(ros, tmp_path: Path) -> None:
+def test_latched_topic_is_replayed_transient_local(rclpy_up, tmp_path: Path) -> None:
     """Issue #20 item 10: hand/shape (recorded transient local) reaches a subscriber that
     joins after the player published it."""
     from hand_msgs.msg import HandShape
@@ -208,7 +201,7 @@ def test_damaged_bag_given_to_play_is_one_line(tmp_path: Path) -> None:
 
 
 def test_player_holds_its_first_message_until_the_awaited_topic_answers(
-        ros, tmp_path: Path) -> None:
+        rclpy_up, tmp_path: Path) -> None:
     """wait_for_topics: the first message is held (published again and again) and nothing
     else is played until a message arrives on the awaited topic; then the whole bag plays."""
     from std_msgs.msg import String

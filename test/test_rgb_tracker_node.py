@@ -4,7 +4,6 @@ bad input (NaN CameraInfo, empty image) counted and rejected without crashing.""
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -12,19 +11,12 @@ import rclpy
 from builtin_interfaces.msg import Time
 from hand_msgs.msg import HandKeypoints, HandPose
 from hand_msgs.msg import HandShape as HandShapeMsg
-from rclpy.executors import SingleThreadedExecutor
+from ros_helpers import spin_nodes
 
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
 from hand_capture.model import ARTICULATED_JOINTS, sample_shape
 from hand_capture.nodes.images import camera_info_msg, depth_image_msg, rgb_image_msg
 from hand_capture.nodes.rgb_tracker import RgbTrackerNode
-
-
-@pytest.fixture
-def ros():
-    rclpy.init()
-    yield
-    rclpy.shutdown()
 
 
 @pytest.fixture(scope="module")
@@ -35,18 +27,7 @@ def frames():
     return [cam.render(t) for t in (1.0, 1.1, 1.2)]
 
 
-def _spin(nodes, seconds, until):
-    ex = SingleThreadedExecutor()
-    for n in nodes:
-        ex.add_node(n)
-    end = time.monotonic() + seconds
-    while time.monotonic() < end and not until():
-        ex.spin_once(timeout_sec=0.01)
-    for n in nodes:
-        ex.remove_node(n)
-
-
-def test_rgb_tracker_publishes_pose_and_keypoints_with_the_image_stamp(ros, frames):
+def test_rgb_tracker_publishes_pose_and_keypoints_with_the_image_stamp(rclpy_up, frames):
     node = RgbTrackerNode()
     io = rclpy.create_node("rgb_tracker_test_io")
     poses: list[HandPose] = []
@@ -58,7 +39,7 @@ def test_rgb_tracker_publishes_pose_and_keypoints_with_the_image_stamp(ros, fram
     node._on_info(camera_info_msg(intr, stamps[0]))
     results = [node.process(rgb_image_msg(f.color, s, intr.frame_id))
                for f, s in zip(frames, stamps, strict=True)]
-    _spin([node, io], 10.0, lambda: len(poses) >= 3 and len(kps) >= 3)
+    spin_nodes([node, io], 10.0, lambda: len(poses) >= 3 and len(kps) >= 3)
     assert [r.status for r in results] == ["recovering", "tracking", "tracking"]
     assert len(poses) == 3 and len(kps) == 3
     for msg, kp, s, f in zip(poses, kps, stamps, frames, strict=True):
@@ -77,7 +58,7 @@ def test_rgb_tracker_publishes_pose_and_keypoints_with_the_image_stamp(ros, fram
     io.destroy_node()
 
 
-def test_rgb_tracker_without_a_hand_is_lost_and_never_tracking(ros, frames):
+def test_rgb_tracker_without_a_hand_is_lost_and_never_tracking(rclpy_up, frames):
     node = RgbTrackerNode()
     io = rclpy.create_node("rgb_tracker_test_io2")
     poses: list[HandPose] = []
@@ -91,7 +72,7 @@ def test_rgb_tracker_without_a_hand_is_lost_and_never_tracking(ros, frames):
     for k in range(2, 4):
         res = node.process(rgb_image_msg(empty, Time(sec=k), intr.frame_id))
         assert res.status == "lost" and res.reason == "no_hand"
-    _spin([node, io], 10.0, lambda: len(poses) >= 3 and len(kps) >= 3)
+    spin_nodes([node, io], 10.0, lambda: len(poses) >= 3 and len(kps) >= 3)
     assert [p.status for p in poses] == [HandPose.STATUS_RECOVERING, HandPose.STATUS_LOST,
                                          HandPose.STATUS_LOST]
     # a lost frame holds the last good pose, with zero confidence, and no 3-D keypoints
@@ -104,7 +85,7 @@ def test_rgb_tracker_without_a_hand_is_lost_and_never_tracking(ros, frames):
     io.destroy_node()
 
 
-def test_rgb_tracker_counts_bad_camera_info_and_empty_images(ros, frames):
+def test_rgb_tracker_counts_bad_camera_info_and_empty_images(rclpy_up, frames):
     node = RgbTrackerNode()
     intr = frames[0].color_intrinsics
     img = rgb_image_msg(frames[0].color, Time(sec=3), intr.frame_id)
@@ -137,7 +118,7 @@ def test_rgb_tracker_counts_bad_camera_info_and_empty_images(ros, frames):
     node.destroy_node()
 
 
-def test_rgb_tracker_uses_aligned_depth_and_the_calibrated_shape(ros, frames):
+def test_rgb_tracker_uses_aligned_depth_and_the_calibrated_shape(rclpy_up, frames):
     """A depth image with the colour image's stamp joins the fit (wrong-size hand: the
     depth keeps the wrist at its distance); one with another stamp is not used; a
     hand/shape message replaces the model's shape."""
@@ -169,7 +150,7 @@ def test_rgb_tracker_uses_aligned_depth_and_the_calibrated_shape(ros, frames):
     node.destroy_node()
 
 
-def test_rgb_tracker_keeps_only_the_newest_image(ros):
+def test_rgb_tracker_keeps_only_the_newest_image(rclpy_up):
     """Frames are dropped, not queued, while the tracker is busy: the image subscriptions
     hold one message (SensorDataQoS otherwise: best effort)."""
     from rclpy.qos import ReliabilityPolicy

@@ -11,10 +11,10 @@ import rclpy
 from builtin_interfaces.msg import Time
 from hand_msgs.msg import HandPose
 from hand_msgs.msg import HandShape as HandShapeMsg
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import deserialize_message, serialize_message
+from ros_helpers import spin_nodes
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from visualization_msgs.msg import MarkerArray
 
@@ -24,13 +24,6 @@ from hand_capture.nodes.images import camera_info_msg, depth_image_msg, numpy_to
 from hand_capture.nodes.tracker import TrackerNode
 
 
-@pytest.fixture
-def ros():
-    rclpy.init()
-    yield
-    rclpy.shutdown()
-
-
 @pytest.fixture(scope="module")
 def frame():
     cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, clip="static"))
@@ -38,18 +31,7 @@ def frame():
     return cam.render(0.0)
 
 
-def _spin(nodes, seconds, until):
-    ex = SingleThreadedExecutor()
-    for n in nodes:
-        ex.add_node(n)
-    end = time.monotonic() + seconds
-    while time.monotonic() < end and not until():
-        ex.spin_once(timeout_sec=0.01)
-    for n in nodes:
-        ex.remove_node(n)
-
-
-def test_tracker_node_publishes_pose_with_the_image_stamp(ros, frame, tmp_path):
+def test_tracker_node_publishes_pose_with_the_image_stamp(rclpy_up, frame, tmp_path):
     node = TrackerNode(parameter_overrides=[Parameter("markers_every", value=1),
                                             Parameter("shape_folder", value=str(tmp_path))])
     io = rclpy.create_node("tracker_test_io")
@@ -69,11 +51,11 @@ def test_tracker_node_publishes_pose_with_the_image_stamp(ros, frame, tmp_path):
     while time.monotonic() < deadline and len(got["pose"]) < 2:
         if sent < len(stamps) and (sent == 0 or len(got["pose"]) >= sent):
             pub_info.publish(camera_info_msg(intr, stamps[sent]))
-            _spin([node, io], 0.05, lambda: False)
+            spin_nodes([node, io], 0.05, lambda: False)
             pub_img.publish(depth_image_msg(frame.depth, stamps[sent], intr.frame_id))
             sent += 1
-        _spin([node, io], 0.2, lambda n=sent: len(got["pose"]) >= n)
-    _spin([node, io], 1.0, lambda: got["debug"] and got["markers"])
+        spin_nodes([node, io], 0.2, lambda n=sent: len(got["pose"]) >= n)
+    spin_nodes([node, io], 1.0, lambda: got["debug"] and got["markers"])
     assert got["pose"], "no hand/pose published"
     msg = got["pose"][0]
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec) in \
@@ -96,7 +78,7 @@ def test_tracker_node_publishes_pose_with_the_image_stamp(ros, frame, tmp_path):
     node.destroy_node()
 
 
-def test_serialized_markers_equal_the_message_objects(ros) -> None:
+def test_serialized_markers_equal_the_message_objects(rclpy_up) -> None:
     """The fast hand/markers path (bytes patched into a serialised template) deserialises to
     exactly the markers the plain path builds, for two poses, stamps and statuses."""
     node = TrackerNode()
@@ -112,7 +94,7 @@ def test_serialized_markers_equal_the_message_objects(ros) -> None:
     node.destroy_node()
 
 
-def test_tracker_node_rejects_bad_input_without_crashing(ros, frame):
+def test_tracker_node_rejects_bad_input_without_crashing(rclpy_up, frame):
     node = TrackerNode()
     intr = frame.depth_intrinsics
     img = depth_image_msg(frame.depth, Time(sec=5), intr.frame_id)
@@ -154,7 +136,7 @@ def test_tracker_node_rejects_bad_input_without_crashing(ros, frame):
     node.destroy_node()
 
 
-def test_tracker_node_drops_frames_when_busy(ros, frame):
+def test_tracker_node_drops_frames_when_busy(rclpy_up, frame):
     node = TrackerNode(parameter_overrides=[Parameter("poll_period_s", value=0.002)])
     node._on_info(camera_info_msg(frame.depth_intrinsics))
     for k in range(4):
@@ -166,7 +148,7 @@ def test_tracker_node_drops_frames_when_busy(ros, frame):
     node.destroy_node()
 
 
-def test_tracker_node_in_callback_mode_tracks_and_counts_replaced_frames(ros, frame):
+def test_tracker_node_in_callback_mode_tracks_and_counts_replaced_frames(rclpy_up, frame):
     node = TrackerNode()  # poll_period_s 0: each image is tracked in its callback
     for _ in range(4):  # four frames went by while the tracker was busy ...
         node._on_info(camera_info_msg(frame.depth_intrinsics))
@@ -176,7 +158,7 @@ def test_tracker_node_in_callback_mode_tracks_and_counts_replaced_frames(ros, fr
     node.destroy_node()
 
 
-def test_tracker_node_calibrates_saves_and_reloads_the_shape(ros, frame, tmp_path):
+def test_tracker_node_calibrates_saves_and_reloads_the_shape(rclpy_up, frame, tmp_path):
     params = [Parameter("calibrate_on_start", value=True),
               Parameter("calibration_frames", value=2),
               Parameter("subject_id", value="alice"),
