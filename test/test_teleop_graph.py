@@ -106,6 +106,17 @@ def test_offline_teleop_grasps_lifts_carries_and_releases(performance) -> None:
     assert res.max_lift_mm > 70.0  # the performance lifts by 100 mm
     assert res.carried_mm > 70.0   # ... and carries 100 mm sideways
     assert res.qp_fallbacks == 0
+    _assert_let_go_in_place(res)
+
+
+def _assert_let_go_in_place(res) -> None:
+    """Released, the box drops where it was let go: the hand's target used to jump from the
+    grasp to the operator's wrist (or the opening fingers carried the box off), and the box
+    flew 9 cm sideways and up to 5 cm up."""
+    m = int(np.flatnonzero(res.phases == Phase.MANIPULATION)[-1])
+    at, after = res.object_positions[m], res.object_positions[m + 1:]
+    assert (after[:, 2].max() - at[2]) * 1e3 < 8.0
+    assert np.linalg.norm(after[-1, :2] - at[:2]) * 1e3 < 20.0
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
@@ -120,6 +131,7 @@ def test_offline_teleop_with_tracking_like_noise_still_lifts(performance, seed) 
     assert Phase.MANIPULATION in res.phases
     assert res.max_lift_mm > 70.0
     assert res.carried_mm > 60.0
+    _assert_let_go_in_place(res)
 
 
 def test_a_moved_box_is_still_lifted_by_the_same_performance(performance) -> None:

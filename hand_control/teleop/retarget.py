@@ -11,7 +11,10 @@ closing motion is played as the grip closes. Without one, the grasp is the scena
 (fingertip inverse kinematics onto the object's surface,
 :func:`hand_control.sim.grasp.plan_grasp`, or a scenario's synthesised grasp):
 
-* reaching, releasing: the target is the tracked hand;
+* reaching, releasing: the target is the tracked hand; after a grasp, the fingers first open
+  to the plan's pre-grasp with the wrist held where it is, and the wrist then rejoins the
+  operator's at the approach's speed (:class:`_ReturnPath`), so the released object is
+  neither flung by a jump of the target nor carried off between opening fingers;
 * closing: the grasp is fixed where the object rests as closing begins (a grasp that followed
   the object would chase a box the fingers push). The wrist travels from the operator's to
   the plan's at bounded speed and turning rate, first to a pose ``approach_height`` above the
@@ -143,6 +146,8 @@ class GraspRetarget:
         self._obj0 = np.array(object_pose, dtype=np.float64)  # object as closing began
         self._q_from = self.q_pregrasp
         self._c, self._t_c = 0.0, 0.0  # how far the fingers have closed, and when [s]
+        self._last: np.ndarray | None = None  # the last grasping target (27,)
+        self._ret: _ReturnPath | None = None  # the way back to the tracked hand
 
     def replan(self, q_grasp: np.ndarray, object_pose: np.ndarray,
                q_pregrasp: np.ndarray | None = None, closing: np.ndarray | None = None
@@ -228,8 +233,13 @@ class GraspRetarget:
                 # earlier runaway: pushed 2-3 cm, then dropped)
                 self._obj0 = np.array(object_pose, dtype=np.float64)
                 T_plan = object_pose @ self._start_in_object()
-                self._path = _ApproachPath(T_op, T_plan, t, self.approach, timed)
-                self._q_from = np.asarray(q_op, dtype=np.float64).copy()
+                # from where the hand is: the tracked hand, or on its way back to it
+                q_from = self._tracked(q_op, T_op, t) if self._ret is not None \
+                    else pose_with_wrist(q_op, T_op)
+                self._ret = None
+                self._path = _ApproachPath(pose_matrix(q_from), T_plan, t, self.approach,
+                                           timed)
+                self._q_from = q_from
                 self._c, self._t_c = 0.0, t
             elif phase == Phase.MANIPULATION:
                 self._T_op0 = None
@@ -238,6 +248,11 @@ class GraspRetarget:
                     self._path = _ApproachPath(T_op, object_pose @ self._start_in_object(),
                                                t, self.approach, timed)
             elif phase in (Phase.REACHING, Phase.RELEASING):
+                if timed and self._path is not None and self._last is not None:
+                    # the hand was on the grasp, up to centimetres and tens of degrees off
+                    # the operator's wrist: jumping to the tracked hand flung the released
+                    # box (7 cm in 0.2 s); open the fingers in place, then rejoin the wrist
+                    self._ret = _ReturnPath(self._last, self.q_pregrasp, t, self.approach)
                 self._path = None
             self._phase = phase
         if phase in (Phase.CLOSING, Phase.MANIPULATION) and self._path is not None:
@@ -258,8 +273,53 @@ class GraspRetarget:
                 if self._T_op0 is None:
                     self._T_op0 = T_op
                 T_w = T_op @ np.linalg.inv(self._T_op0) @ T_w
-            return pose_with_wrist(q, T_w)
-        return pose_with_wrist(q_op, T_op)
+            self._last = pose_with_wrist(q, T_w)
+            return self._last.copy()
+        self._last = None
+        return self._tracked(q_op, T_op, t)
+
+    def _tracked(self, q_op: np.ndarray, T_op: np.ndarray, t: float) -> np.ndarray:
+        """Reaching, releasing: the tracked hand, or the way back to it after a grasp."""
+        if self._ret is None:
+            return pose_with_wrist(q_op, T_op)
+        q, done = self._ret(q_op, T_op, t)
+        if done:
+            self._ret = None
+        return q
+
+
+class _ReturnPath:
+    """From a grasp back to the tracked hand: first the fingers open to the plan's pre-grasp
+    (the closing motion reversed, so they leave the object's surface) within ``close_time``,
+    the wrist held where it is (the object is let go in place, whatever the operator's wrist
+    does meanwhile); then the wrist rejoins the operator's at the approach's speed and
+    turning rate (at least ``min_approach_time``) as the fingers blend into the operator's.
+    Call with the tracked pose, the operator's (filtered) wrist and ``t`` [s] -> (the (27,)
+    target, whether it is back)."""
+
+    def __init__(self, q_hand: np.ndarray, q_open: np.ndarray, t0: float,
+                 cfg: InterfaceConfig) -> None:
+        self.q_hand, self.t0, self.cfg = np.array(q_hand, dtype=np.float64), t0, cfg
+        self.q_open = np.array(q_open, dtype=np.float64)
+        self.T_hand = pose_matrix(self.q_hand)
+        self.t_back: float | None = None  # [s], set as the wrist starts back
+
+    def __call__(self, q_op: np.ndarray, T_op: np.ndarray, t: float
+                 ) -> tuple[np.ndarray, bool]:
+        cfg = self.cfg
+        e = t - self.t0
+        if e < cfg.close_time:
+            a = max(e, 0.0) / cfg.close_time
+            return pose_with_wrist((1 - a) * self.q_hand + a * self.q_open, self.T_hand), False
+        if self.t_back is None:
+            d = float(np.linalg.norm(T_op[:3, 3] - self.T_hand[:3, 3]))
+            ang = float(np.linalg.norm(matrix_to_rotvec(self.T_hand[:3, :3].T @ T_op[:3, :3])))
+            self.t_back = max(d / cfg.approach_speed, ang / cfg.approach_turn_rate,
+                              cfg.min_approach_time)
+        u = min(max((e - cfg.close_time) / self.t_back, 0.0), 1.0)
+        s = u * u * (3 - 2 * u)
+        q = (1 - s) * self.q_open + s * np.asarray(q_op, dtype=np.float64)
+        return pose_with_wrist(q, _blend(self.T_hand, T_op, s)), u >= 1.0
 
 
 class _ApproachPath:
