@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+from ros_helpers import wait_for
 
 from hand_capture.model.joints import ARTICULATED_JOINTS, joint_limits_dict
 from hand_control.dynamixel import control_table as ct
@@ -468,8 +469,13 @@ def test_fast_sync_read_mode(clock) -> None:
         q = pose(index_pip_flex=0.7, thumb_ip_flex=0.4)
         run(b, clock, q, 300)
         assert goals(b) == expected_ticks(b, q)
-        r = b.step()
-        assert r.fresh.all() and r.position[2] == pytest.approx(0.7, abs=0.01)
+
+        def arrived() -> bool:  # the emulated motors move in real time, not the fake clock's
+            run(b, clock, q, 1)
+            r = b.step()
+            return bool(r.fresh.all()) and abs(r.position[2] - 0.7) <= 0.01
+
+        assert wait_for(arrived, 10.0)
 
 
 def test_read_mode_auto_uses_fast_sync_read_only_where_the_firmware_has_it() -> None:

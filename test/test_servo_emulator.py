@@ -22,7 +22,8 @@ from hand_control.errors import ServoError
 def bus_emu():
     emu = BusEmulator({1: "XC330-M288", 2: "XC330-M288", 3: "XM430-W350"}, tau=0.01)
     emu.start()
-    bus = DynamixelBus(emu.port_name, 4_000_000, packet_timeout_ms=30.0)
+    # healthy emulated servos answer when the host schedules their thread: late under load
+    bus = DynamixelBus(emu.port_name, 4_000_000, packet_timeout_ms=500.0)
     bus.open()
     yield bus, emu
     bus.close()
