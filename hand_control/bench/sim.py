@@ -72,6 +72,7 @@ def _topics(seconds: float) -> dict[str, float]:
                "topics_qp_fallbacks": ctrl.core.counters["qp_fallbacks"]}
         ex.remove_node(sim)
         ex.remove_node(ctrl)
+        ex.shutdown()  # before rclpy's: an executor collected after it logs an error
         sim.destroy_node()
         ctrl.destroy_node()
         return out
@@ -87,6 +88,7 @@ def _topics_two_processes(seconds: float) -> dict[str, float]:
 
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
 
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     procs = [subprocess.Popen([sys.executable, "-m", f"hand_control.nodes.{mod}", "--ros-args",
@@ -105,15 +107,18 @@ def _topics_two_processes(seconds: float) -> dict[str, float]:
 
     node = rclpy.create_node("bench_sim_probe")
     node.create_subscription(DiagnosticArray, "diagnostics", on_diag, 10)
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
     try:
         deadline = time.perf_counter() + seconds + 15.0
         while time.perf_counter() < deadline:
-            rclpy.spin_once(node, timeout_sec=0.1)
+            ex.spin_once(timeout_sec=0.1)
             # skip the first samples (start-up, discovery), then measure over `seconds`
             live = [s for s in samples if s[2] > 0]
             if len(live) >= 2 and live[-1][0] - live[0][0] >= seconds:
                 break
     finally:
+        ex.shutdown()
         node.destroy_node()
         rclpy.shutdown()
         for p in procs:
