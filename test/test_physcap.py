@@ -258,3 +258,55 @@ def test_capture_with_foreign_keypoints_is_refused():
     c = _capture(keypoints=np.zeros((3, 5, 3)))
     with pytest.raises(CaptureError, match="21 keypoints"):
         optimise_capture(c, PhysCapConfig(n_samples=2, n_keep=1))
+
+
+# ------------------------------------------------------------------------------ benchmark inputs
+def test_contacts_corruption_moves_every_grasping_fingertip(lift_capture):
+    """The benchmark's ``contacts`` model: every grasping finger 10-20 mm off at the tip (no
+    reference finger keeps its true contact), floating or sunk; the other fingers only noisy."""
+    from hand_capture.model.skeleton import FINGERTIP_KEYPOINTS, KEYPOINT_NAMES
+    from hand_control.physcap.synth import corrupt
+
+    truth, _ = lift_capture
+    model = HandModel()
+    kt = model.joint_positions(truth.hand_q)
+    signs = set()
+    for seed in range(4):
+        sc = corrupt(truth, "contacts", seed=seed)
+        assert set(sc.finger_errors_mm) == {"thumb", "index", "middle"}
+        assert all(10.0 <= abs(v) <= 20.0 for v in sc.finger_errors_mm.values())
+        signs |= {v > 0 for v in sc.finger_errors_mm.values()}
+        # the mean displacement over frames: the constant error (the noise averages out)
+        bias = np.linalg.norm((model.joint_positions(sc.capture.hand_q) - kt).mean(axis=0),
+                              axis=-1) * 1e3
+        for k in FINGERTIP_KEYPOINTS:
+            finger = KEYPOINT_NAMES[k].split("_")[0]
+            if finger in sc.finger_errors_mm:
+                assert 7.0 < bias[k] < 30.0, (seed, finger, bias[k])
+            else:
+                assert bias[k] < 4.0, (seed, finger, bias[k])
+    assert signs == {True, False}  # both floating and sunk fingers occur
+    with pytest.raises(ValueError, match="unknown corruption"):
+        corrupt(truth, "nope")
+
+
+def test_pd_only_baseline_has_no_virtual_force(lift_capture):
+    """Seed 000 sec. 7.5's PD-only control: the PD servos of eq. 8 alone (no virtual wrench,
+    no contact QP), with the same sampling and sample count as the composite control."""
+    _, sc = lift_capture
+    short = Capture("s", sc.capture.times[:10], sc.capture.hand_q[:10],
+                    sc.capture.object_pose[:10], sc.capture.obj)
+    pd = optimise_capture(short, PhysCapConfig(n_samples=8, n_keep=2, control="pd_only"))
+    comp = optimise_capture(short, PhysCapConfig(n_samples=8, n_keep=2))
+    assert np.count_nonzero(pd.virtual_forces) == 0
+    assert np.abs(comp.virtual_forces).max() > 0.0   # the composite control uses it
+    assert pd.config.sampling == comp.config.sampling == "contact"
+
+
+def test_sign_test_of_paired_successes():
+    from hand_control.bench.physcap import sign_test_p
+
+    assert sign_test_p(0, 0) == 1.0
+    assert sign_test_p(4, 0) == pytest.approx(1 / 16)
+    assert sign_test_p(3, 1) == pytest.approx(5 / 16)
+    assert sign_test_p(0, 3) == 1.0

@@ -339,7 +339,8 @@ class PhysCapResult:
 
 
 def optimise_capture(capture: Capture, config: PhysCapConfig | None = None, *,
-                     progress: Callable[[int, int], None] | None = None) -> PhysCapResult:
+                     progress: Callable[[int, int], None] | None = None,
+                     images: Any = None) -> PhysCapResult:
     """Find the composite control that makes the simulation match ``capture`` (seed 000
     sec. 6) and return the simulated motion, the control and its figures.
 
@@ -350,10 +351,14 @@ def optimise_capture(capture: Capture, config: PhysCapConfig | None = None, *,
         capture: the kinematic capture (its first frame is the initial state, at rest).
         config: sampling, cost and simulation settings.
         progress: called as ``progress(done_steps, total_steps)`` after every step.
+        images: a :class:`~hand_control.physcap.images.CaptureImages` (one group of views
+            per frame, the capture on the ``config.step`` grid): each frame's energy adds
+            the image term of eq. (3); ``None``: 3-D terms only.
 
     Raises:
-        CaptureError: the capture cannot be simulated (e.g. an unreadable mesh).
+        CaptureError: the capture cannot be simulated (e.g. an unreadable mesh), or its
+            images do not match its frames.
     """
     from hand_control.physcap.optimise import optimise
 
-    return optimise(capture, config or PhysCapConfig(), progress=progress)
+    return optimise(capture, config or PhysCapConfig(), progress=progress, images=images)

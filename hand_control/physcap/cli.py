@@ -71,7 +71,7 @@ def add_parser(sub: Any) -> None:
     sm.add_argument("output", help="archive folder to create")
     sm.add_argument("--scenarios", default="lift_box,lift_cylinder,lift_ball",
                     help="comma-separated config/scenarios names (the last one as a bag)")
-    sm.add_argument("--corruption", default="tracker", choices=["tracker", "drift"])
+    sm.add_argument("--corruption", default="tracker", choices=["tracker", "contacts", "drift"])
     sm.add_argument("--seed", type=int, default=0, help="corruption seed")
     ph.set_defaults(func=cmd_physcap)
 

@@ -7,7 +7,8 @@ seed poses made consistent with a sampled contact configuration (:mod:`.contacts
 composite controller (eq. 8-13, :class:`~hand_control.control.ControllerCore` on the live
 MuJoCo state) advances the simulation over the step; the new frame's energy is eq. 2 without
 images: the mean squared 3-D keypoint error, the object's position and orientation errors and
-a penalty on hand-object penetration. :func:`~.selection.sampling_optimise` keeps the samples
+a penalty on hand-object penetration; a capture with multi-view images adds eq. (3)'s image
+term (:mod:`.images`). :func:`~.selection.sampling_optimise` keeps the samples
 (sec. 6's selection) and returns the lowest-energy chain.
 
 A sample's simulation restarts from its parent's full integration state
@@ -276,8 +277,9 @@ class _Search:
     """The callbacks of :func:`sampling_optimise` for one capture."""
 
     def __init__(self, obj: CapturedObject, ref_q: np.ndarray, ref_obj: np.ndarray,
-                 kp_obs: np.ndarray, config: PhysCapConfig) -> None:
+                 kp_obs: np.ndarray, config: PhysCapConfig, images: Any = None) -> None:
         self.config = config
+        self.images = images  # CaptureImages or None: eq. (3)'s image term added per frame
         self.ref_q, self.ref_obj, self.kp_obs = ref_q, ref_obj, kp_obs
         # the sampling centres: the reference, smoothed (cost: the reference as it is)
         self.centre_q = smooth_reference(ref_q, config.smoothing)
@@ -309,6 +311,8 @@ class _Search:
                       np.zeros(6), 0.0, True)
         cost = frame_costs(self.config, seg.hand_q[None], seg.object_pose[None],
                            np.zeros(1), self.kp_obs[0], self.ref_obj[0])[0]
+        if self.images is not None:
+            cost += self.images.energies(0, seg.hand_q[None], seg.object_pose[None])[0]
         return seg, float(cost)
 
     def centres(self, step: int, n: int, rng: np.random.Generator,
@@ -382,6 +386,10 @@ class _Search:
                 np.array([segs[i].object_pose for i in idx]),
                 np.array([segs[i].penetration for i in idx]), self.kp_obs[step + 1],
                 self.ref_obj[step + 1])
+            if self.images is not None:  # eq. (3) against the frame's observed views
+                costs[idx] += self.images.energies(
+                    step + 1, np.array([segs[i].hand_q for i in idx]),
+                    np.array([segs[i].object_pose for i in idx]))
         return segs, costs, [None] * n
 
     def close(self) -> None:
@@ -401,9 +409,14 @@ def _goal_figures(config: PhysCapConfig, obj_sim: np.ndarray, obj_ref: np.ndarra
     return final < config.success_tolerance, drop, final
 
 
-def optimise(capture: Capture, config: PhysCapConfig, progress: Any = None) -> PhysCapResult:
+def optimise(capture: Capture, config: PhysCapConfig, progress: Any = None,
+             images: Any = None) -> PhysCapResult:
     """:func:`hand_control.physcap.capture.optimise_capture` (see there)."""
     times, ref_q, ref_obj, kp = resample_capture(capture, config.step)
+    if images is not None and (images.n_frames != len(times) or times is not capture.times):
+        raise CaptureError(f"capture {capture.name!r}: its images need one group per frame on "
+                           f"the {config.step} s step grid ({len(times)} frames); got "
+                           f"{images.n_frames} for a capture of {capture.n_frames} frames")
     if kp is not None and kp.shape[1] != N_KEYPOINTS:
         raise CaptureError(f"capture {capture.name!r}: the cost compares the model's "
                            f"{N_KEYPOINTS} keypoints (KEYPOINT_NAMES), the capture has "
@@ -412,7 +425,7 @@ def optimise(capture: Capture, config: PhysCapConfig, progress: Any = None) -> P
         raise CaptureError(f"capture {capture.name!r} is shorter than one step "
                            f"({config.step} s)")
     kp_obs = _hand_model().joint_positions(ref_q) if kp is None else kp
-    search = _Search(capture.obj, ref_q, ref_obj, kp_obs, config)
+    search = _Search(capture.obj, ref_q, ref_obj, kp_obs, config, images)
     try:
         seg0, cost0 = search.initial()
         rng = np.random.default_rng(config.seed)

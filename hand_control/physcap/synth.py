@@ -2,12 +2,15 @@
 composite controller grasping and lifting its object, ``hand_control.sim.lockstep``) recorded
 at the capture rate, then corrupted like a real tracker.
 
-Two corruption models (the benchmark develops on one and evaluates on the other too):
+Corruption models (the benchmark develops on one and evaluates on another too):
 
 * ``"tracker"``: independent per-frame noise on the hand pose (root 3 mm / 0.02 rad, fingers
   0.03 rad) and the object pose (2 mm / 0.02 rad), plus a constant flexion error on one or
   two of the grasping fingers that moves the fingertip 10-20 mm (the wrong contacts of seed
   000 Fig. 10: a finger hovering off the object or sunk into it).
+* ``"contacts"``: the same noise, but EVERY grasping finger is 10-20 mm off at the tip, each
+  independently floating off the object (opened) or sunk into it (closed) with equal
+  probability: no grasping finger of the reference has its true contact.
 * ``"drift"``: temporally correlated errors (a low-passed random walk) of similar size, the
   finger error growing over the capture and partly in abduction, and 5 % outlier frames of
   the hand pose.
@@ -85,12 +88,13 @@ def _smooth_noise(rng: np.random.Generator, shape: tuple[int, ...], sigma: float
 
 def corrupt(truth: Capture, model: str = "tracker", seed: int = 0,
             fingers: tuple[str, ...] = ("thumb", "index", "middle")) -> SyntheticCapture:
-    """``truth`` corrupted by ``model`` (``"tracker"`` or ``"drift"``, see the module)."""
+    """``truth`` corrupted by ``model`` (``"tracker"``, ``"contacts"`` or ``"drift"``, see
+    the module); ``fingers``: the grasping fingers whose contacts go wrong."""
     rng = np.random.default_rng(seed)
     t = truth.n_frames
     q = truth.hand_q.copy()
     pose = truth.object_pose.copy()
-    if model == "tracker":
+    if model in ("tracker", "contacts"):
         noise = lambda shape, s: rng.normal(0.0, s, shape)
     elif model == "drift":
         noise = lambda shape, s: _smooth_noise(rng, shape, s)
@@ -99,14 +103,16 @@ def corrupt(truth: Capture, model: str = "tracker", seed: int = 0,
     q[:, 0:3] += noise((t, 3), 0.003)
     q[:, 3:6] += noise((t, 3), 0.02)
     q[:, 6:27] += noise((t, 21), 0.03)
-    # the wrong contacts: one or two grasping fingers off by 10-20 mm at the tip
-    k = int(rng.integers(1, 3))
+    # the wrong contacts: one or two (``contacts``: all) grasping fingers off by 10-20 mm at
+    # the tip; + = closed (sunk into the object), - = opened (floating off it)
+    k = len(fingers) if model == "contacts" else int(rng.integers(1, 3))
     chosen = rng.choice(len(fingers), size=k, replace=False)
     errors: dict[str, float] = {}
-    ramp = np.ones(t) if model == "tracker" else np.linspace(0.3, 1.0, t)
+    ramp = np.linspace(0.3, 1.0, t) if model == "drift" else np.ones(t)
+    p_sink = 0.5 if model == "contacts" else 0.3
     for j in chosen:
         f = fingers[int(j)]
-        mm = float(rng.uniform(10.0, 20.0)) * (1 if rng.random() < 0.3 else -1)
+        mm = float(rng.uniform(10.0, 20.0)) * (1 if rng.random() < p_sink else -1)
         errors[f] = mm
         offset = mm * 1e-3 / _FINGER_LEN / len(_FLEX[f]) * 1.5  # spread over the chain
         q[:, _FLEX[f]] += (offset * ramp)[:, None]
