@@ -11,6 +11,16 @@ object or sunk into it: no reference finger has its true contact) makes two disj
   product's quality; the baselines play no part in the choice);
 * **test**: every method runs with the chosen settings; these are the reported figures.
 
+Two object families, in both splits in the same proportion (validation : test = 1 : 2):
+**light**, the scenarios' own 150-250 g objects (light enough that the PD servos' squeeze of
+the contact seeds holds them), and **heavy**, the same box / cylinder / ball lifts with
+:data:`HEAVY_MASSES` (0.5 and 1.0 kg, a full bottle or a tool) at the scenarios' friction,
+each first checked by the dynamic feasibility LP with the hand's joint torque limits
+(``_grasp_grid.grasp_feasibility``): a capture it rejects is skipped and named (no method can
+succeed there). Validation chooses one setting for both families (it includes more samples
+and a wider hypercube, for the heavy objects' sake); test reports light, heavy and pooled,
+the sign tests pooled and per family.
+
 Held out (reported separately, never used for a choice): the ``drift`` model (correlated
 errors, growing finger errors with abduction, outlier frames) on the pour scenario's motion
 and on the box lift, and the ``contacts`` model on the pour motion (a motion no setting was
@@ -51,32 +61,83 @@ from hand_control.sim.scenario import load_scenario
 _METHODS = {"contact": {}, "random": {"sampling": "random"}, "pd_only": {"control": "pd_only"}}
 
 
-def _captures(quick: bool, smoke: bool) -> list[tuple[str, Any]]:
-    """(split, SyntheticCapture) pairs: ``validation`` and ``test`` (the ``contacts`` model,
-    disjoint noise seeds), ``heldout`` (the drift model, also on the pour motion)."""
+#: the heavy family's masses [kg]: objects a user grasps (a full bottle, a tool); the light
+#: scenarios' objects are 150-250 g, light enough for the PD servos' squeeze alone
+HEAVY_MASSES = (0.5, 1.0)
+_LIGHT_SCENARIOS = ("lift_box", "lift_cylinder", "lift_ball")
+
+
+def heavy_spec(scenario: str, mass: float) -> Any:
+    """A light lift scenario with the heavy family's ``mass`` (its friction and motion)."""
+    spec = load_scenario(scenario)
+    return spec.with_(name=f"{scenario}_{int(round(mass * 1e3))}g", object_mass=mass)
+
+
+def lp_feasible(spec: Any) -> tuple[bool, str]:
+    """The dynamic feasibility LP (III.10-III.16) of the scenario's planned grasp with the
+    hand's joint torque limits (``hand_control.bench._grasp_grid``): ``(feasible, status)``.
+    A capture the LP rejects cannot succeed; the bench skips and reports it."""
+    from hand_control.bench._grasp_grid import grasp_feasibility
+    from hand_control.sim.lockstep import LockstepRunner
+
+    r = grasp_feasibility(LockstepRunner(spec))
+    return bool(r.feasible), str(r.status)
+
+
+def _captures(quick: bool, smoke: bool, skipped: list[str] | None = None
+              ) -> list[tuple[str, str, Any]]:
+    """(split, family, SyntheticCapture) triples: ``validation`` and ``test`` (the ``contacts``
+    model, disjoint noise seeds), ``heldout`` (the drift model, also on the pour motion);
+    family ``light`` (the scenarios' 150-250 g objects) or ``heavy`` (the same scenarios with
+    :data:`HEAVY_MASSES`, in both splits in the light family's proportion, 1 : 2). Heavy
+    objects the feasibility LP rejects are left out and named in ``skipped``."""
+    skipped = [] if skipped is None else skipped
+
+    def heavy(scenario: str, mass: float, **timing: float) -> Any:
+        spec = heavy_spec(scenario, mass).with_(**timing)
+        ok, status = lp_feasible(spec)
+        if not ok:
+            skipped.append(f"{spec.name} (feasibility LP: {status})")
+            return None
+        return scenario_capture(spec, **({"t_start": 0.5, "t_end": 1.5} if smoke else {}))
+
     if smoke:
-        spec = load_scenario("lift_box").with_(t_lift=0.4, t_carry=0.1, t_hold=0.1)
+        short = {"t_lift": 0.4, "t_carry": 0.1, "t_hold": 0.1}
+        spec = load_scenario("lift_box").with_(**short)
         truth = scenario_capture(spec, t_start=0.5, t_end=1.5)
-        return [("validation", corrupt(truth, "contacts", seed=10)),
-                ("test", corrupt(truth, "contacts", seed=0))]
+        out = [("validation", "light", corrupt(truth, "contacts", seed=10)),
+               ("test", "light", corrupt(truth, "contacts", seed=0))]
+        hb = heavy("lift_box", HEAVY_MASSES[-1], **short)
+        return out + ([("test", "heavy", corrupt(hb, "contacts", seed=20))] if hb else [])
     if quick:  # shorter lifts (1.6 s captures)
         short = {"t_lift": 0.6, "t_carry": 0.1, "t_hold": 0.1}
         box = scenario_capture(load_scenario("lift_box").with_(**short), t_end=2.1)
-        return [("validation", corrupt(box, "contacts", seed=10)),
-                ("test", corrupt(box, "contacts", seed=1)),
-                ("heldout", corrupt(box, "drift", 7))]
+        out = [("validation", "light", corrupt(box, "contacts", seed=10)),
+               ("test", "light", corrupt(box, "contacts", seed=1)),
+               ("heldout", "light", corrupt(box, "drift", 7))]
+        hb = heavy("lift_box", HEAVY_MASSES[-1], **short)
+        return out + ([("test", "heavy", corrupt(hb, "contacts", seed=20))] if hb else [])
     box = scenario_capture(load_scenario("lift_box"))
     pour = scenario_capture(load_scenario("pour_cylinder"))
     ball = scenario_capture(load_scenario("lift_ball"))
     cyl = scenario_capture(load_scenario("lift_cylinder"))
-    return ([("validation", corrupt(c, "contacts", seed=s))
-             for c, s in ((box, 10), (box, 11), (cyl, 12), (ball, 13))]
-            + [("test", corrupt(c, "contacts", seed=s))
-               for c, s in ((box, 0), (box, 1), (box, 2), (box, 3), (cyl, 4), (cyl, 5),
-                            (ball, 6), (ball, 7))]
-            + [("heldout", corrupt(pour, "drift", seed=s)) for s in (5, 6)]
-            + [("heldout", corrupt(box, "drift", seed=7))]
-            + [("heldout", corrupt(pour, "contacts", seed=s)) for s in (8, 9)])
+    light = ([("validation", "light", corrupt(c, "contacts", seed=s))
+              for c, s in ((box, 10), (box, 11), (cyl, 12), (ball, 13))]
+             + [("test", "light", corrupt(c, "contacts", seed=s))
+                for c, s in ((box, 0), (box, 1), (box, 2), (box, 3), (cyl, 4), (cyl, 5),
+                             (ball, 6), (ball, 7))])
+    # heavy: every scenario at every heavy mass once in test (6), half as many in validation
+    # (3: each scenario once, the masses alternating), other noise seeds
+    hv = {(sc, m): heavy(sc, m) for sc in _LIGHT_SCENARIOS for m in HEAVY_MASSES}
+    val_keys = [("lift_box", 0.5), ("lift_cylinder", 1.0), ("lift_ball", 0.5)]
+    heavy_caps = ([("validation", "heavy", corrupt(hv[k], "contacts", seed=30 + i))
+                   for i, k in enumerate(val_keys) if hv[k] is not None]
+                  + [("test", "heavy", corrupt(c, "contacts", seed=20 + i))
+                     for i, c in enumerate(hv.values()) if c is not None])
+    return (light + heavy_caps
+            + [("heldout", "light", corrupt(pour, "drift", seed=s)) for s in (5, 6)]
+            + [("heldout", "light", corrupt(box, "drift", seed=7))]
+            + [("heldout", "light", corrupt(pour, "contacts", seed=s)) for s in (8, 9)])
 
 
 def _errors(model: HandModel, truth: Any, hand_q: np.ndarray, object_pose: np.ndarray
@@ -86,6 +147,11 @@ def _errors(model: HandModel, truth: Any, hand_q: np.ndarray, object_pose: np.nd
     kp = np.linalg.norm(model.joint_positions(hand_q) - model.joint_positions(truth.hand_q),
                         axis=-1).mean()
     return obj * 1e3, float(kp) * 1e3
+
+
+def _rate(v: list[bool]) -> float:
+    """Fraction of successes (nan for no captures)."""
+    return float(np.mean(v)) if v else float("nan")
 
 
 def sign_test_p(wins: int, losses: int) -> float:
@@ -101,61 +167,109 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     from hand_capture.cameras.threads import limit_blas_threads
 
     limit_blas_threads(1)
-    caps = _captures(quick, smoke)
+    skipped: list[str] = []
+    caps = _captures(quick, smoke, skipped)
+    for name in skipped:
+        print(f"skipped: {name}: no grasp of the hand can hold it")
     model = HandModel()
 
     def config(n: int, width: float, method: str) -> PhysCapConfig:
         return PhysCapConfig(n_samples=n, n_keep=max(2, n // 4), finger_width=width,
                              **_METHODS[method])
 
-    # --- validation: the contact method's settings (samples, finger half-width)
+    # --- validation (light and heavy captures together): the contact method's settings
+    # (samples, finger half-width); more samples and a wider hypercube are candidates for
+    # the heavy objects' sake
     candidates = [(8, 0.08)] if smoke else [(24, 0.04), (24, 0.08)] if quick else \
-        [(16, 0.04), (16, 0.08), (32, 0.04), (32, 0.08)]
-    val = [sc for split, sc in caps if split == "validation"]
+        [(16, 0.08), (32, 0.04), (32, 0.08), (32, 0.12), (64, 0.08)]
+    val = [(fam, sc) for split, fam, sc in caps if split == "validation"]
     v_rows, v_score = [], {}
     for n_c, w_c in candidates:
-        ok, errs = [], []
-        for sc in val:
+        ok, errs, fam_ok = [], [], {"light": [], "heavy": []}
+        for fam, sc in val:
             r = optimise_capture(sc.capture, config(n_c, w_c, "contact"))
             ok.append(r.success)
+            fam_ok[fam].append(r.success)
             errs.append(_errors(model, sc.truth, r.hand_q, r.object_pose)[0])
         v_score[(n_c, w_c)] = (-float(np.mean(ok)), float(np.mean(errs)))
-        v_rows.append([n_c, w_c, float(np.mean(ok)), float(np.mean(errs))])
+        v_rows.append([n_c, w_c, float(np.mean(ok)), _rate(fam_ok["light"]),
+                       _rate(fam_ok["heavy"]), float(np.mean(errs))])
     n, width = min(v_score, key=v_score.get)
     print_table(f"validation ({len(val)} captures, contact sampling): chosen {n} samples, "
                 f"finger half-width {width} rad",
-                ["samples", "finger_width_rad", "success", "object_err_mm"], v_rows)
+                ["samples", "finger_width_rad", "success", "light", "heavy", "object_err_mm"],
+                v_rows)
 
     # --- test and held out: every method with the chosen settings
     rows, per = [], {m: [] for m in _METHODS}
     first = None
-    for split, sc in caps:
+    for split, fam, sc in caps:
         if split == "validation":
             continue
         ref_obj, ref_hand = _errors(model, sc.truth, sc.capture.hand_q, sc.capture.object_pose)
         for method in _METHODS:
             r = optimise_capture(sc.capture, config(n, width, method))
             obj_err, hand_err = _errors(model, sc.truth, r.hand_q, r.object_pose)
-            per[method].append(dict(split=split, success=r.success, obj=obj_err, hand=hand_err,
-                                    ref_obj=ref_obj, ref_hand=ref_hand, s=r.s_per_frame))
-            rows.append([sc.capture.name, split, method, r.success, obj_err, hand_err, ref_obj,
-                         ref_hand, r.s_per_frame])
+            per[method].append(dict(split=split, family=fam, success=r.success, obj=obj_err,
+                                    hand=hand_err, ref_obj=ref_obj, ref_hand=ref_hand,
+                                    s=r.s_per_frame))
+            rows.append([sc.capture.name, split, fam, method, r.success, obj_err, hand_err,
+                         ref_obj, ref_hand, r.s_per_frame])
             if method == "contact" and first is None:
                 first = r
     print_table(f"physcap: optimised captures ({n} samples per 0.05 s step, keep "
                 f"{max(2, n // 4)}, finger half-width {width} rad)",
-                ["capture", "split", "method", "success", "object_err_mm", "hand_err_mm",
-                 "ref_object_err_mm", "ref_hand_err_mm", "s_per_frame"], rows)
+                ["capture", "split", "family", "method", "success", "object_err_mm",
+                 "hand_err_mm", "ref_object_err_mm", "ref_hand_err_mm", "s_per_frame"], rows)
 
-    # sensitivity: the width not chosen, contact and random sampling, on the test captures
+    def sel(method: str, split: str | None, family: str | None = None) -> list[dict]:
+        return [p for p in per[method] if (split is None or p["split"] == split)
+                and (family is None or p["family"] == family)]
+
+    def rate(method: str, split: str | None = None, family: str | None = None) -> float:
+        return _rate([p["success"] for p in sel(method, split, family)])
+
+    def mean(method: str, key: str, split: str | None = None, family: str | None = None
+             ) -> float:
+        v = [p[key] for p in sel(method, split, family)]
+        return float(np.mean(v)) if v else float("nan")
+
+    def paired(other: str, family: str | None = None) -> tuple[int, int, float]:
+        """Test captures (of ``family``; None = pooled) where contact sampling succeeds and
+        ``other`` fails, the reverse, and the one-sided sign test's p."""
+        a = [p["success"] for p in sel("contact", "test", family)]
+        b = [p["success"] for p in sel(other, "test", family)]
+        wins = sum(x and not y for x, y in zip(a, b, strict=True))
+        losses = sum(y and not x for x, y in zip(a, b, strict=True))
+        return wins, losses, sign_test_p(wins, losses)
+
+    def lower_err(other: str, family: str | None = None) -> int:
+        a = [p["obj"] for p in sel("contact", "test", family)]
+        b = [p["obj"] for p in sel(other, "test", family)]
+        return int(sum(x < y for x, y in zip(a, b, strict=True)))
+
+    fams = [("light", "light"), ("heavy", "heavy"), ("pooled", None)]
+    s_rows = []
+    for label, fam in fams + [("held out", "heldout")]:
+        split, fam = ("heldout", None) if fam == "heldout" else ("test", fam)
+        s_rows.append([f"{split} {label}" if split == "test" else "held out",
+                       len(sel("contact", split, fam))]
+                      + [rate(m, split, fam) for m in _METHODS]
+                      + [mean(m, "obj", split, fam) for m in _METHODS])
+    print_table("success and object error [mm] by family (test split; held out: light)",
+                ["captures", "n", "contact", "random", "pd_only", "contact_mm", "random_mm",
+                 "pd_only_mm"], s_rows)
+
+    # sensitivity: the nearest width not chosen, contact and random sampling, test captures
     sens: dict[str, Any] = {}
-    other = [w for w in sorted({w for _, w in candidates}) if w != width]
+    other = sorted({w for _, w in candidates if w != width},
+                   key=lambda w: (round(abs(w - width), 6), w))  # the narrower on a tie
     if other and not smoke:
         w_o = other[0]
         s_rows = []
         for method in ("contact", "random"):
             ok, errs = [], []
-            for split, sc in caps:
+            for split, _, sc in caps:
                 if split != "test":
                     continue
                 r = optimise_capture(sc.capture, config(n, w_o, method))
@@ -165,14 +279,14 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
             sens[f"sensitivity_{method}_object_err_mm"] = float(np.mean(errs))
             s_rows.append([method, n, w_o, float(np.mean(ok)), float(np.mean(errs))])
         sens["sensitivity_finger_width"] = w_o
-        print_table("sensitivity: the test captures at the finger half-width not chosen",
+        print_table("sensitivity: the test captures (pooled) at a finger half-width not chosen",
                     ["sampling", "samples", "finger_width_rad", "success", "object_err_mm"],
                     s_rows)
 
     # samples simulated by 2 threads (own MjData + controller each) against 1
     threads: dict[str, Any] = {}
     if not smoke:
-        c = first_capture = [sc for split, sc in caps if split == "test"][0].capture
+        c = first_capture = [sc for split, _, sc in caps if split == "test"][0].capture
         short = type(c)(c.name, c.times[:8], c.hand_q[:8], c.object_pose[:8], c.obj)
         t1 = optimise_capture(short, PhysCapConfig(n_samples=32, n_keep=8)).frame_seconds.sum()
         t2 = optimise_capture(short, PhysCapConfig(n_samples=32, n_keep=8, n_threads=2)
@@ -185,14 +299,6 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
             threads["s_per_frame_1500"] = r.s_per_frame
             print(f"1500 samples per step (seed 000's default): {r.s_per_frame:.2f} s per "
                   f"frame ({first_capture.name}, 4 frames)")
-
-    def rate(method: str, split: str | None = None) -> float:
-        v = [p["success"] for p in per[method] if split is None or p["split"] == split]
-        return float(np.mean(v)) if v else float("nan")
-
-    def mean(method: str, key: str, split: str | None = None) -> float:
-        v = [p[key] for p in per[method] if split is None or p["split"] == split]
-        return float(np.mean(v)) if v else float("nan")
 
     # retargeting the first capture's control (sec. 7.2)
     cases = [("cylinder 150 g", CapturedObject("cylinder", (0.028, 0.045), 0.15, 0.75), {}),
@@ -220,48 +326,41 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
 
         t0 = time.perf_counter()
         dcfg = PhysCapConfig(n_samples=8 if smoke else 16, n_keep=2)
-        dask = measure_dask_speedup([sc.capture for _, sc in caps][:2] if len(caps) > 1
-                                    else [caps[0][1].capture, caps[0][1].truth], dcfg,
+        dask = measure_dask_speedup([sc.capture for _, _, sc in caps][:2], dcfg,
                                     quick=quick or smoke)
         print(f"\ndask: 1 worker {dask.get('dask_1w_s')} s, 2 workers {dask.get('dask_2w_s')} s,"
               f" speed-up {dask.get('dask_speedup_2w')}, identical {dask.get('dask_identical')}"
               f" ({time.perf_counter() - t0:.1f} s)")
     except ImportError as e:
         print(f"\ndask: not measured ({e})")
-    def paired_p(other: str) -> float:
-        a = [p["success"] for p in per["contact"] if p["split"] == "test"]
-        b = [p["success"] for p in per[other] if p["split"] == "test"]
-        wins = sum(x and not y for x, y in zip(a, b, strict=True))
-        losses = sum(y and not x for x, y in zip(a, b, strict=True))
-        return sign_test_p(wins, losses)
 
-    def lower_err(other: str) -> int:
-        a = [p["obj"] for p in per["contact"] if p["split"] == "test"]
-        b = [p["obj"] for p in per[other] if p["split"] == "test"]
-        return int(sum(x < y for x, y in zip(a, b, strict=True)))
-
-    p_random, p_pd = paired_p("random"), paired_p("pd_only")
-    print(f"\ntest, contact vs random sampling: one-sided sign test p = {p_random:.3g}; "
-          f"contact vs PD-only: p = {p_pd:.3g}; contact's object error is lower on "
-          f"{lower_err('random')} (vs random) and {lower_err('pd_only')} (vs PD-only) of "
-          f"{sum(split == 'test' for split, _ in caps)} test captures")
+    fig: dict[str, Any] = {}
+    n_test = sum(split == "test" for split, _, _ in caps)
+    for label, fam in fams:
+        key = "test" if fam is None else f"{fam}_test"
+        for other in ("random", "pd_only"):
+            w, lo, p = paired(other, fam)
+            fig[f"{key}_contact_vs_{other}_p"] = p
+            fig[f"{key}_contact_vs_{other}_wins_losses"] = [w, lo]
+            fig[f"{key}_contact_lower_object_err_vs_{other}"] = lower_err(other, fam)
+            print(f"{label} test ({len(sel('contact', 'test', fam))}), contact vs {other}: "
+                  f"contact alone succeeds on {w}, {other} alone on {lo}: one-sided sign test "
+                  f"p = {p:.3g}; contact's object error lower on {lower_err(other, fam)}")
+        for m, name in (("contact", "contact_sampling"), ("random", "random_sampling"),
+                        ("pd_only", "pd_only")):
+            fig[f"{key}_{name}_success"] = rate(m, "test", fam)
     return {
         "bench": "physcap", "samples_per_step": n, "finger_width": width,
-        "captures": len(caps), "validation_captures": len(val),
-        "test_captures": sum(split == "test" for split, _ in caps),
+        "captures": len(caps), "validation_captures": len(val), "test_captures": n_test,
+        "heavy_test_captures": len(sel("contact", "test", "heavy")),
+        "heavy_masses_kg": list(HEAVY_MASSES), "skipped_infeasible": skipped,
         "validation_contact_success": float(-v_score[(n, width)][0]),
         "validation_contact_object_err_mm": v_score[(n, width)][1],
         "s_per_frame": mean("contact", "s", "test"),
-        # the headline figures are the test split's
+        # the headline figures are the test split's, light and heavy pooled
         "contact_sampling_success": rate("contact", "test"),
         "random_sampling_success": rate("random", "test"),
-        "pd_only_success": rate("pd_only", "test"),
-        "test_contact_sampling_success": rate("contact", "test"),
-        "test_random_sampling_success": rate("random", "test"),
-        "test_pd_only_success": rate("pd_only", "test"),
-        "test_contact_vs_random_p": p_random, "test_contact_vs_pd_only_p": p_pd,
-        "test_contact_lower_object_err_vs_random": lower_err("random"),
-        "test_contact_lower_object_err_vs_pd_only": lower_err("pd_only"),
+        "pd_only_success": rate("pd_only", "test"), **fig,
         "heldout_contact_sampling_success": rate("contact", "heldout"),
         "heldout_random_sampling_success": rate("random", "heldout"),
         "heldout_pd_only_success": rate("pd_only", "heldout"),
@@ -269,6 +368,8 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         "hand_err_mm": mean("contact", "hand", "test"),
         "ref_object_err_mm": mean("contact", "ref_obj", "test"),
         "ref_hand_err_mm": mean("contact", "ref_hand", "test"),
+        "heavy_object_err_mm": mean("contact", "obj", "test", "heavy"),
+        "light_object_err_mm": mean("contact", "obj", "test", "light"),
         "heldout_object_err_mm": mean("contact", "obj", "heldout"),
         "random_object_err_mm": mean("random", "obj", "test"),
         "pd_only_object_err_mm": mean("pd_only", "obj", "test"),
