@@ -310,3 +310,19 @@ def test_sign_test_of_paired_successes():
     assert sign_test_p(4, 0) == pytest.approx(1 / 16)
     assert sign_test_p(3, 1) == pytest.approx(5 / 16)
     assert sign_test_p(0, 3) == 1.0
+
+
+def test_heavy_family_checked_by_the_feasibility_lp():
+    """The bench's heavy objects: the scenario's motion and friction with the new mass; the
+    feasibility LP with the joint torque limits admits 1 kg and rejects 8 kg at friction 0.3
+    (the bench skips and names such a capture: no method can lift it)."""
+    from hand_control.bench.physcap import heavy_spec, lp_feasible
+    from hand_control.sim.scenario import load_scenario
+
+    spec = heavy_spec("lift_box", 1.0)
+    base = load_scenario("lift_box")
+    assert spec.object_mass == 1.0 and spec.object_friction == base.object_friction
+    assert spec.name == "lift_box_1000g" and spec.lift_height == base.lift_height
+    assert lp_feasible(spec) == (True, "optimal")
+    ok, status = lp_feasible(heavy_spec("lift_box", 8.0).with_(object_friction=0.3))
+    assert not ok and status in ("torque_limits", "infeasible")
