@@ -216,6 +216,8 @@ class MultiviewTracker:
         learn = getattr(self.initializer, "learn", None)
         if callable(learn) and self.frames == 0:
             learn(images, m, self.params)   # e.g. the hull's colour model, on a known frame
+        if self.lo.colour is None and self.frames == 0:
+            self.lo.learn_colours(images, self.params)   # the hands' colours, a known frame
         if detections is None and self.detector is not None:
             detections = {c: np.asarray(self.detector.detect(images[c])[0]) for c in present}
         active = [p for p, s in enumerate(self.status) if s != LOST]
