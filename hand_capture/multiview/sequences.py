@@ -4,7 +4,8 @@ Scripted performances, posed kinematically (no physics) in the studio
 (:mod:`hand_capture.multiview.studio`):
 
 * ``fingers`` -- two hands, the right one above the left with their fingers crossing (the
-  left hand turned 30 degrees under the right one), fingers folding in a wave;
+  left hand turned 30 degrees under the right one), fingers folding in a wave (a 1 s period
+  at 30 fps);
 * ``ball`` -- two palm-up hands holding and passing a ball from the right palm to the left;
 * ``box`` -- one hand grasps a box from above, lifts it by 4 cm and turns it by 30 degrees;
 * ``leave`` -- one hand leaves every camera's view for 20 frames and comes back.
