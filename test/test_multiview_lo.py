@@ -267,3 +267,20 @@ def test_colour_screen_drops_edges_of_clutter_beside_the_hand(clean_box_frames):
     unscreened, total = on_disc(frame)
     assert unscreened >= 5 and screened <= 0.25 * unscreened, (unscreened, screened)
     assert kept >= 0.7 * total
+
+
+def test_colours_are_learned_only_where_the_hand_is(clean_box_frames):
+    """The colour screen learns the hand's colours from the estimate's silhouettes only when
+    the images support that estimate: a first guess far from the hand teaches nothing."""
+    rig, seq, frames = clean_box_frames
+    model = seq.model()
+    far = seq.truth(model, 0)
+    far[:3] += (0.0, 0.25, 0.1)
+    tr = MultiviewTracker(model, rig, LOConfig(iterations=1))
+    tr.reset(far)
+    tr.step(frames[0].images, frames[0].detections)
+    assert tr.lo.colour is None
+    tr = MultiviewTracker(model, rig, LOConfig(iterations=1))
+    tr.reset(seq.truth(model, 0))
+    tr.step(frames[0].images, frames[0].detections)
+    assert tr.lo.colour is not None
