@@ -2,12 +2,13 @@
 
 Studio sequences with ground truth (:mod:`hand_capture.multiview.sequences`) rendered by the
 six cameras of config/rigs/studio6.yaml at 640x480: ``fingers`` (two hands, fingers crossing
-and folding), ``ball`` (two hands holding and passing a ball), ``box`` (one hand grasping,
-lifting and turning a box). The hands are drawn with the HELD-OUT surfaces (a held-out-family
-right hand with its forearm in view, the MJCF capsule left hand), not the mesh the tracker
-fits; the studio's colour noise plus seed 002's structural noise (100 random circles of 10-30
-px per image, added and removed) and synthetic salient detections (nail centres, 30 %
-deleted, 10 % false positives). Every sequence is tracked from its first frame's true pose.
+and folding, the wave's period 30 frames: 1 s at 30 fps), ``ball`` (two hands holding and
+passing a ball), ``box`` (one hand grasping, lifting and turning a box). The hands are drawn
+with the HELD-OUT surfaces (a held-out-family right hand with its forearm in view, the MJCF
+capsule left hand), not the mesh the tracker fits; the studio's colour noise plus seed 002's
+structural noise (100 random circles of 10-30 px per image, added and removed) and synthetic
+salient detections (nail centres, 30 % deleted, 10 % false positives). Every sequence is
+tracked from its first frame's true pose.
 
 Rows, as seed 002 Table 1: the local optimiser with edges + collisions (E+C), + optical flow
 (E+C+O), + salient points (E+C+O+S); E+C+O+S on the tracker's own mesh (in-distribution),

@@ -71,17 +71,23 @@ class LOConfig:
                                      hi=1000.0)
     w_edge: float = param(1.0, "weight of edge residuals", lo=0.0, hi=1e3)
     w_flow: float = param(1.0, "weight of flow residuals", lo=0.0, hi=1e3)
-    w_salient: float = param(8.0, "weight of salient point residuals", lo=0.0, hi=1e3)
+    w_salient: float = param(20.0, "weight of salient point residuals (the circles of seed "
+                             "002's structural noise corrupt edges, not salient points)",
+                             lo=0.0, hi=1e3)
     collision_px_per_m: float = param(1500.0, "collision residual scale [px per m of depth]",
                                       lo=0.0, hi=1e6)
     collision_depth_m: float = param(0.02, "depth of the local distance fields [m]", lo=1e-3,
                                      hi=0.1)
     outlier_sigma: float = param(2.0, "outlier gate in standard deviations (sec. 4.3)",
                                  lo=0.5, hi=10.0)
-    robust_px: float = param(4.0, "scale of the Cauchy weights of correspondences [px]; "
+    robust_px: float = param(2.0, "scale of the Cauchy weights of correspondences [px]; "
                              "0 = plain least squares", lo=0.0, hi=100.0)
     support_px: float = param(4.0, "a model edge is supported by an image edge this near [px]",
                               lo=0.5, hi=50.0)
+    colour_check_px: float = param(3.0, "a hand's edge correspondence is kept only when the "
+                                   "hand colour model (learned on the first frame) sees "
+                                   "hand within this distance on either side of the image "
+                                   "edge [px]; 0 = off", lo=0.0, hi=20.0)
     seed: int = param(0, "subsampling seed", lo=0)
 
     def __post_init__(self) -> None:
@@ -132,6 +138,7 @@ class FrameData:
     features: dict[int, ImageFeatures]
     detections: dict[int, np.ndarray]
     flow: Correspondences
+    hand_mask: dict[int, np.ndarray] = field(default_factory=dict)  # camera -> (H, W) bool
 
 
 @dataclass
@@ -158,6 +165,49 @@ class LocalOptimizer:
         hands = range(model.n_hands)
         parts = range(len(model.part_names))
         self.collision_parts = [(a, b) for a in hands for b in parts if b > a]
+        #: hand / background colours (seed 000 eq. 4), see :meth:`learn_colours`
+        self.colour: object | None = None
+
+    def learn_colours(self, images: Mapping[str, np.ndarray | None], params: np.ndarray
+                      ) -> bool:
+        """Learn the hand / background colour model (seed 000 eq. 4) from a frame whose
+        configuration ``params`` is known (the hands' rendered silhouettes, 4 px of each
+        outline left out). Edge correspondences of the hands are then screened by it (an
+        image edge with no hand colour on either side is clutter, not a hand's outline).
+        False when no camera sees a hand."""
+        import cv2
+
+        from hand_capture.multiview.imageterms import ColourModel
+
+        if not self.model.n_hands or self.cfg.colour_check_px <= 0:
+            return False
+        state = self.model.pose(params)
+        imgs, masks = [], []
+        for cam in self.rig.cameras:
+            img = images.get(cam.name)
+            if img is None:
+                continue
+            ren = self.model.render(cam, state, 0.5, parts=list(range(self.model.n_hands)))
+            h, w = np.asarray(img).shape[:2]
+            mask = cv2.resize((ren.labels > 0).astype(np.uint8), (w, h),
+                              interpolation=cv2.INTER_NEAREST) > 0
+            if mask.sum() > 50:
+                imgs.append(np.asarray(img))
+                masks.append(mask)
+        if not imgs:
+            return False
+        self.colour = ColourModel.fit(imgs, masks, margin_px=4)
+        return True
+
+    def _hand_mask(self, rgb: np.ndarray) -> np.ndarray:
+        """(H, W) bool: pixels of hand colour, grown by ``colour_check_px``."""
+        import cv2
+
+        # opened: the thin mixed-colour rims along other edges (anti-aliasing) drop out
+        m = self.colour.silhouette(rgb).astype(np.uint8)
+        r = int(np.ceil(self.cfg.colour_check_px))
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2)
+        return cv2.dilate(m, k) > 0
 
     # -------------------------------------------------------------------------- per frame
     def prepare(self, images: Mapping[str, np.ndarray | None],
@@ -176,12 +226,16 @@ class LocalOptimizer:
             d = None if detections is None else detections.get(cam.name)
             if d is not None and c in feats:
                 dets[c] = np.asarray(d, dtype=float).reshape(-1, 2)
+        masks = {}
+        if self.colour is not None and self.cfg.colour_check_px > 0:
+            masks = {c: self._hand_mask(images[self.rig.cameras[c].name]) for c in feats
+                     if np.ndim(images[self.rig.cameras[c].name]) == 3}
         flow = Correspondences.concat([])
         if prev is not None and self.cfg.use_flow and self.cfg.flow_per_view > 0:
             flow = self._flow(feats, prev[0], prev[1],
                               list(range(len(self.model.part_names))) if parts is None
                               else list(parts))
-        return FrameData(feats, dets, flow)
+        return FrameData(feats, dets, flow, masks)
 
     def _flow(self, feats: dict[int, ImageFeatures], prev_images: Mapping[str, object],
               prev_state: SceneState, parts: list[int]) -> Correspondences:
@@ -246,6 +300,16 @@ class LocalOptimizer:
                 if cfg.use_edges:
                     eb = np.where(usable[:, None], pix, -1)
                     sel, tgt, nrm = edge_correspondences(uv, eb, bins, feats, gate_px)
+                    hm = frame.hand_mask.get(c) if p < m.n_hands else None
+                    if hm is not None and len(sel):
+                        # clutter screen: a hand's outline has hand colour beside it (the
+                        # mask is grown by colour_check_px, so the edge pixel itself counts)
+                        col = np.clip(np.round(tgt[:, 0]).astype(np.int64), 0,
+                                      hm.shape[1] - 1)
+                        row = np.clip(np.round(tgt[:, 1]).astype(np.int64), 0,
+                                      hm.shape[0] - 1)
+                        ok = hm[row, col]
+                        sel, tgt, nrm = sel[ok], tgt[ok], nrm[ok]
                     if len(sel) > cfg.edges_per_view:
                         pick = self._rng.choice(len(sel), cfg.edges_per_view, replace=False)
                         sel, tgt, nrm = sel[pick], tgt[pick], nrm[pick]

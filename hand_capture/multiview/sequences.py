@@ -4,7 +4,8 @@ Scripted performances, posed kinematically (no physics) in the studio
 (:mod:`hand_capture.multiview.studio`):
 
 * ``fingers`` -- two hands, the right one above the left with their fingers crossing (the
-  left hand turned 30 degrees under the right one), fingers folding in a wave;
+  left hand turned 30 degrees under the right one), fingers folding in a wave (a 1 s period
+  at 30 fps);
 * ``ball`` -- two palm-up hands holding and passing a ball from the right palm to the left;
 * ``box`` -- one hand grasps a box from above, lifts it by 4 cm and turns it by 30 degrees;
 * ``leave`` -- one hand leaves every camera's view for 20 frames and comes back.
@@ -38,7 +39,8 @@ from hand_capture.model.joints import JOINT_INDEX, JOINT_LIMITS, N_DOF, matrix_t
 from hand_capture.multiview.rig import Rig
 from hand_capture.multiview.scene_model import SceneModel, object_mesh
 
-__all__ = ["SEQUENCES", "Sequence", "SequenceFrame", "make_sequence", "render_sequence"]
+__all__ = ["LENGTHS", "SEQUENCES", "Sequence", "SequenceFrame", "make_sequence",
+           "render_sequence"]
 
 SEQUENCES = ("fingers", "ball", "box", "leave")
 _FINGERS = ("index", "middle", "ring", "little")
@@ -120,12 +122,20 @@ def _smooth(x: np.ndarray) -> np.ndarray:
     return x * x * (3.0 - 2.0 * x)
 
 
-def make_sequence(name: str, n_frames: int, length: int = 16) -> Sequence:
+#: frames each performance spans by default, at a real camera's 30 fps: the finger wave's
+#: period is 1 s (30 frames; it was 16 frames, 0.53 s, up to 39 mm of fingertip motion a
+#: frame); the ball pass and the box's grasp-lift-turn take 16 frames (0.53 s)
+LENGTHS = {"fingers": 30, "ball": 16, "box": 16, "leave": 16}
+
+
+def make_sequence(name: str, n_frames: int, length: int | None = None) -> Sequence:
     """The first ``n_frames`` frames of the scripted performance ``name`` (one of
-    :data:`SEQUENCES`), which spans ``length`` frames (a shorter run sees the same motion per
-    frame, only less of it); ``leave`` has 3 + 3 + 20 + 3 + ``n_frames`` frames."""
+    :data:`SEQUENCES`), which spans ``length`` frames (default :data:`LENGTHS`; a shorter run
+    sees the same motion per frame, only less of it); ``leave`` has 3 + 3 + 20 + 3 +
+    ``n_frames`` frames."""
     if name not in SEQUENCES:
         raise InputError(f"unknown sequence {name!r}; choose from {SEQUENCES}")
+    length = LENGTHS[name] if length is None else length
     if n_frames < 2 or length < 2:
         raise InputError(f"a sequence needs at least 2 frames, got {n_frames} of {length}")
     s = np.arange(n_frames) / (length - 1.0)

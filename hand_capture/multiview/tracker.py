@@ -220,6 +220,10 @@ class MultiviewTracker:
             detections = {c: np.asarray(self.detector.detect(images[c])[0]) for c in present}
         active = [p for p, s in enumerate(self.status) if s != LOST]
         frame = self.lo.prepare(images, detections, self._prev, active)
+        if self.lo.colour is None and self._hands_in_place(frame, active):
+            # the hands' colours, learned where the estimate matches the images
+            if self.lo.learn_colours(images, self.params):
+                frame = self.lo.prepare(images, detections, self._prev, active)
         res = None
         if active:
             start = self.params
@@ -261,6 +265,17 @@ class MultiviewTracker:
         self.frames += 1
         return TrackResult(self.params.copy(), parts, len(present), time.perf_counter() - t0,
                            res, state)
+
+    def _hands_in_place(self, frame: object, active: list[int]) -> bool:
+        """Every tracked hand's outline at the current estimate is supported by the images
+        (support and edge count as for a tracked part): its silhouettes may teach the colour
+        model. A start far from the hands (a guessed first pose) teaches nothing."""
+        hands = [p for p in active if p < self.model.n_hands]
+        if not hands or self.lo.cfg.colour_check_px <= 0:
+            return False
+        s, n_edge = self.lo.support(self.params, frame, hands)
+        return all(s[p] >= self.cfg.lost_support and n_edge[p] >= self.cfg.min_edges
+                   for p in hands)
 
     def _initialise(self, images: Mapping[str, np.ndarray | None]) -> None:
         if self.initializer is None:
