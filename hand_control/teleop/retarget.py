@@ -80,6 +80,19 @@ def pose_with_wrist(q: np.ndarray, T: np.ndarray) -> np.ndarray:
     return out
 
 
+def _smooth(u: float) -> float:
+    """Smoothstep of ``u`` in [0, 1]: zero slope at both ends."""
+    return u * u * (3 - 2 * u)
+
+
+def _travel_time(Ta: np.ndarray, Tb: np.ndarray, cfg: InterfaceConfig) -> float:
+    """[s] the wrist needs from the (4, 4) pose Ta to Tb at ``approach_speed`` and
+    ``approach_turn_rate``, whichever is slower."""
+    d = float(np.linalg.norm(Tb[:3, 3] - Ta[:3, 3]))
+    ang = float(np.linalg.norm(matrix_to_rotvec(Ta[:3, :3].T @ Tb[:3, :3])))
+    return max(d / cfg.approach_speed, ang / cfg.approach_turn_rate)
+
+
 def _blend(Ta: np.ndarray, Tb: np.ndarray, s: float) -> np.ndarray:
     """Rigid interpolation from Ta (s = 0) to Tb (s = 1): lerp + rotation-vector slerp."""
     T = np.eye(4)
@@ -248,7 +261,7 @@ class GraspRetarget:
                     self._path = _ApproachPath(T_op, object_pose @ self._start_in_object(),
                                                t, self.approach, timed)
             elif phase in (Phase.REACHING, Phase.RELEASING):
-                if timed and self._path is not None and self._last is not None:
+                if timed and self._last is not None:
                     # the hand was on the grasp, up to centimetres and tens of degrees off
                     # the operator's wrist: jumping to the tracked hand flung the released
                     # box (7 cm in 0.2 s); open the fingers in place, then rejoin the wrist
@@ -312,12 +325,9 @@ class _ReturnPath:
             a = max(e, 0.0) / cfg.close_time
             return pose_with_wrist((1 - a) * self.q_hand + a * self.q_open, self.T_hand), False
         if self.t_back is None:
-            d = float(np.linalg.norm(T_op[:3, 3] - self.T_hand[:3, 3]))
-            ang = float(np.linalg.norm(matrix_to_rotvec(self.T_hand[:3, :3].T @ T_op[:3, :3])))
-            self.t_back = max(d / cfg.approach_speed, ang / cfg.approach_turn_rate,
-                              cfg.min_approach_time)
+            self.t_back = max(_travel_time(self.T_hand, T_op, cfg), cfg.min_approach_time)
         u = min(max((e - cfg.close_time) / self.t_back, 0.0), 1.0)
-        s = u * u * (3 - 2 * u)
+        s = _smooth(u)
         q = (1 - s) * self.q_open + s * np.asarray(q_op, dtype=np.float64)
         return pose_with_wrist(q, _blend(self.T_hand, T_op, s)), u >= 1.0
 
@@ -337,9 +347,7 @@ class _ApproachPath:
         self.T_from, self.T_to, self.t0 = np.array(T_from), np.array(T_to), t0
         self.T_via = self.T_to.copy()
         self.T_via[2, 3] += cfg.approach_height
-        ang = float(np.linalg.norm(matrix_to_rotvec(self.T_from[:3, :3].T @ self.T_to[:3, :3])))
-        d1 = float(np.linalg.norm(self.T_via[:3, 3] - self.T_from[:3, 3]))
-        self.t1 = max(d1 / cfg.approach_speed, ang / cfg.approach_turn_rate)
+        self.t1 = _travel_time(self.T_from, self.T_via, cfg)  # T_via turned as T_to
         self.t2 = cfg.approach_height / cfg.approach_speed
         scale = max(1.0, cfg.min_approach_time / max(self.t1 + self.t2, 1e-9))
         self.t1 *= scale
@@ -357,13 +365,13 @@ class _ApproachPath:
         e = t - self.t0
         if e < self.t1:
             u = e / self.t1
-            return _blend(self.T_from, self.T_via, u * u * (3 - 2 * u)), u
+            return _blend(self.T_from, self.T_via, _smooth(u)), u
         e -= self.t1 + self.settle  # held at the via pose while the wrist catches up
         if e < 0.0:
             return self.T_via.copy(), 1.0
         if e < self.t2:
             u = e / self.t2
-            return _blend(self.T_via, self.T_to, u * u * (3 - 2 * u)), 1.0
+            return _blend(self.T_via, self.T_to, _smooth(u)), 1.0
         return self.T_to.copy(), 1.0
 
 
