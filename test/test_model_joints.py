@@ -102,6 +102,9 @@ def test_root_rotation_conventions() -> None:
     q = J.quat_from_root_angles(ang)
     np.testing.assert_allclose(J.root_angles_from_quat(q), ang, atol=1e-9)
     np.testing.assert_allclose(J.quat_to_matrix(q), r, atol=1e-12)
+    # MuJoCo's (w, x, y, z) order, one and many
+    np.testing.assert_allclose(J.quat_wxyz_to_matrix(q[:, [3, 0, 1, 2]]), r, atol=1e-12)
+    np.testing.assert_allclose(J.quat_wxyz_to_matrix(q[7, [3, 0, 1, 2]]), r[7], atol=1e-12)
     # gimbal lock still reproduces the rotation
     lock = J.root_rotation_matrix([0.3, math.pi / 2, 0.4])
     np.testing.assert_allclose(J.root_rotation_matrix(J.root_angles_from_matrix(lock)), lock,

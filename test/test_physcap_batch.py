@@ -174,11 +174,11 @@ def test_bag_object_from_metadata_and_object_poses_interpolated(tmp_path):
 def test_hand_only_bag_uses_the_given_object_pose_and_camera(tmp_path):
     """The depth tracker's bags: hand/pose in the camera frame, no object poses."""
     from hand_capture.cameras.transforms import pose_in_camera
-    from hand_capture.model.joints import quat_to_matrix
+    from hand_capture.model.joints import quat_wxyz_to_matrix
 
     t, q, op = _motion(12)
     cam = np.array([0.0, 0.0, 0.6, 0.0, 1.0, 0.0, 0.0])  # looking down (180 deg about x)
-    R = quat_to_matrix(np.r_[cam[4:7], cam[3]])
+    R = quat_wxyz_to_matrix(cam[3:7])
     q_cam = np.array([pose_in_camera(x, R, cam[:3]) for x in q])
     bag = _write_bag(tmp_path / "depth", t, q_cam, None, frame="camera_depth_optical_frame")
     # no object poses, no object: incomplete, named

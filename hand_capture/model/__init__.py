@@ -42,6 +42,7 @@ from hand_capture.model.joints import (
     pose_to_dict,
     quat_from_root_angles,
     quat_to_matrix,
+    quat_wxyz_to_matrix,
     rest_pose,
     root_angles_from_matrix,
     root_angles_from_quat,
@@ -78,7 +79,8 @@ __all__ = [
     "clamp_to_limits", "default_shape", "joint_limits_dict", "keypoints21", "matrix_to_quat",
     "mirror_pose",
     "pose_from_dict", "pose_from_names", "pose_to_dict", "quat_from_root_angles",
-    "quat_to_matrix", "rest_pose", "root_angles_from_matrix", "root_angles_from_quat",
+    "quat_to_matrix", "quat_wxyz_to_matrix", "rest_pose", "root_angles_from_matrix",
+    "root_angles_from_quat",
     "root_rotation_matrix", "sample_shape", "segment_distance", "validate_pose",
     "vertex_normals", "within_limits",
 ]

@@ -271,6 +271,13 @@ def quat_to_matrix(quat_xyzw: object) -> np.ndarray:
     return r
 
 
+def quat_wxyz_to_matrix(quat_wxyz: object) -> np.ndarray:
+    """Unit quaternion(s) (..., 4) in (w, x, y, z) order (MuJoCo's) -> rotation matrix
+    (..., 3, 3)."""
+    q = np.asarray(quat_wxyz, dtype=np.float64)
+    return quat_to_matrix(q[..., [1, 2, 3, 0]])
+
+
 def matrix_to_quat(rot: object) -> np.ndarray:
     """Rotation matrix (..., 3, 3) -> unit quaternion (..., 4) in (x, y, z, w) order, w >= 0."""
     r = np.asarray(rot, dtype=np.float64)

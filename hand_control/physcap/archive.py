@@ -61,7 +61,7 @@ import numpy as np
 
 from hand_capture.config import from_mapping, load_yaml, param, validate
 from hand_capture.errors import BagError, ConfigError, InputError
-from hand_capture.model.joints import matrix_to_quat, quat_to_matrix
+from hand_capture.model.joints import matrix_to_quat, quat_wxyz_to_matrix
 from hand_capture.posemsg import HAND_LEFT, HAND_RIGHT, STATUS
 from hand_control.physcap.capture import (
     Capture,
@@ -382,7 +382,7 @@ def _to_world(q: np.ndarray, camera_pose: Sequence[float]) -> np.ndarray:
     from hand_capture.cameras.transforms import pose_in_world
 
     c = np.asarray(camera_pose, dtype=float)
-    R = quat_to_matrix(np.r_[c[4:7], c[3]])
+    R = quat_wxyz_to_matrix(c[3:7])
     return np.array([pose_in_world(x, R, c[:3]) for x in q])
 
 
@@ -474,7 +474,7 @@ def read_capture_bag(path: str | Path, default_object: ObjectProperties | None =
     keypoints = _keypoints(kp_msgs, t_hand)
     if keypoints is not None and obj.camera_pose:
         c = np.asarray(obj.camera_pose, dtype=float)
-        keypoints = keypoints @ quat_to_matrix(np.r_[c[4:7], c[3]]).T + c[:3]
+        keypoints = keypoints @ quat_wxyz_to_matrix(c[3:7]).T + c[:3]
     if len(t_hand) < config.min_frames:
         raise IncompleteCaptureError(name, f"{len(t_hand)} frames with object poses, fewer "
                                      f"than the {config.min_frames} a capture needs")
@@ -498,7 +498,7 @@ def _object_from_hand(q: np.ndarray, pose: np.ndarray, config: ArchiveConfig
     if not len(q) or d.min() > config.touch_distance:
         return out
     k = int(np.argmax(d <= d.min() + 0.005))
-    R_obj = quat_to_matrix(np.r_[pose[4:7], pose[3]])
+    R_obj = quat_wxyz_to_matrix(pose[3:7])
     R_k = root_rotation_matrix(q[k, 3:6])
     rel_R, rel_p = R_k.T @ R_obj, R_k.T @ (pose[:3] - q[k, :3])
     for i in range(k, len(q)):

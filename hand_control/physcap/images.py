@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hand_capture.model.hand import HandModel
-from hand_capture.model.joints import quat_to_matrix
+from hand_capture.model.joints import quat_wxyz_to_matrix
 from hand_control.physcap.capture import CapturedObject, CaptureError
 
 __all__ = ["CaptureImages", "capture_images"]
@@ -29,7 +29,7 @@ def _transforms(object_pose: np.ndarray) -> np.ndarray:
     """(N, 4, 4) world <- object of (N, 7) poses (position, quaternion w x y z)."""
     p = np.atleast_2d(np.asarray(object_pose, float))
     T = np.tile(np.eye(4), (len(p), 1, 1))
-    T[:, :3, :3] = quat_to_matrix(p[:, [4, 5, 6, 3]])  # x y z w order
+    T[:, :3, :3] = quat_wxyz_to_matrix(p[:, 3:7])
     T[:, :3, 3] = p[:, 0:3]
     return T
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from hand_capture.model.joints import JOINT_LIMITS, JOINT_NAMES, quat_to_matrix
+from hand_capture.model.joints import JOINT_LIMITS, JOINT_NAMES, quat_wxyz_to_matrix
 from hand_control.contact.types import ContactSet
 from hand_control.errors import InputError, SolverError
 
@@ -29,11 +29,6 @@ __all__ = ["GraspPlan", "fingertip_ik", "plan_grasp", "surface_contacts"]
 
 #: fingers that touch the object in the default precision grasp; the thumb opposes them
 GRASP_FINGERS: tuple[str, ...] = ("thumb", "index", "middle")
-
-
-def _wxyz_to_matrix(q: Sequence[float]) -> np.ndarray:
-    w, x, y, z = q
-    return quat_to_matrix((x, y, z, w))
 
 
 def surface_contacts(kind: str, size: Sequence[float], center: Sequence[float],
@@ -55,7 +50,7 @@ def surface_contacts(kind: str, size: Sequence[float], center: Sequence[float],
     Returns:
         ``(points, outward_normals)``, (F, 3) each, in the order of ``fingers``.
     """
-    rot = _wxyz_to_matrix(quat_wxyz)
+    rot = quat_wxyz_to_matrix(quat_wxyz)
     c = np.asarray(center, dtype=np.float64) + np.array([0.0, 0.0, height])
     others = [f for f in fingers if f != "thumb"]
     lat = np.linspace(spread, -spread, len(others)) if len(others) > 1 else np.zeros(1)
@@ -141,7 +136,7 @@ def _tip_points(model: mujoco.MjModel) -> dict[str, tuple[int, np.ndarray, float
         if not caps:
             continue
         g = caps[0]
-        axis = _wxyz_to_matrix(model.geom_quat[g])[:, 2]
+        axis = quat_wxyz_to_matrix(model.geom_quat[g])[:, 2]
         ends = [model.geom_pos[g] + s * model.geom_size[g, 1] * axis for s in (1.0, -1.0)]
         end = max(ends, key=lambda e: float(np.linalg.norm(e)))
         out[f] = (int(b), end, float(model.geom_size[g, 0]))

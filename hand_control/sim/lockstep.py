@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from hand_capture.model.joints import JOINT_NAMES
+from hand_capture.model.joints import JOINT_NAMES, quat_wxyz_to_matrix
 from hand_capture.model.mjcf import ObjectSpec, build_scene
 from hand_control.contact.feasibility import dynamic_feasibility
 from hand_control.control import (
@@ -139,16 +139,9 @@ def scenario_plan(spec: ScenarioSpec, world: SimWorld, obj: ObjectSpec,
                           f"primitive layout for {spec.object_shape!r}; use grasp_source: "
                           "synthesis")
     kind, psize, offset = g.ik_proxy
-    centre = pose.position + _wxyz_matrix(pose.quaternion) @ np.asarray(offset)
+    centre = pose.position + quat_wxyz_to_matrix(pose.quaternion) @ np.asarray(offset)
     return plan_grasp(world.model, obj.name, kind, psize, centre, pose.quaternion,
                       depth=spec.grasp_depth, upright_cylinder=kind == "stick")
-
-
-def _wxyz_matrix(q: np.ndarray) -> np.ndarray:
-    from hand_capture.model.joints import quat_to_matrix
-
-    w, x, y, z = q
-    return quat_to_matrix((x, y, z, w))
 
 
 @dataclass

@@ -42,7 +42,7 @@ import numpy as np
 from hand_capture.cameras.transforms import matrix_to_rotvec, rotvec_to_matrix
 from hand_capture.config import param, validate
 from hand_capture.errors import InputError
-from hand_capture.model import HandModel, quat_to_matrix, root_rotation_matrix
+from hand_capture.model import HandModel, quat_wxyz_to_matrix, root_rotation_matrix
 from hand_capture.model.joints import root_angles_from_matrix
 from hand_control.teleop.phases import (
     GraspPhaseDetector,
@@ -67,7 +67,7 @@ def pose_matrix(q: np.ndarray) -> np.ndarray:
 def object_matrix(position: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
     """(4, 4) pose from a position and a quaternion (w, x, y, z)."""
     T = np.eye(4)
-    T[:3, :3] = quat_to_matrix(np.r_[quat_wxyz[1:], quat_wxyz[0]])
+    T[:3, :3] = quat_wxyz_to_matrix(quat_wxyz)
     T[:3, 3] = position
     return T
 
