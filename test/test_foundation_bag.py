@@ -16,10 +16,11 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from ros_helpers import hand_suite, wait_for
 
-from hand_capture.bag import BagReader, BagWriter, recover_bag
+from hand_capture.bag import BagReader, BagWriter, prepare_output, recover_bag
 from hand_capture.bag.compare import compare_bags, same_cdr
 from hand_capture.bag.sample import write_sample_bag
 from hand_capture.errors import BagError
+from hand_capture.nodes.capture import write_capture
 
 
 def _pose(i: int) -> bytes:
@@ -236,3 +237,20 @@ def test_same_cdr_ignores_only_trailing_padding() -> None:
     assert same_cdr(b"\x00\x01\x00\x00ab", b"\x00\x01\x00\x00ab\x00\x00")
     assert not same_cdr(b"\x00\x01\x00\x00ab", b"\x00\x01\x00\x00ab\x00\x01")
     assert not same_cdr(b"\x00\x01\x00\x00ab", b"\x00\x01\x00\x00ac")
+
+
+def test_an_existing_output_is_refused_untouched_unless_overwrite(tmp_path: Path) -> None:
+    """The capture tools write through ``prepare_output``: a previous recording at the output
+    path survives a second run unless the user asks for it to be replaced."""
+    first = write_capture(tmp_path / "cap", seconds=0.1)
+    before = sorted(p.name for p in first.path.iterdir())
+    with pytest.raises(BagError, match="exists; choose another output or pass overwrite"):
+        write_capture(tmp_path / "cap", seconds=0.1)
+    assert sorted(p.name for p in first.path.iterdir()) == before
+    n_first = BagReader(first.path).message_count
+    assert n_first > 0
+    again = write_capture(tmp_path / "cap", seconds=0.3, overwrite=True)
+    assert BagReader(again.path).message_count > n_first
+    stray = tmp_path / "file"
+    stray.write_text("x")
+    assert not prepare_output(stray, overwrite=True).exists()

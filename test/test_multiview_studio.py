@@ -96,7 +96,7 @@ def test_jittered_stamps_have_offsets_and_bounded_jitter():
 
 def test_rig_capture_writes_every_camera_and_the_ground_truth(tmp_path):
     from hand_capture.bag import BagReader
-    from hand_capture.errors import InputError
+    from hand_capture.errors import BagError
     from hand_capture.multiview.rig import save_rig
     from hand_capture.nodes.rig_capture import write_rig_capture
 
@@ -123,7 +123,7 @@ def test_rig_capture_writes_every_camera_and_the_ground_truth(tmp_path):
     for cam in ("cam0", "cam1"):  # own clocks: offset + jitter within 5 ms of the instant
         d = np.array(stamps[f"/{cam}/color/image_raw"]) - truth
         assert np.all(np.abs(d) <= 0.005) and np.any(d != 0)
-    with pytest.raises(InputError, match="exists"):
+    with pytest.raises(BagError, match="exists"):
         write_rig_capture(tmp_path / "bag", str(rig), seconds=0.1)
 
 

@@ -7,6 +7,7 @@ from hand_capture.bag.bagfile import (
     BagWriter,
     RecoveryResult,
     make_qos,
+    prepare_output,
     recover_bag,
 )
 from hand_capture.bag.typestore import default_typestore, ensure_type
@@ -20,5 +21,6 @@ __all__ = [
     "default_typestore",
     "ensure_type",
     "make_qos",
+    "prepare_output",
     "recover_bag",
 ]

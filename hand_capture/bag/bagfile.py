@@ -82,6 +82,31 @@ def make_qos(reliable: bool, transient_local: bool = False, depth: int = 10) -> 
     )
 
 
+def prepare_output(path: str | Path, overwrite: bool = False) -> Path:
+    """Clear the way for a new bag at ``path`` before any work is done for it.
+
+    Args:
+        path: the bag directory a tool is about to write.
+        overwrite: remove what is at ``path`` (a previous bag, or a file) instead of refusing.
+
+    Returns:
+        ``path`` as a :class:`~pathlib.Path`, free for :class:`BagWriter`.
+
+    Raises:
+        BagError: ``path`` exists and ``overwrite`` is False.
+    """
+    out = Path(path)
+    if out.exists() or out.is_symlink():
+        if not overwrite:
+            raise BagError(f"{out} exists; choose another output or pass overwrite "
+                           "(--overwrite on the command line)")
+        if out.is_dir() and not out.is_symlink():
+            shutil.rmtree(out)
+        else:
+            out.unlink()
+    return out
+
+
 class BagWriter:
     """Write a rosbag2 bag with periodic durable flushes.
 

@@ -10,7 +10,6 @@ capture is reproducible: the same clip, shape and seeds give the same bag.
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -18,7 +17,7 @@ from builtin_interfaces.msg import Time
 from hand_msgs.msg import HandPose
 from rclpy.serialization import serialize_message
 
-from hand_capture.bag import BagWriter
+from hand_capture.bag import BagWriter, prepare_output
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
 from hand_capture.nodes.images import camera_info_msg, depth_image_msg, rgb_image_msg
 from hand_capture.posemsg import fill_pose_msg
@@ -57,9 +56,7 @@ def write_capture(path: str | Path, camera: SyntheticCameraConfig | None = None,
         t0_ns: stamp of the first frame [ns].
         overwrite: replace an existing bag at ``path``.
     """
-    out = Path(path)
-    if overwrite and out.exists():
-        shutil.rmtree(out)
+    out = prepare_output(path, overwrite)
     cfg = camera or SyntheticCameraConfig()
     cam = SyntheticCamera(replace(cfg, loop=False))
     cam.open()

@@ -334,19 +334,13 @@ def track_bag(bag: str | Path, output: str | Path, *, rig: str = "studio6",
     new bag at ``output``. The first group starts from the bag's ground truth when it has
     one, else from :func:`default_params`. ``detector`` / ``hull_recovery``: as the node's
     parameters."""
-    import shutil
-
     from rclpy.serialization import serialize_message
 
-    from hand_capture.bag import BagWriter
+    from hand_capture.bag import BagWriter, prepare_output
     from hand_capture.bag.bagfile import BagReader
     from hand_capture.multiview.sync import FrameSynchronizer, SyncConfig
 
-    out = Path(output)
-    if out.exists():
-        if not overwrite:
-            raise InputError(f"{out} exists; choose another output or pass --overwrite")
-        shutil.rmtree(out)
+    out = prepare_output(output, overwrite)
     r = load_rig(rig)
     if detector not in ("learned", "none"):
         raise InputError(f"detector must be 'learned' or 'none', got {detector!r}")

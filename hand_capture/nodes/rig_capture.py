@@ -19,7 +19,6 @@ Topics (``N`` = each camera of the rig):
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +30,7 @@ from hand_msgs.msg import HandPose
 from hand_msgs.msg import HandShape as HandShapeMsg
 from rclpy.serialization import serialize_message
 
-from hand_capture.bag import BagWriter
+from hand_capture.bag import BagWriter, prepare_output
 from hand_capture.cameras.base import Intrinsics
 from hand_capture.errors import InputError
 from hand_capture.model.joints import matrix_to_quat
@@ -107,11 +106,7 @@ def write_rig_capture(path: str | Path, rig: str = "studio6", *, seconds: float 
     """
     from hand_capture.multiview.studio import studio_scene
 
-    out = Path(path)
-    if out.exists():
-        if not overwrite:
-            raise InputError(f"{out} exists; choose another output or pass overwrite")
-        shutil.rmtree(out)
+    out = prepare_output(path, overwrite)
     r = load_rig(rig)
     n = int(round(seconds * fps))
     if n < 1:
