@@ -32,11 +32,13 @@ the frame is tracked from the previous pose and published first, then
 :meth:`HybridTracker.run_deferred` runs steps 1-2 on the same frame and keeps its best
 candidate for the next frame's pool when it fits that frame better than the tracked pose.
 
-Departures for real hands (issue 13): the forearm is cut off the segment first
-(``preprocess.cut_forearm``: at the previous pose's wrist while tracking, else from the
-cloud's shape; after a cloud-only cut the selected pose's wrist cuts again and the pose is
-refined on those points); the ICP data term is Huber-weighted (``robust_mm``); tau of eq.
-II.19 follows the calibration fit (:attr:`HybridTracker.tau_mm`, :meth:`set_calibration`).
+Departures for real hands (issue 13): the pixels a per-pixel classifier calls arm are
+dropped first (``armseg.remove_arm``, trained on the suite's renders with forearms), then
+the forearm is cut off the segment (``preprocess.cut_forearm``: at the previous pose's wrist
+while tracking, else from the cloud's shape; after a cloud-only cut the selected pose's
+wrist cuts again and the pose is refined on those points); the ICP data term is
+Huber-weighted (``robust_mm``); tau of eq. II.19 follows the calibration fit
+(:attr:`HybridTracker.tau_mm`, :meth:`set_calibration`).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -53,6 +55,7 @@ import numpy as np
 from hand_capture.cameras.base import Intrinsics
 from hand_capture.model import N_DOF, HandModel, HandShape
 from hand_capture.model.joints import root_rotation_matrix
+from hand_capture.tracking.armseg import ArmClassifier, load_arm_classifier, remove_arm
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.icp import ModelTracker
 from hand_capture.tracking.preprocess import HandObservation, cut_forearm, segment_hand
@@ -124,12 +127,20 @@ class HybridTracker:
         model: hand model (the subject's calibrated shape, or the default).
         config: all weights and thresholds.
         regressor: trained regressor; required for ``hybrid`` and ``regressor`` modes.
+        arm: per-pixel hand/arm classifier; None = ``config.arm_model_file`` or
+            ``data/tracker/arm.npz`` when present (with ``arm_classifier`` and
+            ``forearm_cut`` on).
     """
 
     def __init__(self, model: HandModel, config: TrackerConfig | None = None,
-                 regressor: HandRegressor | None = None) -> None:
+                 regressor: HandRegressor | None = None, arm: ArmClassifier | None = None
+                 ) -> None:
         self.cfg = config or TrackerConfig()
         self.regressor = regressor
+        if arm is None and self.cfg.arm_classifier and self.cfg.forearm_cut:
+            arm = load_arm_classifier(self.cfg.arm_model_file or None)
+        #: the per-pixel hand/arm classifier (None: the geometric forearm cut only)
+        self.arm = arm if self.cfg.arm_classifier and self.cfg.forearm_cut else None
         self.icp = ModelTracker(model, self.cfg)
         self.frames = ModelFrames(model)
         self.fit_residual_mm: float | None = None
@@ -208,10 +219,16 @@ class HybridTracker:
         cut = False
         whole = None   # the uncut segment, when the cut had no tracked wrist to go by
         if cfg.forearm_cut and obs.found:
+            if self.arm is not None:   # the pixels the classifier calls arm (armseg)
+                obs, _, cut = remove_arm(obs, self.arm, cfg.arm_threshold, cfg.arm_grid_mm,
+                                         cfg.min_hand_pixels,
+                                         margin_m=cfg.arm_margin_m
+                                         * self.model.shape.global_scale)
             plane = self._wrist_plane()
             if plane is None:
                 whole = obs
-            obs, cut = cut_forearm(obs, cfg, self.model.shape.global_scale, plane)
+            obs, cut_g = cut_forearm(obs, cfg, self.model.shape.global_scale, plane)
+            cut = cut or cut_g
         timing["preprocess"] = time.perf_counter() - t0
         self.frame_count += 1
         if not obs.found:

@@ -79,6 +79,14 @@ class HandObservation:
         return self._pixels
 
     @property
+    def vuz(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The hand pixels' rows, columns (int) and depths [m], each (N,)."""
+        if self._vuz is not None:
+            return self._vuz
+        return (self.pixels[:, 1].astype(np.int64), self.pixels[:, 0].astype(np.int64),
+                self.points[:, 2])
+
+    @property
     def n_points(self) -> int:
         return len(self._vuz[0]) if self._points is None else len(self._points)
 
@@ -304,9 +312,7 @@ def depth_normals(obs: HandObservation) -> np.ndarray:
 def _keep(obs: HandObservation, keep: np.ndarray, min_pixels: int) -> HandObservation | None:
     """The observation restricted to the points ``keep`` (bool over its points); None when
     fewer than ``min_pixels`` remain."""
-    v, u, z = obs._vuz if obs._vuz is not None else (
-        obs.pixels[:, 1].astype(np.int64), obs.pixels[:, 0].astype(np.int64),
-        obs.points[:, 2])
+    v, u, z = obs.vuz
     v, u, z = v[keep], u[keep], z[keep]
     if len(z) < min_pixels:
         return None
