@@ -240,8 +240,15 @@ def load_arm_classifier(path: str | Path | None = None) -> ArmClassifier | None:
 
 
 def remove_arm(obs, clf: ArmClassifier, threshold: float = 0.5, grid_mm: float = 4.0,
-               min_pixels: int = 60, keep_ratio: float = 0.2, margin_m: float = 0.0):
+               min_pixels: int = 60, keep_ratio: float = 0.2, margin_m: float = 0.0,
+               reach_m: float = 0.0):
     """The segmented hand without the pixels ``clf`` calls arm.
+
+    With ``reach_m`` > 0 the classifier is asked only where the segment shows a forearm
+    (as :func:`~hand_capture.tracking.preprocess.cut_forearm`'s cloud test): it runs out of
+    the image, or it is longer than ``reach_m`` along its principal axis (longer than a
+    hand can be). A hand alone keeps every pixel whatever the classifier would say about
+    a surface unlike its training renders.
 
     The pixels of arm probability above ``threshold`` are dropped; of the rest, the largest
     8-connected component is kept with every other holding at least ``keep_ratio`` of its
@@ -257,14 +264,20 @@ def remove_arm(obs, clf: ArmClassifier, threshold: float = 0.5, grid_mm: float =
         min_pixels: fewer pixels left than this: the input is returned unchanged.
         keep_ratio: smallest kept component, relative to the largest.
         margin_m: arm kept next to the hand [m].
+        reach_m: the forearm evidence test's length [m]; 0 = always classify.
 
     Returns:
         ``(observation, prob, cut)``: the hand, the (N,) arm probability of the input's
-        pixels, and whether pixels were dropped.
+        pixels (None when not classified), and whether pixels were dropped.
     """
-    from hand_capture.tracking.preprocess import _keep
+    from hand_capture.tracking.preprocess import _keep, principal_extent, touches_border
 
     v, u, _ = obs.vuz
+    if reach_m > 0 and not touches_border(obs):
+        pts, _ = obs.subsample(400)
+        _, _, lo, hi = principal_extent(pts)
+        if hi - lo <= reach_m:   # no sign of a forearm: the classifier is not asked
+            return obs, None, False
     prob = clf.segment_probability(obs.depth_m, obs.mask, obs.box, v, u, obs.intrinsics,
                                    grid_mm)
     keep = prob <= threshold

@@ -34,7 +34,8 @@ class TrackerConfig:
                               "while tracking, else by the cloud's shape")
     arm_classifier: bool = param(True, "before the forearm cut, drop the pixels the per-pixel "
                                  "hand/arm classifier (tracking.armseg, data/tracker/arm.npz "
-                                 "when present) calls arm")
+                                 "when present) calls arm; asked only on a segment that runs "
+                                 "out of the image or is longer than forearm_reach_m")
     arm_model_file: str = param("", "trained arm classifier (.npz); empty = data/tracker/"
                                 "arm.npz when present")
     arm_threshold: float = param(0.5, "arm probability above which a pixel is dropped",

@@ -219,11 +219,12 @@ class HybridTracker:
         cut = False
         whole = None   # the uncut segment, when the cut had no tracked wrist to go by
         if cfg.forearm_cut and obs.found:
+            scale = self.model.shape.global_scale
             if self.arm is not None:   # the pixels the classifier calls arm (armseg)
                 obs, _, cut = remove_arm(obs, self.arm, cfg.arm_threshold, cfg.arm_grid_mm,
                                          cfg.min_hand_pixels,
-                                         margin_m=cfg.arm_margin_m
-                                         * self.model.shape.global_scale)
+                                         margin_m=cfg.arm_margin_m * scale,
+                                         reach_m=cfg.forearm_reach_m * scale)
             plane = self._wrist_plane()
             if plane is None:
                 whole = obs

@@ -372,16 +372,31 @@ def cut_forearm(obs: HandObservation, cfg: TrackerConfig, hand_scale: float = 1.
     return (obs, False) if out is None else (out, True)
 
 
+def principal_extent(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The principal axis (3,) of points (N, 3) [m], their coordinates along it (N,), and
+    its 0.5 and 99.5 percentiles [m] (the cloud's extent without stray points)."""
+    X = pts - pts.mean(axis=0)
+    _, vec = np.linalg.eigh(X.T @ X)
+    axis = vec[:, 2]
+    s = pts @ axis
+    return axis, s, float(np.percentile(s, 0.5)), float(np.percentile(s, 99.5))
+
+
+def touches_border(obs: HandObservation) -> bool:
+    """Whether the hand's bounding box reaches within 2 px of the image border."""
+    if obs.box is None:
+        return False
+    r0, r1, c0, c1 = obs.box
+    intr = obs.intrinsics
+    return r0 <= 1 or c0 <= 1 or r1 >= intr.height - 1 or c1 >= intr.width - 1
+
+
 def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float
                    ) -> np.ndarray | None:
     """Points to keep by the cloud-only rule of :func:`cut_forearm` (None: no forearm)."""
     intr = obs.intrinsics
     pts = obs.points
-    X = pts - pts.mean(axis=0)
-    _, vec = np.linalg.eigh(X.T @ X)
-    axis = vec[:, 2]
-    s = pts @ axis
-    lo, hi = float(np.percentile(s, 0.5)), float(np.percentile(s, 99.5))
+    axis, s, lo, hi = principal_extent(pts)
     extent = hi - lo
     if extent < cfg.forearm_border_m * hand_scale:
         return None
