@@ -31,13 +31,17 @@ def test_heldout_and_calibration_sections_report_their_figures(capsys) -> None:
     assert 0.0 <= out["forearm_seg_hand_kept_pct"] <= 100.0
     assert 0.0 <= out["forearm_seg_missed_rate"] <= 1.0
     assert 0.0 < out["heldout_seg_hand_kept_pct"] <= 100.0
+    # the baseline of the same run (the geometric cut alone) and the arm classifier's
+    # pixel accuracy on the held-out forearm frames
+    assert math.isfinite(out["forearm_cut_only_mean_mm"]) and out["forearm_cut_only_mean_mm"] > 0
+    assert 0.5 < out["heldout_arm_pixel_acc"] <= 1.0
     cal = calibration_section(True, scales=(0.9,))
     assert cal["calib_scales"] == [0.9]
     assert cal["calib_bone_err_pct"] >= cal["calib_bone_err_pct_mean"] > 0
     # a 0.9-scale hand: the template's bones are about 10 % off (the baseline row)
     assert cal["calib_bone_err_pct_template"] > 5.0
     text = capsys.readouterr().out
-    assert "forearm frames" in text
+    assert "forearm frames" in text and "classifier + cut" in text
     assert "held-out family" in text and "d435_848" in text and "bone-length" in text
     assert TEMPORAL_GRID[0] == 0.0 and np.all(np.diff(TEMPORAL_GRID) > 0)
 

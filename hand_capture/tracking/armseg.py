@@ -37,6 +37,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from hand_capture.cameras.base import Intrinsics
 from hand_capture.errors import InputError
@@ -253,7 +254,7 @@ def remove_arm(obs, clf: ArmClassifier, threshold: float = 0.5, grid_mm: float =
     The pixels of arm probability above ``threshold`` are dropped; of the rest, the largest
     8-connected component is kept with every other holding at least ``keep_ratio`` of its
     pixels (a finger cut off the palm by noise stays, a stray blob on the arm goes); then
-    the arm pixels within ``margin_m`` of those (in the image plane at their depth) are kept
+    the arm points within ``margin_m`` (3D) of the hand's pixels bordering the arm are kept
     again.
 
     Args:
@@ -293,14 +294,18 @@ def remove_arm(obs, clf: ArmClassifier, threshold: float = 0.5, grid_mm: float =
         good = area >= keep_ratio * area.max()
         good[0] = False
         keep &= good[lab[v - r0, u - c0]]
-    if margin_m > 0 and keep.any():
+    if margin_m > 0 and keep.any() and not keep.all():
         # the arm next to the hand stays: the hand model's wrist reaches beyond the skin's
-        # visible end into the sleeve of the arm (as the tracked cut's forearm_margin_m)
-        hand = np.zeros((r1 - r0, c1 - c0), np.uint8)
-        hand[v[keep] - r0, u[keep] - c0] = 1
-        dt = cv2.distanceTransform(1 - hand, cv2.DIST_L2, 3)
-        z = obs.depth_m[v, u]
-        keep |= dt[v - r0, u - c0] * z / obs.intrinsics.fx <= margin_m
+        # visible end into the arm's silhouette (as the tracked cut's forearm_margin_m):
+        # arm points within margin_m (3D) of the hand pixels bordering the arm
+        arm = np.zeros((r1 - r0, c1 - c0), np.uint8)
+        arm[v[~keep] - r0, u[~keep] - c0] = 1
+        near_arm = cv2.dilate(arm, np.ones((3, 3), np.uint8))
+        edge = keep & (near_arm[v - r0, u - c0] > 0)
+        if edge.any():
+            pts = obs.points
+            d, _ = cKDTree(pts[edge]).query(pts[~keep], distance_upper_bound=margin_m)
+            keep[~keep] = d <= margin_m
     out = _keep(obs, keep, min_pixels)
     return (obs, prob, False) if out is None else (out, prob, True)
 
