@@ -303,9 +303,17 @@ def remove_arm(obs, clf: ArmClassifier, threshold: float = 0.5, grid_mm: float =
         near_arm = cv2.dilate(arm, np.ones((3, 3), np.uint8))
         edge = keep & (near_arm[v - r0, u - c0] > 0)
         if edge.any():
-            pts = obs.points
-            d, _ = cKDTree(pts[edge]).query(pts[~keep], distance_upper_bound=margin_m)
-            keep[~keep] = d <= margin_m
+            # candidates: arm pixels whose image distance to the edge, at their depth, is
+            # within the margin (with slack); their 3D distance decides
+            not_edge = np.ones_like(arm)
+            not_edge[v[edge] - r0, u[edge] - c0] = 0
+            dt = cv2.distanceTransform(not_edge, cv2.DIST_L2, 3)
+            z = obs.depth_m[v, u]
+            cand = ~keep & (dt[v - r0, u - c0] * z / obs.intrinsics.fx <= 1.25 * margin_m)
+            if cand.any():
+                d, _ = cKDTree(obs.points_at(edge)).query(obs.points_at(cand),
+                                                          distance_upper_bound=margin_m)
+                keep[cand] = d <= margin_m
     out = _keep(obs, keep, min_pixels)
     return (obs, prob, False) if out is None else (out, prob, True)
 

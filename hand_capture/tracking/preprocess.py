@@ -78,6 +78,13 @@ class HandObservation:
             self._points, self._pixels = self._backproject(None)
         return self._pixels
 
+    def points_at(self, idx: np.ndarray) -> np.ndarray:
+        """(k, 3) the points ``idx`` (indices or a bool mask over the points) [m],
+        back-projecting only those when the points were not read yet."""
+        if self._points is None:
+            return self._backproject(np.flatnonzero(idx) if idx.dtype == bool else idx)[0]
+        return self._points[idx]
+
     @property
     def vuz(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The hand pixels' rows, columns (int) and depths [m], each (N,)."""
