@@ -87,8 +87,10 @@ def test_the_tracker_drops_the_arm_pixels_before_fitting(clf) -> None:
     shares: dict[str, list] = {"classifier": [], "bypassed": []}
     for depth, lab, intr in _frames(1.0, 4, 78):
         mm = (depth * 1000).astype(np.uint16)
-        # no arm margin: the segment's arm is what the classifier let through
-        for name, cfg in (("classifier", TrackerConfig(arm_margin_m=0.0)),
+        # no arm margin: the segment's arm is what the classifier let through (no fallback:
+        # an uncalibrated first frame often fails eq. II.19, and the retry on the cut alone
+        # would then fit the cut's segment; test below)
+        for name, cfg in (("classifier", TrackerConfig(arm_margin_m=0.0, arm_fallback=False)),
                           ("bypassed", TrackerConfig(arm_classifier=False))):
             tracker = HybridTracker(HandModel(), cfg, reg)
             assert (tracker.arm is not None) == (name == "classifier")
@@ -159,3 +161,66 @@ def test_arm_settings_are_validated() -> None:
         TrackerConfig(arm_margin_m=-0.01)
     cfg = dataclasses.replace(TrackerConfig(), arm_grid_mm=2.0)
     assert cfg.arm_grid_mm == 2.0
+
+
+class _WrongClassifier:
+    """Calls the hand arm and the arm hand (what the trained classifier does to a surface
+    unlike its training renders, e.g. clutter touching the hand: the kept part is not the
+    hand)."""
+
+    def __init__(self, label: np.ndarray) -> None:
+        self.label = label
+
+    def segment_probability(self, depth, mask, box, v, u, intr, grid_mm) -> np.ndarray:
+        return (self.label[v, u] == HAND_LABEL).astype(np.float64)
+
+
+def test_a_classifier_that_keeps_the_wrong_part_is_no_worse_than_the_cut() -> None:
+    # issue 13: the classifier's segment lost the hand on a held-out sequence (clutter next
+    # to the hand) and the tracker never recovered; a failed frame the classifier cut is
+    # now retried on the forearm cut alone and the lower E_d (eq. II.19) is kept
+    reg = HandRegressor.load(default_model_path())
+    model = HandModel()
+    cost: dict[str, list] = {"fallback": [], "no fallback": [], "cut only": []}
+    for depth, lab, intr in _frames(1.0, 3, 32):
+        mm = (depth * 1000).astype(np.uint16)
+        wrong = _WrongClassifier(lab)
+        for name, cfg in (("fallback", TrackerConfig()),
+                          ("no fallback", TrackerConfig(arm_fallback=False)),
+                          ("cut only", TrackerConfig(arm_classifier=False))):
+            tracker = HybridTracker(model, cfg, reg, arm=wrong)
+            r = tracker.process(mm, intr)
+            assert tracker.frame_count == 1           # one frame, whatever was retried
+            _, kept = _shares(r.observation, lab, _obs(depth, intr))
+            cost[name].append((r.cost, kept))
+    fb, nofb, cut = (np.array(cost[k]) for k in ("fallback", "no fallback", "cut only"))
+    assert np.all(nofb[:, 1] < 0.5)                   # the wrong part: most of the hand gone
+    assert np.all(fb[:, 0] <= nofb[:, 0])
+    # where the wrong part failed eq. II.19, the retry on the cut alone won
+    failed = nofb[:, 0] >= TrackerConfig().success_tau_mm
+    assert failed.sum() >= 2
+    np.testing.assert_allclose(fb[failed, 0], cut[failed, 0])
+    assert np.all(fb[failed, 1] > 0.9)
+
+
+def test_the_fallback_keeps_tracking_through_a_sequence() -> None:
+    # the same on a tracked sequence of the suite's generator: state after a retried frame
+    # is the retry's (tracking continues at the cut's wrist), not the failed attempt's
+    from hand_capture.bench._tracking_heldout import suite_forearm_sequence
+
+    reg = HandRegressor.load(default_model_path())
+    true, intr, frames, kps, labels = suite_forearm_sequence(21, "pinch", 6, 6)
+    err = {}
+    for name, cfg in (("fallback", TrackerConfig()),
+                      ("no fallback", TrackerConfig(arm_fallback=False)),
+                      ("cut only", TrackerConfig(arm_classifier=False))):
+        wrong = _WrongClassifier(labels[0])
+        tracker = HybridTracker(true, cfg, reg, arm=wrong)
+        e = []
+        for (depth, _), kp, lab in zip(frames, kps, labels, strict=True):
+            wrong.label = np.where(lab == 1, HAND_LABEL, 0)
+            r = tracker.process(depth, intr)
+            e.append(np.linalg.norm(true.joint_positions(r.pose) - kp, axis=1).mean() * 1e3)
+        err[name] = float(np.mean(e))
+    assert err["no fallback"] > 40.0
+    assert err["fallback"] < 20.0 and err["fallback"] < 1.2 * err["cut only"] + 2.0

@@ -75,3 +75,23 @@ def test_suite_forearm_sequence_shows_the_arm_and_labels_it() -> None:
     # reproducible: the validation set is the same in every run
     again = suite_forearm_sequence(21, "pinch", 2, 4)
     assert np.array_equal(again[2][1][0], frames[1][0])
+
+
+def test_the_hard_validation_scene_has_clutter_touching_the_hand_and_a_sleeve() -> None:
+    model, intr, frames, kps, labels = suite_forearm_sequence(21, "pinch", 3, 6)
+    _, intr_c, frames_c, _, labels_c = suite_forearm_sequence(21, "pinch", 3, 6, close=True,
+                                                              clutter=True, sleeve=True)
+    assert intr_c.fx < intr.fx                           # wider field of view
+    assert np.mean(frames_c[0][0][labels_c[0] == 1]) < 0.8 * np.mean(
+        frames[0][0][labels[0] == 1])                    # and nearer the hand
+    assert (labels_c[0] == 2).sum() > (labels[0] == 2).sum()   # sleeve over the arm
+    box = [lab == 4 for lab in labels_c]
+    assert all(b.sum() > 200 for b in box) and not (labels[0] == 4).any()
+    # the box slides in: away from the hand first, touching it (8-connected) in the last frame
+    import cv2
+
+    def touches(lab: np.ndarray) -> bool:
+        near = cv2.dilate((lab == 4).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        return bool((near & (lab == 1)).any())
+
+    assert not touches(labels_c[0]) and touches(labels_c[-1])

@@ -36,6 +36,10 @@ class TrackerConfig:
                                  "hand/arm classifier (tracking.armseg, data/tracker/arm.npz "
                                  "when present) calls arm; asked only on a segment that runs "
                                  "out of the image or is longer than forearm_reach_m")
+    arm_fallback: bool = param(True, "when the classifier dropped pixels and the frame fails "
+                               "eq. II.19, run it again on the forearm cut alone and keep the "
+                               "result of lower E_d (the classifier cannot do worse than the "
+                               "cut on a lost frame)")
     arm_model_file: str = param("", "trained arm classifier (.npz); empty = data/tracker/"
                                 "arm.npz when present")
     arm_threshold: float = param(0.5, "arm probability above which a pixel is dropped",

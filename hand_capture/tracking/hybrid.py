@@ -210,21 +210,54 @@ class HybridTracker:
         self._carry: np.ndarray | None = None  # a deferred regression's candidate (27,)
 
     # ------------------------------------------------------------------------------ frame
+    _STATE = ("prev", "delta", "last_good", "frame_count", "_since_regression", "_prev_cost",
+              "_deferred", "_carry")
+
     def process(self, depth: np.ndarray, intr: Intrinsics) -> TrackResult:
-        """Track one depth frame (uint16 mm or float m)."""
+        """Track one depth frame (uint16 mm or float m).
+
+        With ``arm_fallback``: a frame that fails eq. (II.19) after the arm classifier
+        dropped pixels is tracked again from the same state on the forearm cut alone, and
+        the result of lower E_d is kept (both steps' time counted). The classifier's segment
+        can lose the hand where its training never looked (clutter touching the hand
+        reads half arm, half hand: with the arm gone, the clutter dominates the cloud the
+        cut and the PCA start go by); the cut alone is then one more candidate, as the
+        pool of step 5 (eq. II.20 selects by cost)."""
+        before = {k: getattr(self, k) for k in self._STATE}
+        r, dropped = self._process(depth, intr, self.arm)
+        if not (dropped and not r.success and self.cfg.arm_fallback):
+            return r
+        after = {k: getattr(self, k) for k in self._STATE}
+        for k, v in before.items():
+            setattr(self, k, v)
+        r2, _ = self._process(depth, intr, None)
+        timing = {k: r.timing[k] + r2.timing[k] for k in STAGES}
+        if r2.cost < r.cost:
+            r2.timing = timing
+            return r2
+        for k, v in after.items():
+            setattr(self, k, v)
+        r.timing = timing
+        return r
+
+    def _process(self, depth: np.ndarray, intr: Intrinsics, arm: ArmClassifier | None
+                 ) -> tuple[TrackResult, bool]:
+        """One frame (:meth:`process`) with the classifier ``arm`` (None: the cut alone);
+        also whether the classifier dropped pixels."""
         cfg = self.cfg
         timing = dict.fromkeys(STAGES, 0.0)
         t0 = time.perf_counter()
         obs = segment_hand(depth, intr, cfg)
-        cut = False
+        cut = dropped = False
         whole = None   # the uncut segment, when the cut had no tracked wrist to go by
         if cfg.forearm_cut and obs.found:
             scale = self.model.shape.global_scale
-            if self.arm is not None:   # the pixels the classifier calls arm (armseg)
-                obs, _, cut = remove_arm(obs, self.arm, cfg.arm_threshold, cfg.arm_grid_mm,
-                                         cfg.min_hand_pixels,
-                                         margin_m=cfg.arm_margin_m * scale,
-                                         reach_m=cfg.forearm_reach_m * scale)
+            if arm is not None:   # the pixels the classifier calls arm (armseg)
+                obs, _, dropped = remove_arm(obs, arm, cfg.arm_threshold, cfg.arm_grid_mm,
+                                             cfg.min_hand_pixels,
+                                             margin_m=cfg.arm_margin_m * scale,
+                                             reach_m=cfg.forearm_reach_m * scale)
+                cut = dropped
             plane = self._wrist_plane()
             if plane is None:
                 whole = obs
@@ -236,7 +269,7 @@ class HybridTracker:
             self.delta = False
             pose = self.prev if self.prev is not None else np.zeros(N_DOF)
             return TrackResult(pose.copy(), False, "no_hand", cfg.depth_cap_mm, 0.0,
-                               self.last_good, 0, timing, obs, tau_mm=self.tau_mm)
+                               self.last_good, 0, timing, obs, tau_mm=self.tau_mm), dropped
         pts = obs.subsample(cfg.max_points)
         ds = cfg.cost_downsample
         obs_ds = obs.depth_m[::ds, ::ds]
@@ -340,7 +373,7 @@ class HybridTracker:
             self._deferred = (obs, intr, pts, obs_ds, q.copy(), costs[best][0])
         conf = float(np.clip(1.0 - e_d / cfg.depth_cap_mm, 0.0, 1.0))
         return TrackResult(q.copy(), success, status, e_d, conf, self.last_good, len(costs),
-                           timing, obs, regress, cut, self.tau_mm)
+                           timing, obs, regress, cut, self.tau_mm), dropped
 
     def _palm_modes(self, obs: HandObservation, intr: Intrinsics
                     ) -> tuple[DepthLookup, list[np.ndarray]]:

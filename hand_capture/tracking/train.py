@@ -103,8 +103,8 @@ def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: flo
 
 def forearm_mesh(model: HandModel, q: np.ndarray, radius: float = 0.03,
                  length: float = 0.4, bend: tuple[float, float] = (0.0, 0.0),
-                 label: int = HAND_LABEL) -> Mesh:
-    """A forearm for the training renders: a closed cylinder from 15 mm inside the wrist
+                 label: int = HAND_LABEL, start: float = -0.015) -> Mesh:
+    """A forearm for the training renders: a closed cylinder (from 15 mm inside the wrist)
     along the wrist-from-middle-MCP direction, turned by ``bend`` (flexion, deviation)
     [rad] at the wrist.
 
@@ -114,6 +114,8 @@ def forearm_mesh(model: HandModel, q: np.ndarray, radius: float = 0.03,
         radius, length: cylinder size [m].
         bend: rotation of the forearm axis about the palm's across axis and its normal.
         label: the renderer label of its pixels.
+        start: where the cylinder begins along the forearm axis, from the wrist [m]
+            (negative: inside the hand; a sleeve starts beyond the wrist).
     """
     from hand_capture.cameras.primitives import cylinder
 
@@ -134,7 +136,7 @@ def forearm_mesh(model: HandModel, q: np.ndarray, radius: float = 0.03,
     else:
         K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
         R = np.eye(3) + K + K @ K * ((1 - c) / sn ** 2)
-    return Mesh(V @ R.T + kp[0] + d * (0.5 * length - 0.015), F, label, closed=True)
+    return Mesh(V @ R.T + kp[0] + d * (0.5 * length + start), F, label, closed=True)
 
 
 @dataclass
