@@ -224,3 +224,26 @@ def test_the_fallback_keeps_tracking_through_a_sequence() -> None:
         err[name] = float(np.mean(e))
     assert err["no fallback"] > 40.0
     assert err["fallback"] < 20.0 and err["fallback"] < 1.2 * err["cut only"] + 2.0
+
+
+def test_a_lost_frame_with_clutter_touching_the_hand_is_retried_at_the_other_end() -> None:
+    # issue 13, the suite's generator: a box slid against the hand, a sleeve, a close-range
+    # camera; from a reset tracker the cloud cut takes the box for the palm and keeps the
+    # wrong end; a failed frame is retried with the cloud's other end (flip_retry)
+    from hand_capture.bench._tracking_heldout import suite_forearm_sequence
+
+    reg = HandRegressor.load(default_model_path())
+    true, intr, frames, kps, _ = suite_forearm_sequence(22, "fist", 12, 3, close=True,
+                                                        clutter=True, sleeve=True)
+    err, cost = {}, {}
+    for name, cfg in (("retry", TrackerConfig()), ("no retry", TrackerConfig(flip_retry=False))):
+        tracker = HybridTracker(true, cfg, reg)
+        e, c = [], []
+        for (depth, _), kp in list(zip(frames, kps, strict=True))[-4:]:
+            tracker.reset()
+            r = tracker.process(depth, intr)
+            e.append(np.linalg.norm(true.joint_positions(r.pose) - kp, axis=1).mean() * 1e3)
+            c.append(r.cost)
+        err[name], cost[name] = float(np.mean(e)), np.array(c)
+    assert np.all(cost["retry"] <= cost["no retry"] + 1e-9)   # the lower E_d is kept
+    assert err["no retry"] > 40.0 and err["retry"] < 25.0

@@ -222,33 +222,49 @@ class HybridTracker:
         can lose the hand where its training never looked (clutter touching the hand
         reads half arm, half hand: with the arm gone, the clutter dominates the cloud the
         cut and the PCA start go by); the cut alone is then one more candidate, as the
-        pool of step 5 (eq. II.20 selects by cost)."""
+        pool of step 5 (eq. II.20 selects by cost). With ``flip_retry`` a failed frame whose
+        forearm was cut from the cloud's shape (no previous wrist) is tried once more with
+        the cloud's other end taken for the arm (clutter touching the hand can be the
+        widest place the cut takes for the palm); again the lower E_d is kept."""
+        cfg = self.cfg
         before = {k: getattr(self, k) for k in self._STATE}
-        r, dropped = self._process(depth, intr, self.arm)
-        if not (dropped and not r.success and self.cfg.arm_fallback):
-            return r
-        after = {k: getattr(self, k) for k in self._STATE}
-        for k, v in before.items():
-            setattr(self, k, v)
-        r2, _ = self._process(depth, intr, None)
-        timing = {k: r.timing[k] + r2.timing[k] for k in STAGES}
-        if r2.cost < r.cost:
-            r2.timing = timing
-            return r2
-        for k, v in after.items():
-            setattr(self, k, v)
-        r.timing = timing
-        return r
+        r, dropped, cloud = self._process(depth, intr, self.arm)
+        retries = []
+        if dropped and cfg.arm_fallback:
+            retries.append((None, False))
+        if cfg.flip_retry:
+            retries.append((None if dropped else self.arm, True))
+        best = r
+        for arm, flip in retries:
+            if best.success:
+                break
+            if flip and not cloud:
+                continue
+            kept = {k: getattr(self, k) for k in self._STATE}
+            for k, v in before.items():
+                setattr(self, k, v)
+            r2, _, cloud2 = self._process(depth, intr, arm, flip)
+            for k in STAGES:
+                r2.timing[k] += best.timing[k]
+            cloud = cloud or cloud2
+            if r2.cost < best.cost:
+                best = r2
+            else:
+                best.timing = r2.timing
+                for k, v in kept.items():
+                    setattr(self, k, v)
+        return best
 
-    def _process(self, depth: np.ndarray, intr: Intrinsics, arm: ArmClassifier | None
-                 ) -> tuple[TrackResult, bool]:
-        """One frame (:meth:`process`) with the classifier ``arm`` (None: the cut alone);
-        also whether the classifier dropped pixels."""
+    def _process(self, depth: np.ndarray, intr: Intrinsics, arm: ArmClassifier | None,
+                 flip: bool = False) -> tuple[TrackResult, bool, bool]:
+        """One frame (:meth:`process`) with the classifier ``arm`` (None: the cut alone),
+        ``flip`` passed to the cloud cut; also whether the classifier dropped pixels and
+        whether the forearm was cut from the cloud's shape."""
         cfg = self.cfg
         timing = dict.fromkeys(STAGES, 0.0)
         t0 = time.perf_counter()
         obs = segment_hand(depth, intr, cfg)
-        cut = dropped = False
+        cut = dropped = cloud = False
         whole = None   # the uncut segment, when the cut had no tracked wrist to go by
         if cfg.forearm_cut and obs.found:
             scale = self.model.shape.global_scale
@@ -261,15 +277,16 @@ class HybridTracker:
             plane = self._wrist_plane()
             if plane is None:
                 whole = obs
-            obs, cut_g = cut_forearm(obs, cfg, self.model.shape.global_scale, plane)
+            obs, cut_g = cut_forearm(obs, cfg, self.model.shape.global_scale, plane, flip)
             cut = cut or cut_g
+            cloud = cut_g and plane is None
         timing["preprocess"] = time.perf_counter() - t0
         self.frame_count += 1
         if not obs.found:
             self.delta = False
             pose = self.prev if self.prev is not None else np.zeros(N_DOF)
             return TrackResult(pose.copy(), False, "no_hand", cfg.depth_cap_mm, 0.0,
-                               self.last_good, 0, timing, obs, tau_mm=self.tau_mm), dropped
+                               self.last_good, 0, timing, obs, tau_mm=self.tau_mm), dropped, cloud
         pts = obs.subsample(cfg.max_points)
         ds = cfg.cost_downsample
         obs_ds = obs.depth_m[::ds, ::ds]
@@ -373,7 +390,7 @@ class HybridTracker:
             self._deferred = (obs, intr, pts, obs_ds, q.copy(), costs[best][0])
         conf = float(np.clip(1.0 - e_d / cfg.depth_cap_mm, 0.0, 1.0))
         return TrackResult(q.copy(), success, status, e_d, conf, self.last_good, len(costs),
-                           timing, obs, regress, cut, self.tau_mm), dropped
+                           timing, obs, regress, cut, self.tau_mm), dropped, cloud
 
     def _palm_modes(self, obs: HandObservation, intr: Intrinsics
                     ) -> tuple[DepthLookup, list[np.ndarray]]:

@@ -332,7 +332,7 @@ def _keep(obs: HandObservation, keep: np.ndarray, min_pixels: int) -> HandObserv
 
 
 def cut_forearm(obs: HandObservation, cfg: TrackerConfig, hand_scale: float = 1.0,
-                wrist: tuple[np.ndarray, np.ndarray] | None = None
+                wrist: tuple[np.ndarray, np.ndarray] | None = None, flip: bool = False
                 ) -> tuple[HandObservation, bool]:
     """Remove the forearm from a segmented hand (an addition to ch. II: the dissertation's
     segmentation assumes a wrist band or a hand alone; every real hand has a forearm, and
@@ -357,6 +357,8 @@ def cut_forearm(obs: HandObservation, cfg: TrackerConfig, hand_scale: float = 1.
         cfg: thresholds (``forearm_*``, ``min_hand_pixels``).
         hand_scale: the tracked model's size relative to the template (global scale).
         wrist: the previous pose's wrist and forearm direction, or None.
+        flip: without ``wrist``, take the other end of the cloud for the arm (a second
+            guess where the first one failed, e.g. clutter taken for the palm).
 
     Returns:
         ``(observation, cut)``: the hand without the forearm (the input when nothing was
@@ -370,7 +372,7 @@ def cut_forearm(obs: HandObservation, cfg: TrackerConfig, hand_scale: float = 1.
         w, d = wrist
         keep = (pts - w) @ d <= cfg.forearm_margin_m * hand_scale
     else:
-        keep = _geometric_cut(obs, cfg, hand_scale)
+        keep = _geometric_cut(obs, cfg, hand_scale, flip)
         if keep is None:
             return obs, False
     if keep.all():
@@ -398,8 +400,8 @@ def touches_border(obs: HandObservation) -> bool:
     return r0 <= 1 or c0 <= 1 or r1 >= intr.height - 1 or c1 >= intr.width - 1
 
 
-def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float
-                   ) -> np.ndarray | None:
+def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float,
+                   flip: bool = False) -> np.ndarray | None:
     """Points to keep by the cloud-only rule of :func:`cut_forearm` (None: no forearm)."""
     intr = obs.intrinsics
     pts = obs.points
@@ -420,7 +422,7 @@ def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float
         arm_hi = hi - c > c - lo
     else:
         return None
-    if not arm_hi:
+    if arm_hi == flip:
         axis, s, lo, hi = -axis, -s, -hi, -lo
     # the palm: the widest place within a hand's length of the hand's end
     near = s <= lo + cfg.forearm_reach_m * 0.7 * hand_scale
