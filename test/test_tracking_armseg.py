@@ -236,7 +236,8 @@ def test_a_lost_frame_with_clutter_touching_the_hand_is_retried_at_the_other_end
     true, intr, frames, kps, _ = suite_forearm_sequence(22, "fist", 12, 3, close=True,
                                                         clutter=True, sleeve=True)
     err, cost = {}, {}
-    for name, cfg in (("retry", TrackerConfig()), ("no retry", TrackerConfig(flip_retry=False))):
+    for name, cfg in (("retry", TrackerConfig(flip_retry=True)),
+                      ("no retry", TrackerConfig())):
         tracker = HybridTracker(true, cfg, reg)
         e, c = [], []
         for (depth, _), kp in list(zip(frames, kps, strict=True))[-4:]:

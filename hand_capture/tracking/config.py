@@ -40,7 +40,7 @@ class TrackerConfig:
                                "eq. II.19, run it again on the forearm cut alone and keep the "
                                "result of lower E_d (the classifier cannot do worse than the "
                                "cut on a lost frame)")
-    flip_retry: bool = param(True, "when a frame whose forearm was cut from the cloud's shape "
+    flip_retry: bool = param(False, "when a frame whose forearm was cut from the cloud's shape "
                              "fails eq. II.19, run it again with the cloud's other end taken "
                              "for the arm and keep the result of lower E_d")
     arm_model_file: str = param("", "trained arm classifier (.npz); empty = data/tracker/"
