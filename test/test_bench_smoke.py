@@ -73,7 +73,8 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                   "fps_ratio_vs_icp_only", "heldout_mean_mm", "heldout_success_20mm",
                   "forearm_mean_mm", "forearm_success_20mm", "calib_bone_err_pct",
                   "large_frame_delivery", "temporal_weight_chosen", "forearm_seg_arm_pct",
-                  "val_forearm_mean_mm"), ()),
+                  "val_forearm_mean_mm", "val_forearm_first_mean_mm", "val_arm_pixel_acc",
+                  "forearm_cut_only_mean_mm", "heldout_arm_pixel_acc"), ()),
 }
 
 

@@ -69,8 +69,12 @@ def test_training_never_reaches_evaldata() -> None:
         for f in sorted((ROOT / "hand_capture" / pkg).rglob("*.py")):
             assert not any("evaldata" in t for t in _code_strings(f)), \
                 f"{f} uses hand_capture.evaldata"
-    # and at run time: training (and the tracker package it pulls in) leaves it unloaded
+    # and at run time: training (and the tracker package it pulls in) leaves it unloaded;
+    # the arm classifier's training (renders with per-pixel labels) runs on a sliver
     code = ("import sys, hand_capture.tracking.train, hand_capture.tracking\n"
+            "from hand_capture.tracking.armseg import train_arm_classifier\n"
+            "clf = train_arm_classifier(None, n_frames=8, n_shapes=2, n_trees=1)\n"
+            "assert int(clf.info['n_frames']) == 8\n"
             "bad = [m for m in sys.modules if m.startswith('hand_capture.evaldata')]\n"
             "assert not bad, bad\n")
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,

@@ -31,13 +31,17 @@ def test_heldout_and_calibration_sections_report_their_figures(capsys) -> None:
     assert 0.0 <= out["forearm_seg_hand_kept_pct"] <= 100.0
     assert 0.0 <= out["forearm_seg_missed_rate"] <= 1.0
     assert 0.0 < out["heldout_seg_hand_kept_pct"] <= 100.0
+    # the baseline of the same run (the geometric cut alone) and the arm classifier's
+    # pixel accuracy on the held-out forearm frames
+    assert math.isfinite(out["forearm_cut_only_mean_mm"]) and out["forearm_cut_only_mean_mm"] > 0
+    assert 0.5 < out["heldout_arm_pixel_acc"] <= 1.0
     cal = calibration_section(True, scales=(0.9,))
     assert cal["calib_scales"] == [0.9]
     assert cal["calib_bone_err_pct"] >= cal["calib_bone_err_pct_mean"] > 0
     # a 0.9-scale hand: the template's bones are about 10 % off (the baseline row)
     assert cal["calib_bone_err_pct_template"] > 5.0
     text = capsys.readouterr().out
-    assert "forearm frames" in text
+    assert "forearm frames" in text and "classifier + cut" in text
     assert "held-out family" in text and "d435_848" in text and "bone-length" in text
     assert TEMPORAL_GRID[0] == 0.0 and np.all(np.diff(TEMPORAL_GRID) > 0)
 
@@ -71,3 +75,23 @@ def test_suite_forearm_sequence_shows_the_arm_and_labels_it() -> None:
     # reproducible: the validation set is the same in every run
     again = suite_forearm_sequence(21, "pinch", 2, 4)
     assert np.array_equal(again[2][1][0], frames[1][0])
+
+
+def test_the_hard_validation_scene_has_clutter_touching_the_hand_and_a_sleeve() -> None:
+    model, intr, frames, kps, labels = suite_forearm_sequence(21, "pinch", 3, 6)
+    _, intr_c, frames_c, _, labels_c = suite_forearm_sequence(21, "pinch", 3, 6, close=True,
+                                                              clutter=True, sleeve=True)
+    assert intr_c.fx < intr.fx                           # wider field of view
+    assert np.mean(frames_c[0][0][labels_c[0] == 1]) < 0.8 * np.mean(
+        frames[0][0][labels[0] == 1])                    # and nearer the hand
+    assert (labels_c[0] == 2).sum() > (labels[0] == 2).sum()   # sleeve over the arm
+    box = [lab == 4 for lab in labels_c]
+    assert all(b.sum() > 200 for b in box) and not (labels[0] == 4).any()
+    # the box slides in: away from the hand first, touching it (8-connected) in the last frame
+    import cv2
+
+    def touches(lab: np.ndarray) -> bool:
+        near = cv2.dilate((lab == 4).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        return bool((near & (lab == 1)).any())
+
+    assert not touches(labels_c[0]) and touches(labels_c[-1])

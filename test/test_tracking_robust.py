@@ -96,6 +96,21 @@ def test_forearm_cut_removes_the_forearm_and_keeps_the_hand(fingers):
         assert cut.mask.sum() == cut.n_points == np.count_nonzero(cut.depth_m)
 
 
+def test_a_flipped_cloud_cut_keeps_the_other_end():
+    # the second guess of the cloud cut (flip_retry): the arm's end kept, the hand cut off
+    fa = _WithForearm(HandModel())
+    q = _pose("flat")
+    cfg = TrackerConfig()
+    obs = segment_hand(_render(fa, q), default_intrinsics(), cfg)
+    arm = fa.arm(q)
+    n_arm = _beyond(obs.points, arm, 0.06)
+    cut, did = cut_forearm(obs, cfg, 1.0, None, flip=True)
+    assert did
+    assert _beyond(cut.points, arm, 0.06) > 0.9 * n_arm
+    assert cut.n_points - _beyond(cut.points, arm, 0.0) < 0.3 * (
+        obs.n_points - _beyond(obs.points, arm, 0.0))
+
+
 def test_forearm_cut_leaves_a_hand_alone_untouched():
     cfg = TrackerConfig()
     for fingers in ("flat", "bent"):

@@ -41,6 +41,9 @@ HELDOUT_QUICK = (("d435_640", False, 101), ("d405_640", True, 106))
 SCALES = (0.85, 0.925, 1.0, 1.075, 1.15)
 TEMPORAL_GRID = (0.0, 10.0, 30.0, 100.0, 300.0)
 VAL_SEEDS = (21, 22)
+#: validation shapes of forearm handling (the suite's generator; the arm classifier's
+#: settings were chosen here)
+ARM_VAL_SEEDS = (21, 22, 23, 24)
 
 
 def _bone_err_pct(model, true_model) -> float:
@@ -69,6 +72,29 @@ def segment_quality(pixels: np.ndarray, label: np.ndarray, depth: np.ndarray
     n_hand = int(np.count_nonzero((label == 1) & (depth > 0)))
     kept = 100.0 * np.count_nonzero(lab == 1) / n_hand if n_hand else 100.0
     return arm, float(kept)
+
+
+def arm_pixel_counts(arm, frames, labels, config) -> tuple[int, int]:
+    """Pixels of the segmented hands (before any cut) the arm classifier labels right, and
+    all labelled ones: arm = forearm or sleeve (labels 2, 3), hand = 1; other pixels
+    (clutter, unlabelled) left out. ``(0, 0)`` without a classifier."""
+    from hand_capture.tracking.preprocess import segment_hand
+
+    if arm is None:
+        return 0, 0
+    right = total = 0
+    for (depth, intr), lab in zip(frames, labels, strict=True):
+        obs = segment_hand(depth, intr, config)
+        if not obs.found:
+            continue
+        v, u, _ = obs.vuz
+        p = arm.segment_probability(obs.depth_m, obs.mask, obs.box, v, u, intr,
+                                    config.arm_grid_mm)
+        lv = lab[v, u]
+        ok = (lv >= 1) & (lv <= 3)
+        right += int(np.count_nonzero((p[ok] > config.arm_threshold) == (lv[ok] >= 2)))
+        total += int(np.count_nonzero(ok))
+    return right, total
 
 
 def _score(tracker, frames, truth, labels=None) -> dict:
@@ -109,6 +135,8 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
     rows, agg = [], {"heldout": [], "forearm": []}
     cpu: dict[str, list] = {"heldout": [], "forearm": []}
     seg: dict[str, list] = {"heldout": [], "forearm": []}
+    cut_only: list[np.ndarray] = []
+    acc = [0, 0]
     for arm in (False, True):
         key = "forearm" if arm else "heldout"
         for k, (cam, clutter, seed) in enumerate(cases):
@@ -125,6 +153,14 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
             tracker = HybridTracker(base, config, reg)
             tracker.set_calibration(cal)   # as the node: the shape, and tau from the fit
             s = _score(tracker, seq.frames, seq.keypoints, seq.labels)
+            if arm and tracker.arm is not None:
+                # the baseline in the same run: the geometric forearm cut alone
+                t_cut = HybridTracker(base, dataclasses.replace(config, arm_classifier=False),
+                                      reg)
+                t_cut.set_calibration(cal)
+                cut_only.append(_score(t_cut, seq.frames, seq.keypoints)["errs"])
+                acc = [a + b for a, b in zip(acc, arm_pixel_counts(
+                    tracker.arm, seq.frames, seq.labels, config), strict=True)]
             agg[key].append(s["errs"])
             cpu[key].append(s["cpu"])
             seg[key].append(s["seg"])
@@ -178,6 +214,18 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                 "forearm_seg_arm_pct_cloud": srows[1][2],
                 "heldout_seg_hand_kept_pct": float(np.mean(
                     np.concatenate(seg["heldout"])[:, 1]))})
+    if cut_only:
+        e_cut, e_now = _summary(np.concatenate(cut_only)), _summary(np.concatenate(
+            agg["forearm"]))
+        print_table("forearm frames of the held-out family: the geometric forearm cut alone "
+                    "(before the arm classifier) and with the classifier first (product); "
+                    "classifier pixel accuracy on the segmented hands",
+                    ["forearm handling", "mean mm", "succ@20", "pixel acc"],
+                    [["cut only", e_cut["mean"], e_cut["s20"], ""],
+                     ["classifier + cut", e_now["mean"], e_now["s20"], acc[0] / max(acc[1], 1)]])
+        out.update({"forearm_cut_only_mean_mm": e_cut["mean"],
+                    "forearm_cut_only_success_20mm": e_cut["s20"],
+                    "heldout_arm_pixel_acc": acc[0] / max(acc[1], 1)})
     for key in ("heldout", "forearm"):
         e = np.concatenate(agg[key])
         s = _summary(e)
@@ -189,7 +237,8 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
     return out
 
 
-def suite_forearm_sequence(seed: int, clip: str, n: int, step: int
+def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bool = False,
+                           clutter: bool = False, sleeve: bool = False
                            ) -> tuple[HandModel, Intrinsics, list, list, list]:
     """A sequence of the suite's own generator with a forearm in view: the synthetic
     camera's shape ``seed`` and motion ``clip`` (its mesh, rasteriser and noise model,
@@ -197,81 +246,199 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int
     forearm_mesh`, radius, length and bend drawn from ``seed``). Nothing of the held-out
     family: a validation set to tune forearm handling on.
 
+    Harder scenes of the same generator (the arm classifier's failure case, issue 13):
+    ``close`` a close-range wide camera (87 deg, 0.15 m nearer the hand: about 0.25 m);
+    ``clutter`` a box of the suite's primitives (60-100 mm) 10 mm behind the palm that slides
+    in from the side over the sequence until it touches the hand; ``sleeve`` a wider cylinder
+    (10-25 mm over the arm's radius) over the forearm from 40-80 mm past the wrist.
+
     Returns:
         ``(model, intrinsics, frames, keypoints, labels)``: the true model, the pinhole,
         ``n`` frames ``(depth uint16 [mm], intrinsics)`` (every ``step``-th of 30 fps), the
-        (21, 3) true keypoints [m] and (H, W) labels (1 hand, 2 forearm, 0 other) of each.
+        (21, 3) true keypoints [m] and (H, W) labels (1 hand, 2 forearm or sleeve, 4
+        clutter, 0 other) of each.
     """
-    from hand_capture.cameras.render import make_renderer
+    from hand_capture.cameras.primitives import box
+    from hand_capture.cameras.render import Mesh, make_renderer
     from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
     from hand_capture.tracking.train import forearm_mesh
 
     rng = np.random.default_rng(seed * 1000 + sum(map(ord, clip)))
+    near = {"hfov_deg": 87.0, "camera_position": (0.0, 0.0, 0.15)} if close else {}
     cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed, clip=clip,
-                                                noise_seed=seed + 1000))
+                                                noise_seed=seed + 1000, **near))
     cam.open()
     radius, length = rng.uniform(0.024, 0.04), rng.uniform(0.25, 0.5)
     bend = tuple(rng.uniform(-0.4, 0.4, 2))
+    extra: list = []
+    if sleeve:
+        extra.append((radius + rng.uniform(0.01, 0.025), rng.uniform(0.04, 0.08)))
     renderer = make_renderer("zbuffer")
     last = int(math.floor(cam.motion.duration * 30))
     frames, kps, labels = [], [], []
-    for i in list(range(0, last + 1, step))[:n]:
+    obj = None
+    idx = list(range(0, last + 1, step))[:n]
+    for k, i in enumerate(idx):
         t = i / 30.0
         pose = cam.truth_pose(t)
         meshes, _ = cam.scene_meshes(t, pose)
-        arm = forearm_mesh(cam.model, pose, radius, length, bend)
-        arm = dataclasses.replace(arm, label=255)
-        res = renderer.render(meshes + [arm], cam.intrinsics)
+        arm = forearm_mesh(cam.model, pose, radius, length, bend, label=255)
+        meshes += [arm] + [forearm_mesh(cam.model, pose, r, length, bend, label=255, start=s)
+                           for r, s in extra]
+        if clutter:
+            if obj is None:   # beside the first frame's palm, across the arm in the image
+                kp = cam.model.joint_positions(pose)
+                side = np.cross(kp[9] - kp[0], [0.0, 0.0, 1.0])
+                side *= rng.choice([-1.0, 1.0]) / max(float(np.linalg.norm(side)), 1e-9)
+                size = rng.uniform(0.06, 0.1, 3)
+                c = kp[9] + side * (0.045 + 0.5 * size[0])
+                c[2] += 0.5 * size[2] + 0.01
+                obj = box(size)
+            # it slides in from 120 mm away to the hand's side over the sequence
+            gap = 0.12 * (1.0 - k / max(len(idx) - 1, 1))
+            meshes.append(Mesh(obj[0] + c + side * gap, obj[1], 254, closed=True))
+        res = renderer.render(meshes, cam.intrinsics)
         frames.append((cam.noise.apply_mm(res.depth, res.cos_incidence, cam.intrinsics, rng),
                        cam.intrinsics))
         kps.append(cam.model.joint_positions(pose))
-        labels.append(np.where(res.label == 255, 2, (res.label > 0).astype(np.int16)))
+        labels.append(np.select([res.label == 255, res.label == 254, res.label > 0],
+                                [2, 4, 1], 0).astype(np.int16))
     return cam.model, cam.intrinsics, frames, kps, labels
+
+
+def _score_first(tracker, frames, truth, labels) -> dict:
+    """Every frame tracked from a reset tracker (the first frame, or after a lost one: no
+    previous wrist to cut the forearm at); as :func:`_score`."""
+    from hand_capture.bench.tracking import _summary
+
+    errs, seg = [], []
+    for (depth, intr), kp, lab in zip(frames, truth, labels, strict=True):
+        tracker.reset()
+        r = tracker.process(depth, intr)
+        errs.append(np.linalg.norm(tracker.model.joint_positions(r.pose) - kp, axis=1) * 1e3)
+        o = r.observation
+        px = o.pixels if o is not None and o.found else np.zeros((0, 2))
+        seg.append((*segment_quality(px, lab, depth), False))
+    e = np.array(errs)
+    s = _summary(e)
+    s.update(errs=e, seg=np.array(seg).reshape(-1, 3))
+    return s
 
 
 def forearm_validation_section(reg, config, quick: bool) -> dict:
     """The tracker with a forearm in view on the suite's own generator (validation shapes
-    21, 22; :func:`suite_forearm_sequence`), calibrated per shape: where forearm handling
-    may be tuned, beside the held-out figure it is reported on. ``cloud cut``: the share
-    of frames whose forearm was cut by the cloud's shape (the previous frame not tracked),
-    the path that fails most on the held-out family."""
+    :data:`ARM_VAL_SEEDS`; :func:`suite_forearm_sequence`), calibrated per shape: where
+    forearm handling is tuned, beside the held-out figure it is reported on. Two paths:
+    ``sequence`` (tracked through; the forearm mostly cut at the previous wrist) and
+    ``first frame`` (every frame from a reset tracker: the hard case, no previous wrist),
+    each with the product's forearm handling and, as the baseline in the same run, the
+    geometric cut alone (``arm_classifier`` off). ``cloud cut``: the share of frames cut
+    without a previous wrist. Also the arm classifier's pixel accuracy on these frames."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
     from hand_capture.tracking.calibration import calibrate, render_calibration_frames
     from hand_capture.tracking.hybrid import HybridTracker
 
-    seeds = VAL_SEEDS[:1] if quick else VAL_SEEDS
+    seeds = ARM_VAL_SEEDS[:1] if quick else ARM_VAL_SEEDS
     clips = ("finger_counting", "pinch") if quick else ("finger_counting", "wrist_rotation",
                                                         "pinch", "fist")
-    n, step = (8, 4) if quick else (30, 2)
+    n, step = (8, 4) if quick else (20, 3)
     base = HandModel()
-    rows, errs, seg = [], [], []
+    variants = {"product": config,
+                "cut only": dataclasses.replace(config, arm_classifier=False)}
+    res: dict[tuple[str, str], list] = {}
+    acc = [0, 0]
+    arm = None
     for seed in seeds:
         for clip in clips:
             true, intr, frames, kps, labels = suite_forearm_sequence(seed, clip, n, step)
             cal = calibrate(render_calibration_frames(true, intr,
                                                       np.random.default_rng(seed + 500)),
                             model=base)
-            tracker = HybridTracker(base, config, reg)
-            tracker.set_calibration(cal)
-            s = _score(tracker, frames, kps, labels)
-            errs.append(s["errs"])
-            seg.append(s["seg"])
-            rows.append([seed, clip, len(frames), s["mean"], s["s20"],
-                         float(np.mean(s["seg"][:, 0])), float(np.mean(s["seg"][:, 1])),
-                         float(np.mean(s["seg"][:, 2] == 0))])
-    e, sq = np.concatenate(errs), np.concatenate(seg)
-    sm = _summary(e)
-    rows.append(["all", "", len(e), sm["mean"], sm["s20"], float(np.mean(sq[:, 0])),
-                 float(np.mean(sq[:, 1])), float(np.mean(sq[:, 2] == 0))])
-    print_table("forearm in view, the suite's own generator (validation shapes, the training "
-                "renders' forearm): tune forearm handling here, report on the held-out family",
-                ["shape", "motion", "frames", "mean mm", "succ@20", "seg arm %",
-                 "hand kept %", "cloud cut"], rows)
-    return {"val_forearm_mean_mm": sm["mean"], "val_forearm_success_20mm": sm["s20"],
-            "val_forearm_seg_arm_pct": rows[-1][5],
-            "val_forearm_seg_hand_kept_pct": rows[-1][6],
-            "val_forearm_cloud_cut_share": rows[-1][7]}
+            for name, cfg in variants.items():
+                tracker = HybridTracker(base, cfg, reg)
+                tracker.set_calibration(cal)
+                if name == "product":
+                    arm = tracker.arm
+                    acc = [a + b for a, b in zip(acc, arm_pixel_counts(
+                        arm, frames, labels, cfg), strict=True)]
+                for path, fn in (("sequence", _score), ("first frame", _score_first)):
+                    s = fn(tracker, frames, kps, labels)
+                    res.setdefault((name, path), []).append((s["errs"], s["seg"]))
+    rows, out = [], {}
+    for (name, path), parts in res.items():
+        e = np.concatenate([p[0] for p in parts])
+        sq = np.concatenate([p[1] for p in parts])
+        sm = _summary(e)
+        rows.append([name, path, len(e), sm["mean"], sm["median"], sm["s20"],
+                     float(np.mean(sq[:, 0])), float(np.mean(sq[:, 1])),
+                     float(np.mean(sq[:, 2] == 0))])
+        tag = {"sequence": "", "first frame": "_first"}[path]
+        pre = "val_forearm" if name == "product" else "val_forearm_cut_only"
+        out.update({f"{pre}{tag}_mean_mm": sm["mean"], f"{pre}{tag}_success_20mm": sm["s20"],
+                    f"{pre}{tag}_seg_arm_pct": rows[-1][6],
+                    f"{pre}{tag}_seg_hand_kept_pct": rows[-1][7]})
+        if name == "product" and path == "sequence":
+            out["val_forearm_cloud_cut_share"] = rows[-1][8]
+    print_table(f"forearm in view, the suite's own generator (validation shapes {seeds}, the "
+                "training renders' forearm): forearm handling is tuned here and reported on "
+                "the held-out family; first frame = every frame from a reset tracker",
+                ["forearm handling", "path", "frames", "mean mm", "median mm", "succ@20",
+                 "seg arm %", "hand kept %", "cloud cut"], rows)
+    out.update(_hard_forearm_validation(reg, config, seeds, quick))
+    if arm is not None:
+        out["val_arm_pixel_acc"] = acc[0] / max(acc[1], 1)
+        print(f"arm classifier pixel accuracy on these frames: {out['val_arm_pixel_acc']:.3f} "
+              f"({acc[1]} labelled pixels)")
+    return out
+
+
+def _hard_forearm_validation(reg, config, seeds: tuple[int, ...], quick: bool) -> dict:
+    """The arm classifier's failure case on the suite's generator (issue 13): a close-range
+    wide camera, a sleeve over the forearm and a box sliding in until it touches the hand
+    (:func:`suite_forearm_sequence` ``close``, ``clutter``, ``sleeve``). The classifier was
+    trained on hand and arm only: it keeps the box with the hand, and once the arm is gone
+    the box dominates the cloud. Product (with ``arm_fallback``: a failed frame the
+    classifier cut is retried on the cut alone, the lower E_d kept), without the fallback,
+    and the cut alone, each tracked through and from a reset tracker on every frame."""
+    from hand_capture.bench.tracking import _summary
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import calibrate, render_calibration_frames
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    clips = ("pinch",) if quick else ("pinch", "fist")
+    n, step = (6, 6) if quick else (12, 3)
+    variants = {"product": ("val_hard", config),
+                "no fallback": ("val_hard_no_fallback",
+                                dataclasses.replace(config, arm_fallback=False)),
+                "cut only": ("val_hard_cut_only",
+                             dataclasses.replace(config, arm_classifier=False))}
+    base = HandModel()
+    res: dict[tuple[str, str], list] = {}
+    for seed in seeds:
+        for clip in clips:
+            true, intr, frames, kps, labels = suite_forearm_sequence(
+                seed, clip, n, step, close=True, clutter=True, sleeve=True)
+            cal = calibrate(render_calibration_frames(true, intr,
+                                                      np.random.default_rng(seed + 500)),
+                            model=base)
+            for name, (_, cfg) in variants.items():
+                tracker = HybridTracker(base, cfg, reg)
+                tracker.set_calibration(cal)
+                for path, fn in (("sequence", _score), ("first frame", _score_first)):
+                    res.setdefault((name, path), []).append(
+                        fn(tracker, frames, kps, labels)["errs"])
+    rows, out = [], {}
+    for (name, path), parts in res.items():
+        sm = _summary(np.concatenate(parts))
+        rows.append([name, path, sum(map(len, parts)), sm["mean"], sm["median"], sm["s20"]])
+        key = variants[name][0] + ("_first" if path == "first frame" else "")
+        out.update({f"{key}_mean_mm": sm["mean"], f"{key}_success_20mm": sm["s20"]})
+    print_table(f"forearm + sleeve + clutter touching the hand, close-range camera (the "
+                f"suite's generator, validation shapes {seeds}): the classifier's fallback to "
+                "the cut alone on a failed frame", ["forearm handling", "path", "frames",
+                                                    "mean mm", "median mm", "succ@20"], rows)
+    return out
 
 
 def calibration_section(quick: bool, scales: tuple[float, ...] | None = None) -> dict:

@@ -10,7 +10,8 @@ Pure numpy/scipy/OpenCV (no rclpy). Typical use::
                             HandRegressor.load("data/tracker/regressor.npz"))
     result = tracker.process(depth_mm, intrinsics)   # TrackResult: pose, success, status...
 
-Modules: ``config`` (every weight/threshold), ``preprocess`` (segmentation, forearm cut), ``icp``
+Modules: ``config`` (every weight/threshold), ``preprocess`` (segmentation, forearm cut),
+``armseg`` (per-pixel hand/arm classifier, issue 13), ``icp``
 (model-based tracking, eq. II.21-II.27), ``forest`` (numpy random regression forest),
 ``regressor`` (shape-indexed features and hierarchical cascades, eq. II.12-II.18), ``train``
 (:func:`train_tracker`), ``hybrid`` (steps 1-6 of II.5.1, eq. II.19-II.20), ``calibration``

@@ -32,6 +32,27 @@ class TrackerConfig:
     forearm_cut: bool = param(True, "remove the forearm from the segmented hand "
                               "(preprocess.cut_forearm): beyond the previous pose's wrist "
                               "while tracking, else by the cloud's shape")
+    arm_classifier: bool = param(True, "before the forearm cut, drop the pixels the per-pixel "
+                                 "hand/arm classifier (tracking.armseg, data/tracker/arm.npz "
+                                 "when present) calls arm; asked only on a segment that runs "
+                                 "out of the image or is longer than forearm_reach_m")
+    arm_fallback: bool = param(True, "when the classifier dropped pixels and the frame fails "
+                               "eq. II.19, run it again on the forearm cut alone and keep the "
+                               "result of lower E_d (the classifier cannot do worse than the "
+                               "cut on a lost frame)")
+    flip_retry: bool = param(False, "when a frame whose forearm was cut from the cloud's shape "
+                             "fails eq. II.19, run it again with the cloud's other end taken "
+                             "for the arm and keep the result of lower E_d")
+    arm_model_file: str = param("", "trained arm classifier (.npz); empty = data/tracker/"
+                                "arm.npz when present")
+    arm_threshold: float = param(0.5, "arm probability above which a pixel is dropped",
+                                 lo=0.05, hi=0.95)
+    arm_grid_mm: float = param(4.0, "spacing on the hand of the pixels the arm classifier "
+                               "evaluates (the rest read the smoothed grid) [mm]", lo=0.5,
+                               hi=20.0)
+    arm_margin_m: float = param(0.035, "arm pixels this close to the classified hand are kept "
+                                "(the model's wrist reaches into the arm's silhouette) [m]",
+                                lo=0.0, hi=0.2)
     forearm_margin_m: float = param(0.036, "while tracking: points farther than this beyond "
                                     "the previous wrist (along the forearm) are cut; the "
                                     "template mesh's wrist reaches 36 mm beyond the wrist "

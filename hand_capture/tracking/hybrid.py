@@ -32,11 +32,13 @@ the frame is tracked from the previous pose and published first, then
 :meth:`HybridTracker.run_deferred` runs steps 1-2 on the same frame and keeps its best
 candidate for the next frame's pool when it fits that frame better than the tracked pose.
 
-Departures for real hands (issue 13): the forearm is cut off the segment first
-(``preprocess.cut_forearm``: at the previous pose's wrist while tracking, else from the
-cloud's shape; after a cloud-only cut the selected pose's wrist cuts again and the pose is
-refined on those points); the ICP data term is Huber-weighted (``robust_mm``); tau of eq.
-II.19 follows the calibration fit (:attr:`HybridTracker.tau_mm`, :meth:`set_calibration`).
+Departures for real hands (issue 13): the pixels a per-pixel classifier calls arm are
+dropped first (``armseg.remove_arm``, trained on the suite's renders with forearms), then
+the forearm is cut off the segment (``preprocess.cut_forearm``: at the previous pose's wrist
+while tracking, else from the cloud's shape; after a cloud-only cut the selected pose's
+wrist cuts again and the pose is refined on those points); the ICP data term is
+Huber-weighted (``robust_mm``); tau of eq. II.19 follows the calibration fit
+(:attr:`HybridTracker.tau_mm`, :meth:`set_calibration`).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -53,6 +55,7 @@ import numpy as np
 from hand_capture.cameras.base import Intrinsics
 from hand_capture.model import N_DOF, HandModel, HandShape
 from hand_capture.model.joints import root_rotation_matrix
+from hand_capture.tracking.armseg import ArmClassifier, load_arm_classifier, remove_arm
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.icp import ModelTracker
 from hand_capture.tracking.preprocess import HandObservation, cut_forearm, segment_hand
@@ -124,12 +127,20 @@ class HybridTracker:
         model: hand model (the subject's calibrated shape, or the default).
         config: all weights and thresholds.
         regressor: trained regressor; required for ``hybrid`` and ``regressor`` modes.
+        arm: per-pixel hand/arm classifier; None = ``config.arm_model_file`` or
+            ``data/tracker/arm.npz`` when present (with ``arm_classifier`` and
+            ``forearm_cut`` on).
     """
 
     def __init__(self, model: HandModel, config: TrackerConfig | None = None,
-                 regressor: HandRegressor | None = None) -> None:
+                 regressor: HandRegressor | None = None, arm: ArmClassifier | None = None
+                 ) -> None:
         self.cfg = config or TrackerConfig()
         self.regressor = regressor
+        if arm is None and self.cfg.arm_classifier and self.cfg.forearm_cut:
+            arm = load_arm_classifier(self.cfg.arm_model_file or None)
+        #: the per-pixel hand/arm classifier (None: the geometric forearm cut only)
+        self.arm = arm if self.cfg.arm_classifier and self.cfg.forearm_cut else None
         self.icp = ModelTracker(model, self.cfg)
         self.frames = ModelFrames(model)
         self.fit_residual_mm: float | None = None
@@ -199,26 +210,83 @@ class HybridTracker:
         self._carry: np.ndarray | None = None  # a deferred regression's candidate (27,)
 
     # ------------------------------------------------------------------------------ frame
+    _STATE = ("prev", "delta", "last_good", "frame_count", "_since_regression", "_prev_cost",
+              "_deferred", "_carry")
+
     def process(self, depth: np.ndarray, intr: Intrinsics) -> TrackResult:
-        """Track one depth frame (uint16 mm or float m)."""
+        """Track one depth frame (uint16 mm or float m).
+
+        With ``arm_fallback``: a frame that fails eq. (II.19) after the arm classifier
+        dropped pixels is tracked again from the same state on the forearm cut alone, and
+        the result of lower E_d is kept (both steps' time counted). The classifier's segment
+        can lose the hand where its training never looked (clutter touching the hand
+        reads half arm, half hand: with the arm gone, the clutter dominates the cloud the
+        cut and the PCA start go by); the cut alone is then one more candidate, as the
+        pool of step 5 (eq. II.20 selects by cost). With ``flip_retry`` a failed frame whose
+        forearm was cut from the cloud's shape (no previous wrist) is tried once more with
+        the cloud's other end taken for the arm (clutter touching the hand can be the
+        widest place the cut takes for the palm); again the lower E_d is kept."""
+        cfg = self.cfg
+        before = {k: getattr(self, k) for k in self._STATE}
+        r, dropped, cloud = self._process(depth, intr, self.arm)
+        retries = []
+        if dropped and cfg.arm_fallback:
+            retries.append((None, False))
+        if cfg.flip_retry:
+            retries.append((None if dropped else self.arm, True))
+        best = r
+        for arm, flip in retries:
+            if best.success:
+                break
+            if flip and not cloud:
+                continue
+            kept = {k: getattr(self, k) for k in self._STATE}
+            for k, v in before.items():
+                setattr(self, k, v)
+            r2, _, cloud2 = self._process(depth, intr, arm, flip)
+            for k in STAGES:
+                r2.timing[k] += best.timing[k]
+            cloud = cloud or cloud2
+            if r2.cost < best.cost:
+                best = r2
+            else:
+                best.timing = r2.timing
+                for k, v in kept.items():
+                    setattr(self, k, v)
+        return best
+
+    def _process(self, depth: np.ndarray, intr: Intrinsics, arm: ArmClassifier | None,
+                 flip: bool = False) -> tuple[TrackResult, bool, bool]:
+        """One frame (:meth:`process`) with the classifier ``arm`` (None: the cut alone),
+        ``flip`` passed to the cloud cut; also whether the classifier dropped pixels and
+        whether the forearm was cut from the cloud's shape."""
         cfg = self.cfg
         timing = dict.fromkeys(STAGES, 0.0)
         t0 = time.perf_counter()
         obs = segment_hand(depth, intr, cfg)
-        cut = False
+        cut = dropped = cloud = False
         whole = None   # the uncut segment, when the cut had no tracked wrist to go by
         if cfg.forearm_cut and obs.found:
+            scale = self.model.shape.global_scale
+            if arm is not None:   # the pixels the classifier calls arm (armseg)
+                obs, _, dropped = remove_arm(obs, arm, cfg.arm_threshold, cfg.arm_grid_mm,
+                                             cfg.min_hand_pixels,
+                                             margin_m=cfg.arm_margin_m * scale,
+                                             reach_m=cfg.forearm_reach_m * scale)
+                cut = dropped
             plane = self._wrist_plane()
             if plane is None:
                 whole = obs
-            obs, cut = cut_forearm(obs, cfg, self.model.shape.global_scale, plane)
+            obs, cut_g = cut_forearm(obs, cfg, self.model.shape.global_scale, plane, flip)
+            cut = cut or cut_g
+            cloud = cut_g and plane is None
         timing["preprocess"] = time.perf_counter() - t0
         self.frame_count += 1
         if not obs.found:
             self.delta = False
             pose = self.prev if self.prev is not None else np.zeros(N_DOF)
             return TrackResult(pose.copy(), False, "no_hand", cfg.depth_cap_mm, 0.0,
-                               self.last_good, 0, timing, obs, tau_mm=self.tau_mm)
+                               self.last_good, 0, timing, obs, tau_mm=self.tau_mm), dropped, cloud
         pts = obs.subsample(cfg.max_points)
         ds = cfg.cost_downsample
         obs_ds = obs.depth_m[::ds, ::ds]
@@ -322,7 +390,7 @@ class HybridTracker:
             self._deferred = (obs, intr, pts, obs_ds, q.copy(), costs[best][0])
         conf = float(np.clip(1.0 - e_d / cfg.depth_cap_mm, 0.0, 1.0))
         return TrackResult(q.copy(), success, status, e_d, conf, self.last_good, len(costs),
-                           timing, obs, regress, cut, self.tau_mm)
+                           timing, obs, regress, cut, self.tau_mm), dropped, cloud
 
     def _palm_modes(self, obs: HandObservation, intr: Intrinsics
                     ) -> tuple[DepthLookup, list[np.ndarray]]:

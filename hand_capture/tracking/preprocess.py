@@ -78,6 +78,21 @@ class HandObservation:
             self._points, self._pixels = self._backproject(None)
         return self._pixels
 
+    def points_at(self, idx: np.ndarray) -> np.ndarray:
+        """(k, 3) the points ``idx`` (indices or a bool mask over the points) [m],
+        back-projecting only those when the points were not read yet."""
+        if self._points is None:
+            return self._backproject(np.flatnonzero(idx) if idx.dtype == bool else idx)[0]
+        return self._points[idx]
+
+    @property
+    def vuz(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The hand pixels' rows, columns (int) and depths [m], each (N,)."""
+        if self._vuz is not None:
+            return self._vuz
+        return (self.pixels[:, 1].astype(np.int64), self.pixels[:, 0].astype(np.int64),
+                self.points[:, 2])
+
     @property
     def n_points(self) -> int:
         return len(self._vuz[0]) if self._points is None else len(self._points)
@@ -304,9 +319,7 @@ def depth_normals(obs: HandObservation) -> np.ndarray:
 def _keep(obs: HandObservation, keep: np.ndarray, min_pixels: int) -> HandObservation | None:
     """The observation restricted to the points ``keep`` (bool over its points); None when
     fewer than ``min_pixels`` remain."""
-    v, u, z = obs._vuz if obs._vuz is not None else (
-        obs.pixels[:, 1].astype(np.int64), obs.pixels[:, 0].astype(np.int64),
-        obs.points[:, 2])
+    v, u, z = obs.vuz
     v, u, z = v[keep], u[keep], z[keep]
     if len(z) < min_pixels:
         return None
@@ -319,7 +332,7 @@ def _keep(obs: HandObservation, keep: np.ndarray, min_pixels: int) -> HandObserv
 
 
 def cut_forearm(obs: HandObservation, cfg: TrackerConfig, hand_scale: float = 1.0,
-                wrist: tuple[np.ndarray, np.ndarray] | None = None
+                wrist: tuple[np.ndarray, np.ndarray] | None = None, flip: bool = False
                 ) -> tuple[HandObservation, bool]:
     """Remove the forearm from a segmented hand (an addition to ch. II: the dissertation's
     segmentation assumes a wrist band or a hand alone; every real hand has a forearm, and
@@ -344,6 +357,8 @@ def cut_forearm(obs: HandObservation, cfg: TrackerConfig, hand_scale: float = 1.
         cfg: thresholds (``forearm_*``, ``min_hand_pixels``).
         hand_scale: the tracked model's size relative to the template (global scale).
         wrist: the previous pose's wrist and forearm direction, or None.
+        flip: without ``wrist``, take the other end of the cloud for the arm (a second
+            guess where the first one failed, e.g. clutter taken for the palm).
 
     Returns:
         ``(observation, cut)``: the hand without the forearm (the input when nothing was
@@ -357,7 +372,7 @@ def cut_forearm(obs: HandObservation, cfg: TrackerConfig, hand_scale: float = 1.
         w, d = wrist
         keep = (pts - w) @ d <= cfg.forearm_margin_m * hand_scale
     else:
-        keep = _geometric_cut(obs, cfg, hand_scale)
+        keep = _geometric_cut(obs, cfg, hand_scale, flip)
         if keep is None:
             return obs, False
     if keep.all():
@@ -366,16 +381,31 @@ def cut_forearm(obs: HandObservation, cfg: TrackerConfig, hand_scale: float = 1.
     return (obs, False) if out is None else (out, True)
 
 
-def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float
-                   ) -> np.ndarray | None:
-    """Points to keep by the cloud-only rule of :func:`cut_forearm` (None: no forearm)."""
-    intr = obs.intrinsics
-    pts = obs.points
+def principal_extent(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The principal axis (3,) of points (N, 3) [m], their coordinates along it (N,), and
+    its 0.5 and 99.5 percentiles [m] (the cloud's extent without stray points)."""
     X = pts - pts.mean(axis=0)
     _, vec = np.linalg.eigh(X.T @ X)
     axis = vec[:, 2]
     s = pts @ axis
-    lo, hi = float(np.percentile(s, 0.5)), float(np.percentile(s, 99.5))
+    return axis, s, float(np.percentile(s, 0.5)), float(np.percentile(s, 99.5))
+
+
+def touches_border(obs: HandObservation) -> bool:
+    """Whether the hand's bounding box reaches within 2 px of the image border."""
+    if obs.box is None:
+        return False
+    r0, r1, c0, c1 = obs.box
+    intr = obs.intrinsics
+    return r0 <= 1 or c0 <= 1 or r1 >= intr.height - 1 or c1 >= intr.width - 1
+
+
+def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float,
+                   flip: bool = False) -> np.ndarray | None:
+    """Points to keep by the cloud-only rule of :func:`cut_forearm` (None: no forearm)."""
+    intr = obs.intrinsics
+    pts = obs.points
+    axis, s, lo, hi = principal_extent(pts)
     extent = hi - lo
     if extent < cfg.forearm_border_m * hand_scale:
         return None
@@ -392,7 +422,7 @@ def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float
         arm_hi = hi - c > c - lo
     else:
         return None
-    if not arm_hi:
+    if arm_hi == flip:
         axis, s, lo, hi = -axis, -s, -hi, -lo
     # the palm: the widest place within a hand's length of the hand's end
     near = s <= lo + cfg.forearm_reach_m * 0.7 * hand_scale

@@ -39,8 +39,14 @@ from hand_capture.tracking.regressor import (
     palm_init_pca,
 )
 
-__all__ = ["TrainingSample", "default_intrinsics", "forearm_mesh", "random_pose",
-           "render_samples", "train_tracker"]
+__all__ = ["ARM_FRAMES", "ARM_LABEL", "HAND_LABEL", "TrainingSample", "default_intrinsics",
+           "forearm_mesh", "random_pose", "render_samples", "train_tracker"]
+
+
+#: renderer labels of the training renders: the hand mesh and the forearm
+HAND_LABEL, ARM_LABEL = 1, 2
+#: rendered frames of the shipped arm classifier (``hand-suite train tracker``)
+ARM_FRAMES = 2000
 
 
 def default_intrinsics() -> Intrinsics:
@@ -96,8 +102,9 @@ def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: flo
 
 
 def forearm_mesh(model: HandModel, q: np.ndarray, radius: float = 0.03,
-                 length: float = 0.4, bend: tuple[float, float] = (0.0, 0.0)) -> Mesh:
-    """A forearm for the training renders: a closed cylinder from 15 mm inside the wrist
+                 length: float = 0.4, bend: tuple[float, float] = (0.0, 0.0),
+                 label: int = HAND_LABEL, start: float = -0.015) -> Mesh:
+    """A forearm for the training renders: a closed cylinder (from 15 mm inside the wrist)
     along the wrist-from-middle-MCP direction, turned by ``bend`` (flexion, deviation)
     [rad] at the wrist.
 
@@ -106,6 +113,9 @@ def forearm_mesh(model: HandModel, q: np.ndarray, radius: float = 0.03,
         q: its pose (27,).
         radius, length: cylinder size [m].
         bend: rotation of the forearm axis about the palm's across axis and its normal.
+        label: the renderer label of its pixels.
+        start: where the cylinder begins along the forearm axis, from the wrist [m]
+            (negative: inside the hand; a sleeve starts beyond the wrist).
     """
     from hand_capture.cameras.primitives import cylinder
 
@@ -126,7 +136,7 @@ def forearm_mesh(model: HandModel, q: np.ndarray, radius: float = 0.03,
     else:
         K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
         R = np.eye(3) + K + K @ K * ((1 - c) / sn ** 2)
-    return Mesh(V @ R.T + kp[0] + d * (0.5 * length - 0.015), F, 1, closed=True)
+    return Mesh(V @ R.T + kp[0] + d * (0.5 * length + start), F, label, closed=True)
 
 
 @dataclass
@@ -139,12 +149,15 @@ class TrainingSample:
     points: np.ndarray    # (N, 3) hand points (subsampled) for the PCA initialisation
     pose: np.ndarray      # (27,) true pose
     shape_index: int
+    #: (h, w) uint8 renderer labels of the crop (HAND_LABEL, ARM_LABEL, 0 = none)
+    label: np.ndarray | None = None
 
 
 def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
                    intr: Intrinsics, noise: DepthNoiseConfig | None = None,
                    cfg: TrackerConfig | None = None, *, forearm_prob: float = 0.0,
-                   surface_mm: tuple[float, float] = (0.0, 0.0)) -> list[TrainingSample]:
+                   surface_mm: tuple[float, float] = (0.0, 0.0), cut_arm: bool = True
+                   ) -> list[TrainingSample]:
     """Render ``n`` noisy, segmented samples (shapes cycled through ``models``).
 
     Widened generator (issue 13): with probability ``forearm_prob`` a forearm
@@ -153,6 +166,9 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
     perturbed by a few mm, or from the cloud's shape alone, half each); every sample's
     surface is moved along the normals by a uniform offset in ``surface_mm`` [mm] plus as
     much again on the palm, so the forests see hands thicker and thinner than the model's.
+    Each sample keeps the renderer's labels of its crop (``label``: :data:`HAND_LABEL`,
+    :data:`ARM_LABEL`); ``cut_arm`` False keeps the forearm in the segment (training data of
+    the per-pixel arm classifier, :mod:`~hand_capture.tracking.armseg`).
     """
     from hand_capture.tracking.preprocess import cut_forearm
 
@@ -169,11 +185,11 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
             off = rng.uniform(*surface_mm) * 1e-3
             palm = rng.uniform(0.0, max(surface_mm[1], 0.0)) * 1e-3 * (m.vertex_labels == 0)
             V = V + m.normals(V) * (off + palm)[:, None]
-        meshes = [Mesh(V, m.faces, 1, closed=True)]
+        meshes = [Mesh(V, m.faces, HAND_LABEL, closed=True)]
         arm = rng.random() < forearm_prob
         if arm:
             meshes.append(forearm_mesh(m, q, rng.uniform(0.024, 0.04), rng.uniform(0.25, 0.5),
-                                       tuple(rng.uniform(-0.4, 0.4, 2))))
+                                       tuple(rng.uniform(-0.4, 0.4, 2)), label=ARM_LABEL))
         res = renderer.render(meshes, intr)
         depth = nm.apply_mm(res.depth, res.cos_incidence, intr, rng)
         obs = segment_hand(depth, intr, cfg)
@@ -185,14 +201,15 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
             d = d / np.linalg.norm(d) + rng.normal(0, 0.05, 3)
             wrist = (kp[0] + rng.normal(0, 0.005, 3), d / np.linalg.norm(d)) \
                 if rng.random() < 0.5 else None
-            obs, _ = cut_forearm(obs, cfg, m.shape.global_scale, wrist)
+            if cut_arm:
+                obs, _ = cut_forearm(obs, cfg, m.shape.global_scale, wrist)
             if obs.n_points < 200:
                 continue
         v, u = np.nonzero(obs.mask)
         v0, v1, u0, u1 = v.min(), v.max() + 1, u.min(), u.max() + 1
         pts, _ = obs.subsample(400)
         out.append(TrainingSample(obs.depth_m[v0:v1, u0:u1].copy(), int(u0), int(v0),
-                                  pts.copy(), q, k))
+                                  pts.copy(), q, k, res.label[v0:v1, u0:u1].copy()))
     return out
 
 
@@ -354,19 +371,29 @@ def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m hand_capture.tracking.train [--out PATH] [--seed N] [--samples N]``."""
+    """``python -m hand_capture.tracking.train [--out PATH] [--seed N] [--samples N]
+    [--arm-out PATH] [--arm-frames N] [--arm-only]``: the regressor, then the per-pixel
+    arm classifier (:func:`~hand_capture.tracking.armseg.train_arm_classifier`)."""
     import argparse
 
     from hand_capture.cameras.threads import limit_blas_threads
+    from hand_capture.tracking.armseg import train_arm_classifier
 
-    ap = argparse.ArgumentParser(description="train the depth tracker's regressor")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parents[2] / "data"
-                                         / "tracker" / "regressor.npz"))
+    tracker_dir = Path(__file__).resolve().parents[2] / "data" / "tracker"
+    ap = argparse.ArgumentParser(description="train the depth tracker's regressor and its "
+                                 "hand/arm pixel classifier")
+    ap.add_argument("--out", default=str(tracker_dir / "regressor.npz"))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--samples", type=int, default=3000)
+    ap.add_argument("--arm-out", default=str(tracker_dir / "arm.npz"))
+    ap.add_argument("--arm-frames", type=int, default=ARM_FRAMES)
+    ap.add_argument("--arm-only", action="store_true",
+                    help="train the arm classifier only (the regressor is left as it is)")
     a = ap.parse_args(argv)
     limit_blas_threads(1)
-    train_tracker(a.out, seed=a.seed, n_samples=a.samples, log=print)
+    if not a.arm_only:
+        train_tracker(a.out, seed=a.seed, n_samples=a.samples, log=print)
+    train_arm_classifier(a.arm_out, seed=a.seed, n_frames=a.arm_frames, log=print)
     return 0
 
 
