@@ -183,6 +183,42 @@ def test_adaptive_robust_scale_follows_a_far_moved_part_against_stale_clutter(sc
     assert err[0.0] > 30.0 and err[2.0] < 3.0, err
 
 
+def test_adaptive_scale_only_for_clearly_moved_parts_and_optionally_objects_only(scene):
+    """``robust_adapt_from_px``: a part whose median error is below it (held near its image,
+    e.g. by clutter) keeps ``robust_px``; one far above it is widened. ``robust_adapt_hands``
+    False: the hands keep ``robust_px`` however far they are, the objects are widened."""
+    from hand_capture.multiview.lo import FLOW, Correspondences
+
+    rig = load_rig("studio6")
+    x = _params(scene)
+    cam = rig.cameras[0]
+    pose = scene.pose(x)
+
+    def corr(errs: dict[int, float]) -> Correspondences:
+        out = []
+        for p, e in errs.items():
+            v = np.arange(20)
+            tgt = scene.project(cam, pose.vertices[p][v])[0] + np.array([e, 0.0])
+            out.append(Correspondences(np.full(20, p), v, np.zeros(20, int), tgt,
+                                       np.full(20, FLOW)))
+        return Correspondences.concat(out)
+
+    def weight(cfg: LOConfig, errs: dict[int, float]) -> dict[int, float]:
+        c = LocalOptimizer(scene, rig, cfg)._robust_weights(x, corr(errs))
+        return {p: float(np.median(c.robust[c.part == p])) for p in errs}
+
+    fixed = {2.5: 1 / (1 + (2.5 / 2) ** 2), 10.0: 1 / (1 + 5.0 ** 2)}
+    wide = 1 / (1 + 0.5 ** 2)                         # scale 2 x the median: e / c = 0.5
+    w = weight(LOConfig(robust_adapt=2.0), {0: 2.5, 2: 10.0})
+    assert w[0] == pytest.approx(wide, abs=1e-3) and w[2] == pytest.approx(wide, abs=1e-3)
+    w = weight(LOConfig(robust_adapt=2.0, robust_adapt_from_px=3.0), {0: 2.5, 2: 10.0})
+    assert w[0] == pytest.approx(fixed[2.5], abs=1e-3)
+    assert w[2] == pytest.approx(wide, abs=1e-3)
+    w = weight(LOConfig(robust_adapt=2.0, robust_adapt_hands=False), {0: 10.0, 2: 10.0})
+    assert w[0] == pytest.approx(fixed[10.0], abs=1e-3)
+    assert w[2] == pytest.approx(wide, abs=1e-3)
+
+
 def test_objects_start_from_their_constant_velocity_prediction(scene):
     """``predict_objects``: a frame starts each object at its last pose plus its last
     frame-to-frame motion (a thrown ball keeps flying); hands start where they were."""

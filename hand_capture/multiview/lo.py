@@ -92,6 +92,13 @@ class LOConfig:
                                 "since the last frame keeps its true matches; a part near "
                                 "the images keeps robust_px against clutter); 0 = off",
                                 lo=0.0, hi=20.0)
+    robust_adapt_from_px: float = param(0.0, "the per-part widening applies only to a part "
+                                        "whose median pixel error exceeds this [px] (a "
+                                        "clearly moved part; a part held near its image by "
+                                        "clutter keeps robust_px); 0 = any part",
+                                        lo=0.0, hi=100.0)
+    robust_adapt_hands: bool = param(True, "the per-part widening applies to the hands too "
+                                     "(False: objects only, hands at robust_px)")
     support_px: float = param(4.0, "a model edge is supported by an image edge this near [px]",
                               lo=0.5, hi=50.0)
     colour_check_px: float = param(3.0, "a hand's edge correspondence is kept only when the "
@@ -385,8 +392,12 @@ class LocalOptimizer:
         cc = np.full(len(corr), c)
         if self.cfg.robust_adapt > 0:
             for p in np.unique(corr.part):
+                if p < self.model.n_hands and not self.cfg.robust_adapt_hands:
+                    continue
                 sel = corr.part == p
-                cc[sel] = max(c, self.cfg.robust_adapt * float(np.median(e[sel])))
+                med = float(np.median(e[sel]))
+                if med > self.cfg.robust_adapt_from_px:
+                    cc[sel] = max(c, self.cfg.robust_adapt * med)
         corr.robust = 1.0 / (1.0 + (e / cc) ** 2)
         return corr
 
