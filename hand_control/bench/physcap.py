@@ -47,13 +47,19 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hand_capture.bench import print_table
 from hand_capture.model.hand import HandModel
-from hand_control.physcap.capture import CapturedObject, PhysCapConfig, optimise_capture
+from hand_control.physcap.capture import (
+    Capture,
+    CapturedObject,
+    PhysCapConfig,
+    optimise_capture,
+)
 from hand_control.physcap.retarget import retarget
 from hand_control.physcap.synth import corrupt, scenario_capture
 from hand_control.sim.scenario import load_scenario
@@ -138,6 +144,115 @@ def _captures(quick: bool, smoke: bool, skipped: list[str] | None = None
             + [("heldout", "light", corrupt(pour, "drift", seed=s)) for s in (5, 6)]
             + [("heldout", "light", corrupt(box, "drift", seed=7))]
             + [("heldout", "light", corrupt(pour, "contacts", seed=s)) for s in (8, 9)])
+
+
+#: the studio family's design, fixed before any method was run on it: every light lift at its
+#: own mass and at each heavy mass (9 captures, the standard capture window: 41 frames at
+#: 20 fps), each rendered once with its own seed (:data:`STUDIO_SEED0` + its index)
+STUDIO_SEED0 = 40
+_STUDIO_CACHE = Path("out") / "bench" / "physcap_studio"
+
+
+def _studio_truths(quick: bool, smoke: bool, skipped: list[str]) -> list[tuple[str, Any]]:
+    """(family, ground-truth Capture) of the studio family: full run every light lift at its
+    own mass (``light``) and at each of :data:`HEAVY_MASSES` (``heavy``, LP-checked as the
+    other captures); ``--quick`` the short box lift of the quick captures; ``--smoke`` its
+    first 4 frames of the smoke run's box lift."""
+    if smoke:
+        spec = load_scenario("lift_box").with_(t_lift=0.4, t_carry=0.1, t_hold=0.1)
+        c = scenario_capture(spec, t_start=0.5, t_end=1.5)
+        return [("light", Capture(c.name, c.times[:4], c.hand_q[:4], c.object_pose[:4], c.obj))]
+    if quick:
+        spec = load_scenario("lift_box").with_(t_lift=0.6, t_carry=0.1, t_hold=0.1)
+        return [("light", scenario_capture(spec, t_end=2.1))]
+    out = []
+    for sc in _LIGHT_SCENARIOS:
+        out.append(("light", scenario_capture(load_scenario(sc))))
+        for m in HEAVY_MASSES:
+            spec = heavy_spec(sc, m)
+            ok, status = lp_feasible(spec)
+            if ok:
+                out.append(("heavy", scenario_capture(spec)))
+            else:
+                skipped.append(f"studio {spec.name} (feasibility LP: {status})")
+    return out
+
+
+def _studio_family(quick: bool, smoke: bool, model: HandModel,
+                   config: Any) -> dict[str, Any]:
+    """The studio family (:mod:`hand_control.physcap.studio`): every truth of
+    :func:`_studio_truths` rendered by the studio6 rig (held-out hand surface, colour and
+    structural noise) and tracked by the multi-view tracker (LO E+C+O+S, from the first
+    frame's truth; the tracked poses cached in ``out/bench/physcap_studio`` except in
+    ``--smoke``), then optimised by each method with ``config(method)`` and by contact
+    sampling with the image cost of eq. 3 (``contact+images``). Returns its JSON figures."""
+    from hand_capture.multiview.lo import LOConfig
+    from hand_capture.multiview.rig import Rig, load_rig
+    from hand_control.physcap.studio import STUDIO_RIG, hand_penetration_mm, studio_capture
+
+    skipped: list[str] = []
+    truths = _studio_truths(quick, smoke, skipped)
+    for name in skipped:
+        print(f"skipped: {name}: no grasp of the hand can hold it")
+    rig = load_rig(STUDIO_RIG)
+    lo = LOConfig()
+    if smoke:
+        rig, lo = Rig(rig.name, rig.cameras[:3], rig.world_frame), LOConfig(iterations=4)
+    methods = [*_METHODS, "contact+images"]
+    per: dict[str, list[dict[str, Any]]] = {m: [] for m in methods}
+    rows, track_s = [], []
+    for i, (fam, truth) in enumerate(truths):
+        t0 = time.perf_counter()
+        st = studio_capture(truth, rig=rig, seed=STUDIO_SEED0 + i, lo_config=lo,
+                            cache_dir=None if smoke else _STUDIO_CACHE)
+        cap = st.synthetic.capture
+        if not st.cached:
+            track_s.append(st.track_s_per_frame)
+        print(f"studio {truth.name}: {truth.n_frames} frames rendered"
+              f"{' (tracked poses cached)' if st.cached else ' and tracked'} in "
+              f"{time.perf_counter() - t0:.1f} s", flush=True)
+        ref_obj, ref_hand = _errors(model, truth, cap.hand_q, cap.object_pose)
+        ref_pen = float(hand_penetration_mm(cap).max())
+        for method in methods:
+            images = st.images if method == "contact+images" else None
+            r = optimise_capture(cap, config(method.split("+")[0]), images=images)
+            obj_err, hand_err = _errors(model, truth, r.hand_q, r.object_pose)
+            per[method].append(dict(family=fam, success=r.success, obj=obj_err, hand=hand_err,
+                                    ref_obj=ref_obj, ref_hand=ref_hand, pen=ref_pen,
+                                    s=r.s_per_frame))
+            rows.append([cap.name, fam, method, r.success, obj_err, hand_err, ref_obj,
+                         ref_hand, ref_pen, r.s_per_frame])
+    print_table("studio family: lifts filmed by the studio6 rig and tracked by the multi-view "
+                "tracker (held-out hand surface)",
+                ["capture", "family", "method", "success", "object_err_mm", "hand_err_mm",
+                 "ref_object_err_mm", "ref_hand_err_mm", "ref_max_penetration_mm",
+                 "s_per_frame"], rows)
+
+    def col(method: str, key: str) -> list[Any]:
+        return [p[key] for p in per[method]]
+
+    fig: dict[str, Any] = {"studio_captures": len(truths), "studio_skipped": skipped,
+                           "studio_track_s_per_frame": float(np.mean(track_s)) if track_s
+                           else float("nan")}
+    for method, key in (("contact", "contact"), ("random", "random"), ("pd_only", "pd_only"),
+                        ("contact+images", "image")):
+        fig[f"studio_{key}_success"] = _rate(col(method, "success"))
+        fig[f"studio_{key}_object_err_mm"] = float(np.mean(col(method, "obj")))
+        fig[f"studio_{key}_hand_err_mm"] = float(np.mean(col(method, "hand")))
+    fig["studio_object_err_mm"] = fig["studio_contact_object_err_mm"]
+    fig["studio_hand_err_mm"] = fig["studio_contact_hand_err_mm"]
+    fig["studio_ref_object_err_mm"] = float(np.mean(col("contact", "ref_obj")))
+    fig["studio_ref_hand_err_mm"] = float(np.mean(col("contact", "ref_hand")))
+    fig["studio_ref_max_penetration_mm"] = float(np.max(col("contact", "pen")))
+    for other in ("random", "pd_only"):
+        a, b = col("contact", "success"), col(other, "success")
+        w = sum(x and not y for x, y in zip(a, b, strict=True))
+        lo_ = sum(y and not x for x, y in zip(a, b, strict=True))
+        fig[f"studio_contact_vs_{other}_wins_losses"] = [w, lo_]
+        fig[f"studio_contact_vs_{other}_p"] = sign_test_p(w, lo_)
+        print(f"studio ({len(a)}), contact vs {other}: contact alone succeeds on {w}, "
+              f"{other} alone on {lo_}: one-sided sign test p = {sign_test_p(w, lo_):.3g}")
+    return fig
 
 
 def _errors(model: HandModel, truth: Any, hand_q: np.ndarray, object_pose: np.ndarray
@@ -260,6 +375,9 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
                 ["captures", "n", "contact", "random", "pd_only", "contact_mm", "random_mm",
                  "pd_only_mm"], s_rows)
 
+    # the studio family: tracked by the multi-view tracker, at the chosen setting
+    studio = _studio_family(quick, smoke, model, lambda method: config(n, width, method))
+
     # sensitivity: the nearest width not chosen, contact and random sampling, test captures
     sens: dict[str, Any] = {}
     other = sorted({w for _, w in candidates if w != width},
@@ -374,6 +492,6 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         "random_object_err_mm": mean("random", "obj", "test"),
         "pd_only_object_err_mm": mean("pd_only", "obj", "test"),
         "retarget_success": float(np.mean(ok)), "retarget_cases": len(ok),
-        "low_friction_slipped": bool(not slip.success), **sens, **threads,
+        "low_friction_slipped": bool(not slip.success), **sens, **threads, **studio,
         **{k: v for k, v in dask.items() if k.startswith("dask_")},
     }
