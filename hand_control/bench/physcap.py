@@ -41,6 +41,16 @@ Retargeting (sec. 7.2): the first test capture's optimised control applied to th
 objects and two lower frictions (``retarget_success``), and to a very low friction where the
 object must slip (``low_friction_slipped``). ``dask_speedup_2w``: the batch runner with 2
 worker processes against 1 (``hand_control.physcap.batch.measure_dask_speedup``).
+
+**Studio family** (``studio_*`` keys; its design fixed before any method ran on it): the truth
+of every light lift at its own mass and at each heavy mass rendered by the studio6 rig (six
+640x480 cameras, the held-out hand surface, colour and structural noise) and tracked by the
+suite's multi-view tracker (LO E+C+O+S from the first frame's truth,
+:mod:`hand_control.physcap.studio`): a real tracker's errors instead of synthetic ones. Every
+method runs at the setting chosen on validation, and contact sampling also with the image cost
+of eq. 3 (``studio_image_*``). The tracked poses are cached in ``out/bench/physcap_studio``
+(keyed by the truth, rig, seed and tracker settings); ``--quick``: the short box lift only;
+``--smoke``: 4 frames, 3 cameras, 4 tracker iterations.
 """
 
 from __future__ import annotations
