@@ -255,13 +255,11 @@ def _studio_family(quick: bool, smoke: bool, model: HandModel,
     fig["studio_ref_hand_err_mm"] = float(np.mean(col("contact", "ref_hand")))
     fig["studio_ref_max_penetration_mm"] = float(np.max(col("contact", "pen")))
     for other in ("random", "pd_only"):
-        a, b = col("contact", "success"), col(other, "success")
-        w = sum(x and not y for x, y in zip(a, b, strict=True))
-        lo_ = sum(y and not x for x, y in zip(a, b, strict=True))
+        w, lo_, p = paired_successes(col("contact", "success"), col(other, "success"))
         fig[f"studio_contact_vs_{other}_wins_losses"] = [w, lo_]
-        fig[f"studio_contact_vs_{other}_p"] = sign_test_p(w, lo_)
-        print(f"studio ({len(a)}), contact vs {other}: contact alone succeeds on {w}, "
-              f"{other} alone on {lo_}: one-sided sign test p = {sign_test_p(w, lo_):.3g}")
+        fig[f"studio_contact_vs_{other}_p"] = p
+        print(f"studio ({len(truths)}), contact vs {other}: contact alone succeeds on {w}, "
+              f"{other} alone on {lo_}: one-sided sign test p = {p:.3g}")
     return fig
 
 
@@ -285,6 +283,14 @@ def sign_test_p(wins: int, losses: int) -> float:
     equally good (1.0 when no capture is discordant)."""
     n = wins + losses
     return float(sum(math.comb(n, k) for k in range(wins, n + 1)) / 2 ** n) if n else 1.0
+
+
+def paired_successes(a: list[bool], b: list[bool]) -> tuple[int, int, float]:
+    """Paired successes of two methods on the same captures: where ``a`` alone succeeds,
+    where ``b`` alone does, and the one-sided sign test's p of ``a`` being the better."""
+    wins = sum(x and not y for x, y in zip(a, b, strict=True))
+    losses = sum(y and not x for x, y in zip(a, b, strict=True))
+    return wins, losses, sign_test_p(wins, losses)
 
 
 def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
@@ -362,11 +368,8 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     def paired(other: str, family: str | None = None) -> tuple[int, int, float]:
         """Test captures (of ``family``; None = pooled) where contact sampling succeeds and
         ``other`` fails, the reverse, and the one-sided sign test's p."""
-        a = [p["success"] for p in sel("contact", "test", family)]
-        b = [p["success"] for p in sel(other, "test", family)]
-        wins = sum(x and not y for x, y in zip(a, b, strict=True))
-        losses = sum(y and not x for x, y in zip(a, b, strict=True))
-        return wins, losses, sign_test_p(wins, losses)
+        return paired_successes([p["success"] for p in sel("contact", "test", family)],
+                                [p["success"] for p in sel(other, "test", family)])
 
     def lower_err(other: str, family: str | None = None) -> int:
         a = [p["obj"] for p in sel("contact", "test", family)]

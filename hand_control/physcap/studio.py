@@ -20,14 +20,15 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hand_capture.model.joints import matrix_to_quat, quat_wxyz_to_matrix
+from hand_capture.model.joints import matrix_to_quat
 from hand_control.physcap.capture import Capture, CaptureError
+from hand_control.physcap.images import pose_matrices
 from hand_control.physcap.synth import SyntheticCapture
 
 __all__ = ["STUDIO_RIG", "StudioCapture", "capture_sequence", "hand_penetration_mm",
@@ -35,15 +36,6 @@ __all__ = ["STUDIO_RIG", "StudioCapture", "capture_sequence", "hand_penetration_
 
 #: the multi-view bench's rig: six 640x480 cameras (config/rigs/studio6.yaml)
 STUDIO_RIG = "studio6"
-
-
-def _matrices(object_pose: np.ndarray) -> np.ndarray:
-    """(T, 4, 4) world <- object of (T, 7) poses (position, quaternion w x y z)."""
-    p = np.asarray(object_pose, float)
-    T = np.tile(np.eye(4), (len(p), 1, 1))
-    T[:, :3, :3] = quat_wxyz_to_matrix(p[:, 3:7])
-    T[:, :3, 3] = p[:, 0:3]
-    return T
 
 
 def capture_sequence(capture: Capture) -> Any:
@@ -60,7 +52,7 @@ def capture_sequence(capture: Capture) -> Any:
         raise CaptureError("studio captures: mesh objects are not supported (primitives only)")
     return Sequence(capture.name, ("right",), (object_spec(capture.obj),),
                     np.asarray(capture.hand_q, float)[:, None, :],
-                    _matrices(capture.object_pose)[:, None])
+                    pose_matrices(capture.object_pose)[:, None])
 
 
 def hand_penetration_mm(capture: Capture, hand_q: np.ndarray | None = None,
@@ -72,7 +64,7 @@ def hand_penetration_mm(capture: Capture, hand_q: np.ndarray | None = None,
     from hand_control.physcap.world import object_spec
 
     q = capture.hand_q if hand_q is None else np.asarray(hand_q, float)
-    T = _matrices(capture.object_pose if object_pose is None else object_pose)
+    T = pose_matrices(capture.object_pose if object_pose is None else object_pose)
     spec = object_spec(capture.obj)
     s = np.asarray(spec.size, float)
     model = HandModel()
@@ -89,6 +81,7 @@ def hand_penetration_mm(capture: Capture, hand_q: np.ndarray | None = None,
     return out
 
 
+@dataclass(frozen=True, eq=False)
 class StudioCapture:
     """A studio-filmed, tracked capture.
 
@@ -100,12 +93,10 @@ class StudioCapture:
         cached: whether the tracked poses came from the cache.
     """
 
-    def __init__(self, synthetic: SyntheticCapture, images: Any, track_s_per_frame: float,
-                 cached: bool) -> None:
-        self.synthetic = synthetic
-        self.images = images
-        self.track_s_per_frame = track_s_per_frame
-        self.cached = cached
+    synthetic: SyntheticCapture
+    images: Any
+    track_s_per_frame: float
+    cached: bool
 
 
 def _design_key(truth: Capture, rig: Any, seed: int, lo_config: Any) -> str:
