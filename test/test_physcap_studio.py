@@ -112,3 +112,62 @@ def test_bench_studio_family_passes_the_images_to_contact_sampling(monkeypatch):
                 "studio_ref_max_penetration_mm"):
         assert np.isfinite(fig[key]), key
     assert fig["studio_captures"] == 1
+
+
+def test_confirmatory_batch_design():
+    """The confirmatory batch: the studio family's 9 truths, each with two render seeds that
+    the studio family does not use, in the fixed order (pass 0, then pass 1)."""
+    import hand_control.bench.physcap as bench
+
+    entries = bench.studio_confirm_entries()
+    assert len(entries) == 18
+    seeds = [s for _, _, s in entries]
+    family = {bench.STUDIO_SEED0 + i for i in range(9)}
+    assert len(set(seeds)) == 18 and not family & set(seeds)
+    names = [t.name for _, t, _ in entries]
+    assert names[:9] == names[9:] and len(set(names)) == 9
+    assert seeds[:9] == sorted(seeds[:9]) and max(seeds[:9]) < min(seeds[9:])
+    assert [f for f, _, _ in entries].count("heavy") == 12
+
+
+def test_confirmatory_batch_analysis(monkeypatch, tmp_path, capsys):
+    """The primary analysis: a one-sided sign test against EACH baseline, "clearly better"
+    only when both are below 5 %; ``tracked_only`` keeps the cached captures; ``skip``
+    (``--quick`` / ``--smoke``) says so and leaves the figures null."""
+    from types import SimpleNamespace
+
+    import hand_control.bench.physcap as bench
+
+    entries = [("light", SimpleNamespace(name=f"c{i}"), 60 + i) for i in range(8)]
+    monkeypatch.setattr(bench, "studio_confirm_entries", lambda: list(entries))
+    monkeypatch.setattr(bench, "_STUDIO_CACHE", tmp_path)
+    fails = {"random": 5, "pd_only": 4}  # captures where the baseline alone fails
+
+    def fake(ents, rig, lo, methods, model, config, cache_dir, images, title):
+        assert cache_dir == tmp_path and not images and list(methods) == list(bench._METHODS)
+        assert config("contact").n_samples == 32 and config("random").finger_width == 0.12
+        per = {m: [dict(success=m == "contact" or i >= fails[m], obj=1.0, hand=2.0)
+                   for i in range(len(ents))] for m in methods}
+        return per, []
+
+    monkeypatch.setattr(bench, "_studio_optimise", fake)
+    fig = bench.studio_confirm(HandModel())
+    assert fig["studio_confirm_captures"] == 8
+    assert fig["studio_confirm_contact_vs_random_wins_losses"] == [5, 0]
+    assert fig["studio_confirm_contact_vs_random_p"] == pytest.approx(1 / 32)
+    assert fig["studio_confirm_contact_vs_pd_only_p"] == pytest.approx(1 / 16)
+    assert fig["studio_confirm_p"] == pytest.approx(1 / 16)
+    assert fig["studio_confirm_clearly_better"] is False
+    assert fig["studio_confirm_random_success"] == pytest.approx(3 / 8)
+    fails["pd_only"] = 5
+    assert bench.studio_confirm(HandModel())["studio_confirm_clearly_better"] is True
+    for i in (0, 1, 2, 3, 4, 5):  # the first six tracked: random fails on 5 of them
+        (tmp_path / f"c{i}_studio{60 + i}.npz").write_bytes(b"")
+    part = bench.studio_confirm(HandModel(), tracked_only=True)
+    assert part["studio_confirm_captures"] == 6
+    assert part["studio_confirm_contact_vs_random_wins_losses"] == [5, 0]
+    capsys.readouterr()
+    skipped = bench.studio_confirm(skip=True)
+    assert "NOT RUN" in capsys.readouterr().out
+    assert skipped["studio_confirm_p"] is None and skipped["studio_confirm_contact_success"] \
+        is None
