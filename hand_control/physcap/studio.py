@@ -155,7 +155,9 @@ def studio_capture(truth: Capture, *, rig: Any = None, seed: int = 0, lo_config:
         obj_pose = np.zeros_like(truth.object_pose)
     groups: list[dict[str, np.ndarray]] = []
     secs: list[float] = []
-    for t, fr in enumerate(render_sequence(seq, rig, surface="heldout", seed=seed)):
+    frames = render_sequence(seq, rig, surface="heldout", seed=seed) \
+        if images or not cached else ()  # cached poses without images: nothing to render
+    for t, fr in enumerate(frames):
         if images:
             groups.append(fr.images)
         if tracker is None:
