@@ -146,8 +146,8 @@ def test_confirmatory_batch_analysis(monkeypatch, tmp_path, capsys):
     def fake(ents, rig, lo, methods, model, config, cache_dir, images, title):
         assert cache_dir == tmp_path and not images and list(methods) == list(bench._METHODS)
         assert config("contact").n_samples == 32 and config("random").finger_width == 0.12
-        per = {m: [dict(success=m == "contact" or i >= fails[m], obj=1.0, hand=2.0)
-                   for i in range(len(ents))] for m in methods}
+        per = {m: [dict(success=m == "contact" or int(e[1].name[1:]) >= fails[m], obj=1.0,
+                        hand=2.0) for e in ents] for m in methods}
         return per, []
 
     monkeypatch.setattr(bench, "_studio_optimise", fake)
@@ -169,5 +169,13 @@ def test_confirmatory_batch_analysis(monkeypatch, tmp_path, capsys):
     capsys.readouterr()
     skipped = bench.studio_confirm(skip=True)
     assert "NOT RUN" in capsys.readouterr().out
+    # the passes run apart combine into the batch's figures
+    one, two = bench.studio_confirm(HandModel(), passes=(0,)), bench.studio_confirm(
+        HandModel(), passes=(1,))
+    assert one["studio_confirm_captures"] == two["studio_confirm_captures"] == 4
+    both = bench.studio_confirm_figures(
+        {m: one["studio_confirm_per_capture"][m] + two["studio_confirm_per_capture"][m]
+         for m in bench._METHODS})
+    assert both["studio_confirm_contact_vs_random_p"] == fig["studio_confirm_contact_vs_random_p"]
     assert skipped["studio_confirm_p"] is None and skipped["studio_confirm_contact_success"] \
         is None

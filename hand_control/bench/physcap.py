@@ -331,28 +331,28 @@ def studio_confirm_track(passes: tuple[int, ...] = (0, 1)) -> None:
                   f"{time.perf_counter() - t0:.1f} s (cached: {st.cached})", flush=True)
 
 
-def studio_confirm(model: HandModel | None = None, *, tracked_only: bool = False,
-                   skip: bool = False) -> dict[str, Any]:
-    """The confirmatory studio batch (:data:`STUDIO_CONFIRM_SEED0S`): tracked poses cached in
-    ``out/bench/physcap_studio`` (the studio family's folder; other seeds, other files), every
-    method at :data:`STUDIO_CONFIRM_SETTING`, and the primary analysis. ``tracked_only``: only
-    the captures whose tracked poses are already cached (a run the time budget cut short:
-    they are the first ones of the fixed order); ``skip`` (``--quick`` / ``--smoke``): none,
-    the ``studio_confirm_*`` figures null. Returns its JSON figures."""
-    keys = ["studio_confirm_captures", "studio_confirm_contact_success",
-            "studio_confirm_random_success", "studio_confirm_pd_only_success",
-            "studio_confirm_contact_vs_random_p", "studio_confirm_contact_vs_pd_only_p",
-            "studio_confirm_p", "studio_confirm_clearly_better"]
+def studio_confirm(model: HandModel | None = None, *, passes: tuple[int, ...] = (0, 1),
+                   tracked_only: bool = False, skip: bool = False) -> dict[str, Any]:
+    """The confirmatory studio batch (:data:`STUDIO_CONFIRM_SEED0S`; ``passes``: which render
+    passes, all by default): tracked poses cached in ``out/bench/physcap_studio`` (the studio
+    family's folder; other seeds, other files), every method at
+    :data:`STUDIO_CONFIRM_SETTING`, and the primary analysis
+    (:func:`studio_confirm_figures`). ``tracked_only``: only the captures whose tracked poses
+    are already cached (a run the time budget cut short: they are the first ones of the fixed
+    order); ``skip`` (``--quick`` / ``--smoke``): none, the ``studio_confirm_*`` figures null.
+    Returns its JSON figures."""
     if skip:
         print("studio confirmatory batch: NOT RUN in --quick / --smoke (18 tracked captures; "
               "its studio_confirm_* figures are null)")
-        return dict.fromkeys(keys)
+        return dict.fromkeys(_CONFIRM_KEYS)
     from hand_capture.multiview.lo import LOConfig
     from hand_capture.multiview.rig import load_rig
     from hand_control.physcap.studio import STUDIO_RIG
 
     model = HandModel() if model is None else model
     entries = studio_confirm_entries()
+    per_pass = len(entries) // len(STUDIO_CONFIRM_SEED0S)
+    entries = [e for k in passes for e in entries[k * per_pass:(k + 1) * per_pass]]
     if tracked_only:
         done = [e for e in entries
                 if (_STUDIO_CACHE / f"{e[1].name}_studio{e[2]}.npz").is_file()]
@@ -360,15 +360,30 @@ def studio_confirm(model: HandModel | None = None, *, tracked_only: bool = False
               "(only these are analysed)")
         entries = done
     n, width = STUDIO_CONFIRM_SETTING
-    per, track_s = _studio_optimise(
+    per, _ = _studio_optimise(
         entries, load_rig(STUDIO_RIG), LOConfig(), list(_METHODS), model,
         lambda method: _config(n, width, method), _STUDIO_CACHE, False,
         f"studio confirmatory batch ({len(entries)} captures: new render seeds, {n} samples, "
         f"{width} rad)")
+    return studio_confirm_figures(
+        {m: [dict(capture=f"{e[1].name}_studio{e[2]}", success=bool(p["success"]),
+                  obj=p["obj"], hand=p["hand"]) for e, p in zip(entries, per[m], strict=True)]
+         for m in _METHODS})
+
+
+_CONFIRM_KEYS = ("studio_confirm_captures", "studio_confirm_contact_success",
+                 "studio_confirm_random_success", "studio_confirm_pd_only_success",
+                 "studio_confirm_contact_vs_random_p", "studio_confirm_contact_vs_pd_only_p",
+                 "studio_confirm_p", "studio_confirm_clearly_better")
+
+
+def studio_confirm_figures(per: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
+    """The confirmatory batch's figures and primary analysis from its per-capture results
+    (per method of :data:`_METHODS`, in the batch's order: ``capture``, ``success``, ``obj``
+    and ``hand`` errors [mm]; kept in the figures as ``studio_confirm_per_capture``, so that
+    the passes run apart combine: ``studio_confirm_figures`` of the concatenated lists)."""
     ok = {m: [p["success"] for p in per[m]] for m in _METHODS}
-    fig: dict[str, Any] = {"studio_confirm_captures": len(entries),
-                           "studio_confirm_track_s_per_frame": float(np.mean(track_s))
-                           if track_s else float("nan")}
+    fig: dict[str, Any] = {"studio_confirm_captures": len(ok["contact"])}
     for m in _METHODS:
         fig[f"studio_confirm_{m}_success"] = _rate(ok[m])
         fig[f"studio_confirm_{m}_object_err_mm"] = float(np.mean([p["obj"] for p in per[m]]))
@@ -378,14 +393,17 @@ def studio_confirm(model: HandModel | None = None, *, tracked_only: bool = False
         w, lo_, p = paired_successes(ok["contact"], ok[other])
         fig[f"studio_confirm_contact_vs_{other}_wins_losses"] = [w, lo_]
         fig[f"studio_confirm_contact_vs_{other}_p"] = p
+        fig[f"studio_confirm_contact_lower_object_err_vs_{other}"] = int(sum(
+            a["obj"] < b["obj"] for a, b in zip(per["contact"], per[other], strict=True)))
         rows.append([other, sum(ok["contact"]), sum(ok[other]), w, lo_, p,
                      p < STUDIO_CONFIRM_ALPHA])
     # "clearly better than random sampling AND PD-only": both tests at 5 % (intersection-union)
     fig["studio_confirm_p"] = max(r[5] for r in rows)
     fig["studio_confirm_clearly_better"] = bool(fig["studio_confirm_p"] < STUDIO_CONFIRM_ALPHA)
+    fig["studio_confirm_per_capture"] = per
     print_table(f"studio confirmatory batch, primary analysis: one-sided sign test of contact "
                 f"sampling against each baseline at {STUDIO_CONFIRM_ALPHA:g} "
-                f"({len(entries)} captures, successes)",
+                f"({fig['studio_confirm_captures']} captures, successes)",
                 ["baseline", "contact_successes", "baseline_successes", "contact_alone",
                  "baseline_alone", "p", "significant"], rows)
     return fig
