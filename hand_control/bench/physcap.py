@@ -221,8 +221,8 @@ def _studio_optimise(entries: list[tuple[str, Any, int]], rig: Any, lo: Any, met
         cap = st.synthetic.capture
         if not st.cached:
             track_s.append(st.track_s_per_frame)
-        print(f"studio {cap.name}: {truth.n_frames} frames rendered"
-              f"{' (tracked poses cached)' if st.cached else ' and tracked'} in "
+        print(f"studio {cap.name}: {truth.n_frames} frames "
+              f"{'(tracked poses cached)' if st.cached else 'rendered and tracked'} in "
               f"{time.perf_counter() - t0:.1f} s", flush=True)
         ref_obj, ref_hand = _errors(model, truth, cap.hand_q, cap.object_pose)
         ref_pen = float(hand_penetration_mm(cap).max())
