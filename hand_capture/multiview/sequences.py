@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -49,11 +50,12 @@ _FINGERS = ("index", "middle", "ring", "little")
 @dataclass(frozen=True)
 class Sequence:
     """A performance: hand poses (T, n_hands, 27) in scene-model hand order (right first),
-    object poses (T, n_objects, 4, 4), object kinds, and the scene model that tracks it."""
+    object poses (T, n_objects, 4, 4), object kinds (or ``ObjectSpec`` objects, for other
+    sizes than a kind's default), and the scene model that tracks it."""
 
     name: str
     sides: tuple[str, ...]
-    objects: tuple[str, ...]
+    objects: tuple[Any, ...]
     hand_poses: np.ndarray
     object_poses: np.ndarray
 
@@ -208,7 +210,8 @@ def _palm_centre(m: HandModel, q: np.ndarray, r: float) -> np.ndarray:
 def _studio_objects(seq: Sequence) -> list:
     from hand_capture.model.mjcf import ObjectSpec
 
-    return [ObjectSpec(k, pos=(0.6, 0.6, 0.5)) for k in seq.objects]
+    return [k if isinstance(k, ObjectSpec) else ObjectSpec(k, pos=(0.6, 0.6, 0.5))
+            for k in seq.objects]
 
 
 def _object_qpos(poses: np.ndarray) -> np.ndarray:

@@ -41,24 +41,54 @@ Retargeting (sec. 7.2): the first test capture's optimised control applied to th
 objects and two lower frictions (``retarget_success``), and to a very low friction where the
 object must slip (``low_friction_slipped``). ``dask_speedup_2w``: the batch runner with 2
 worker processes against 1 (``hand_control.physcap.batch.measure_dask_speedup``).
+
+**Studio family** (``studio_*`` keys; its design fixed before any method ran on it): the truth
+of every light lift at its own mass and at each heavy mass rendered by the studio6 rig (six
+640x480 cameras, the held-out hand surface, colour and structural noise) and tracked by the
+suite's multi-view tracker (LO E+C+O+S from the first frame's truth,
+:mod:`hand_control.physcap.studio`): a real tracker's errors instead of synthetic ones. Every
+method runs at the setting chosen on validation, and contact sampling also with the image cost
+of eq. 3 (``studio_image_*``). The tracked poses are cached in ``out/bench/physcap_studio``
+(keyed by the truth, rig, seed and tracker settings); ``--quick``: the short box lift only;
+``--smoke``: 4 frames, 3 cameras, 4 tracker iterations.
+
+**Confirmatory studio batch** (``studio_confirm_*`` keys; :func:`studio_confirm`, designed and
+committed before it ran, after the studio family's p = 0.125): the same 9 truths rendered with
+two new seeds each (18 captures), the three methods at 32 samples / 0.12 rad, and the one-sided
+sign test of contact sampling against each baseline on this batch alone at 5 %
+(``studio_confirm_p``: the larger of the two). Not run in ``--quick`` / ``--smoke`` (its keys
+null, said in the output).
 """
 
 from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hand_capture.bench import print_table
 from hand_capture.model.hand import HandModel
-from hand_control.physcap.capture import CapturedObject, PhysCapConfig, optimise_capture
+from hand_control.physcap.capture import (
+    Capture,
+    CapturedObject,
+    PhysCapConfig,
+    optimise_capture,
+)
 from hand_control.physcap.retarget import retarget
 from hand_control.physcap.synth import corrupt, scenario_capture
 from hand_control.sim.scenario import load_scenario
 
 _METHODS = {"contact": {}, "random": {"sampling": "random"}, "pd_only": {"control": "pd_only"}}
+
+
+def _config(n: int, width: float, method: str) -> PhysCapConfig:
+    """The optimiser's settings: ``n`` samples per step (``n // 4`` kept, at least 2), finger
+    hypercube half-width ``width`` [rad], ``method`` of :data:`_METHODS`."""
+    return PhysCapConfig(n_samples=n, n_keep=max(2, n // 4), finger_width=width,
+                         **_METHODS[method])
 
 
 #: the heavy family's masses [kg]: objects a user grasps (a full bottle, a tool); the light
@@ -140,6 +170,252 @@ def _captures(quick: bool, smoke: bool, skipped: list[str] | None = None
             + [("heldout", "light", corrupt(pour, "contacts", seed=s)) for s in (8, 9)])
 
 
+#: the studio family's design, fixed before any method was run on it: every light lift at its
+#: own mass and at each heavy mass (9 captures, the standard capture window: 41 frames at
+#: 20 fps), each rendered once with its own seed (:data:`STUDIO_SEED0` + its index)
+STUDIO_SEED0 = 40
+_STUDIO_CACHE = Path("out") / "bench" / "physcap_studio"
+
+
+def _studio_truths(quick: bool, smoke: bool, skipped: list[str]) -> list[tuple[str, Any]]:
+    """(family, ground-truth Capture) of the studio family: full run every light lift at its
+    own mass (``light``) and at each of :data:`HEAVY_MASSES` (``heavy``, LP-checked as the
+    other captures); ``--quick`` the short box lift of the quick captures; ``--smoke`` its
+    first 4 frames of the smoke run's box lift."""
+    if smoke:
+        spec = load_scenario("lift_box").with_(t_lift=0.4, t_carry=0.1, t_hold=0.1)
+        c = scenario_capture(spec, t_start=0.5, t_end=1.5)
+        return [("light", Capture(c.name, c.times[:4], c.hand_q[:4], c.object_pose[:4], c.obj))]
+    if quick:
+        spec = load_scenario("lift_box").with_(t_lift=0.6, t_carry=0.1, t_hold=0.1)
+        return [("light", scenario_capture(spec, t_end=2.1))]
+    out = []
+    for sc in _LIGHT_SCENARIOS:
+        out.append(("light", scenario_capture(load_scenario(sc))))
+        for m in HEAVY_MASSES:
+            spec = heavy_spec(sc, m)
+            ok, status = lp_feasible(spec)
+            if ok:
+                out.append(("heavy", scenario_capture(spec)))
+            else:
+                skipped.append(f"studio {spec.name} (feasibility LP: {status})")
+    return out
+
+
+def _studio_optimise(entries: list[tuple[str, Any, int]], rig: Any, lo: Any, methods: list[str],
+                     model: HandModel, config: Any, cache_dir: Path | None, images: bool,
+                     title: str) -> tuple[dict[str, list[dict[str, Any]]], list[float]]:
+    """Every (family, truth, render seed) of ``entries`` filmed and tracked
+    (:func:`hand_control.physcap.studio.studio_capture`, cached in ``cache_dir``), then
+    optimised by each method with ``config(method)`` (``contact+images``: contact sampling with
+    the eq. 3 image cost). Prints the table ``title``; returns per method the per-capture
+    figures and the tracker's seconds per frame of the captures it tracked."""
+    from hand_control.physcap.studio import hand_penetration_mm, studio_capture
+
+    per: dict[str, list[dict[str, Any]]] = {m: [] for m in methods}
+    rows, track_s = [], []
+    for fam, truth, seed in entries:
+        t0 = time.perf_counter()
+        st = studio_capture(truth, rig=rig, seed=seed, lo_config=lo, images=images,
+                            cache_dir=cache_dir)
+        cap = st.synthetic.capture
+        if not st.cached:
+            track_s.append(st.track_s_per_frame)
+        print(f"studio {cap.name}: {truth.n_frames} frames "
+              f"{'(tracked poses cached)' if st.cached else 'rendered and tracked'} in "
+              f"{time.perf_counter() - t0:.1f} s", flush=True)
+        ref_obj, ref_hand = _errors(model, truth, cap.hand_q, cap.object_pose)
+        ref_pen = float(hand_penetration_mm(cap).max())
+        for method in methods:
+            cost = st.images if method == "contact+images" else None
+            r = optimise_capture(cap, config(method.split("+")[0]), images=cost)
+            obj_err, hand_err = _errors(model, truth, r.hand_q, r.object_pose)
+            per[method].append(dict(family=fam, success=r.success, obj=obj_err, hand=hand_err,
+                                    ref_obj=ref_obj, ref_hand=ref_hand, pen=ref_pen,
+                                    s=r.s_per_frame))
+            rows.append([cap.name, fam, method, r.success, obj_err, hand_err, ref_obj,
+                         ref_hand, ref_pen, r.s_per_frame])
+    print_table(title, ["capture", "family", "method", "success", "object_err_mm",
+                        "hand_err_mm", "ref_object_err_mm", "ref_hand_err_mm",
+                        "ref_max_penetration_mm", "s_per_frame"], rows)
+    return per, track_s
+
+
+def _studio_family(quick: bool, smoke: bool, model: HandModel,
+                   config: Any) -> dict[str, Any]:
+    """The studio family (:mod:`hand_control.physcap.studio`): every truth of
+    :func:`_studio_truths` rendered by the studio6 rig (held-out hand surface, colour and
+    structural noise) and tracked by the multi-view tracker (LO E+C+O+S, from the first
+    frame's truth; the tracked poses cached in ``out/bench/physcap_studio`` except in
+    ``--smoke``), then optimised by each method with ``config(method)`` and by contact
+    sampling with the image cost of eq. 3 (``contact+images``). Returns its JSON figures."""
+    from hand_capture.multiview.lo import LOConfig
+    from hand_capture.multiview.rig import Rig, load_rig
+    from hand_control.physcap.studio import STUDIO_RIG
+
+    skipped: list[str] = []
+    truths = _studio_truths(quick, smoke, skipped)
+    for name in skipped:
+        print(f"skipped: {name}: no grasp of the hand can hold it")
+    rig = load_rig(STUDIO_RIG)
+    lo = LOConfig()
+    if smoke:
+        rig, lo = Rig(rig.name, rig.cameras[:3], rig.world_frame), LOConfig(iterations=4)
+    per, track_s = _studio_optimise(
+        [(fam, truth, STUDIO_SEED0 + i) for i, (fam, truth) in enumerate(truths)], rig, lo,
+        [*_METHODS, "contact+images"], model, config, None if smoke else _STUDIO_CACHE, True,
+        "studio family: lifts filmed by the studio6 rig and tracked by the multi-view tracker "
+        "(held-out hand surface)")
+
+    def col(method: str, key: str) -> list[Any]:
+        return [p[key] for p in per[method]]
+
+    fig: dict[str, Any] = {"studio_captures": len(truths), "studio_skipped": skipped,
+                           "studio_track_s_per_frame": float(np.mean(track_s)) if track_s
+                           else float("nan")}
+    for method, key in (("contact", "contact"), ("random", "random"), ("pd_only", "pd_only"),
+                        ("contact+images", "image")):
+        fig[f"studio_{key}_success"] = _rate(col(method, "success"))
+        fig[f"studio_{key}_object_err_mm"] = float(np.mean(col(method, "obj")))
+        fig[f"studio_{key}_hand_err_mm"] = float(np.mean(col(method, "hand")))
+    fig["studio_object_err_mm"] = fig["studio_contact_object_err_mm"]
+    fig["studio_hand_err_mm"] = fig["studio_contact_hand_err_mm"]
+    fig["studio_ref_object_err_mm"] = float(np.mean(col("contact", "ref_obj")))
+    fig["studio_ref_hand_err_mm"] = float(np.mean(col("contact", "ref_hand")))
+    fig["studio_ref_max_penetration_mm"] = float(np.max(col("contact", "pen")))
+    for other in ("random", "pd_only"):
+        w, lo_, p = paired_successes(col("contact", "success"), col(other, "success"))
+        fig[f"studio_contact_vs_{other}_wins_losses"] = [w, lo_]
+        fig[f"studio_contact_vs_{other}_p"] = p
+        print(f"studio ({len(truths)}), contact vs {other}: contact alone succeeds on {w}, "
+              f"{other} alone on {lo_}: one-sided sign test p = {p:.3g}")
+    return fig
+
+
+#: the confirmatory studio batch, designed and committed before it ran (added after the
+#: studio family's p = 0.125, as a replication on new renders: the family's result stays
+#: reported on its own). The same 9 truths as the studio family (every light lift at its own
+#: mass and at each heavy mass), each rendered with TWO new seeds: pass ``k`` renders truth
+#: ``i`` with seed ``STUDIO_CONFIRM_SEED0S[k] + i`` (18 captures, in that order: pass 0, then
+#: pass 1); same tracker (LO E+C+O+S defaults), the three methods only (no image cost), at the
+#: setting validation chose for the synthetic captures, fixed here: 32 samples, 0.12 rad.
+#: Primary analysis: the one-sided exact sign test of contact sampling against EACH baseline
+#: on this batch alone, each at :data:`STUDIO_CONFIRM_ALPHA`; "clearly better" needs both.
+STUDIO_CONFIRM_SEED0S = (60, 70)
+STUDIO_CONFIRM_SETTING = (32, 0.12)
+STUDIO_CONFIRM_ALPHA = 0.05
+
+
+def studio_confirm_entries() -> list[tuple[str, Any, int]]:
+    """(family, ground-truth Capture, render seed) of the confirmatory batch, in its fixed
+    order (:data:`STUDIO_CONFIRM_SEED0S`)."""
+    skipped: list[str] = []
+    truths = _studio_truths(False, False, skipped)
+    for name in skipped:
+        print(f"skipped: {name}: no grasp of the hand can hold it")
+    return [(fam, truth, s0 + i) for s0 in STUDIO_CONFIRM_SEED0S
+            for i, (fam, truth) in enumerate(truths)]
+
+
+def studio_confirm_track(passes: tuple[int, ...] = (0, 1)) -> None:
+    """Film and track the confirmatory batch's captures of ``passes`` (indices into
+    :data:`STUDIO_CONFIRM_SEED0S`) into the cache, without optimising: the costly part, run
+    ahead (one process per pass) of :func:`studio_confirm`."""
+    from hand_capture.cameras.threads import limit_blas_threads
+    from hand_capture.multiview.lo import LOConfig
+    from hand_capture.multiview.rig import load_rig
+    from hand_control.physcap.studio import STUDIO_RIG, studio_capture
+
+    limit_blas_threads(1)
+    rig, entries = load_rig(STUDIO_RIG), studio_confirm_entries()
+    per_pass = len(entries) // len(STUDIO_CONFIRM_SEED0S)
+    for k in passes:
+        for _, truth, seed in entries[k * per_pass:(k + 1) * per_pass]:
+            t0 = time.perf_counter()
+            st = studio_capture(truth, rig=rig, seed=seed, lo_config=LOConfig(),
+                                images=False, cache_dir=_STUDIO_CACHE)
+            print(f"studio {truth.name}_studio{seed}: tracked in "
+                  f"{time.perf_counter() - t0:.1f} s (cached: {st.cached})", flush=True)
+
+
+def studio_confirm(model: HandModel | None = None, *, passes: tuple[int, ...] = (0, 1),
+                   tracked_only: bool = False, skip: bool = False) -> dict[str, Any]:
+    """The confirmatory studio batch (:data:`STUDIO_CONFIRM_SEED0S`; ``passes``: which render
+    passes, all by default): tracked poses cached in ``out/bench/physcap_studio`` (the studio
+    family's folder; other seeds, other files), every method at
+    :data:`STUDIO_CONFIRM_SETTING`, and the primary analysis
+    (:func:`studio_confirm_figures`). ``tracked_only``: only the captures whose tracked poses
+    are already cached (a run the time budget cut short: they are the first ones of the fixed
+    order); ``skip`` (``--quick`` / ``--smoke``): none, the ``studio_confirm_*`` figures null.
+    Returns its JSON figures."""
+    if skip:
+        print("studio confirmatory batch: NOT RUN in --quick / --smoke (18 tracked captures; "
+              "its studio_confirm_* figures are null)")
+        return dict.fromkeys(_CONFIRM_KEYS)
+    from hand_capture.multiview.lo import LOConfig
+    from hand_capture.multiview.rig import load_rig
+    from hand_control.physcap.studio import STUDIO_RIG
+
+    model = HandModel() if model is None else model
+    entries = studio_confirm_entries()
+    per_pass = len(entries) // len(STUDIO_CONFIRM_SEED0S)
+    entries = [e for k in passes for e in entries[k * per_pass:(k + 1) * per_pass]]
+    if tracked_only:
+        done = [e for e in entries
+                if (_STUDIO_CACHE / f"{e[1].name}_studio{e[2]}.npz").is_file()]
+        print(f"studio confirmatory batch: {len(done)} of {len(entries)} captures tracked "
+              "(only these are analysed)")
+        entries = done
+    n, width = STUDIO_CONFIRM_SETTING
+    per, _ = _studio_optimise(
+        entries, load_rig(STUDIO_RIG), LOConfig(), list(_METHODS), model,
+        lambda method: _config(n, width, method), _STUDIO_CACHE, False,
+        f"studio confirmatory batch ({len(entries)} captures: new render seeds, {n} samples, "
+        f"{width} rad)")
+    return studio_confirm_figures(
+        {m: [dict(capture=f"{e[1].name}_studio{e[2]}", success=bool(p["success"]),
+                  obj=p["obj"], hand=p["hand"]) for e, p in zip(entries, per[m], strict=True)]
+         for m in _METHODS})
+
+
+_CONFIRM_KEYS = ("studio_confirm_captures", "studio_confirm_contact_success",
+                 "studio_confirm_random_success", "studio_confirm_pd_only_success",
+                 "studio_confirm_contact_vs_random_p", "studio_confirm_contact_vs_pd_only_p",
+                 "studio_confirm_p", "studio_confirm_clearly_better")
+
+
+def studio_confirm_figures(per: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
+    """The confirmatory batch's figures and primary analysis from its per-capture results
+    (per method of :data:`_METHODS`, in the batch's order: ``capture``, ``success``, ``obj``
+    and ``hand`` errors [mm]; kept in the figures as ``studio_confirm_per_capture``, so that
+    the passes run apart combine: ``studio_confirm_figures`` of the concatenated lists)."""
+    ok = {m: [p["success"] for p in per[m]] for m in _METHODS}
+    fig: dict[str, Any] = {"studio_confirm_captures": len(ok["contact"])}
+    for m in _METHODS:
+        fig[f"studio_confirm_{m}_success"] = _rate(ok[m])
+        fig[f"studio_confirm_{m}_object_err_mm"] = float(np.mean([p["obj"] for p in per[m]]))
+        fig[f"studio_confirm_{m}_hand_err_mm"] = float(np.mean([p["hand"] for p in per[m]]))
+    rows = []
+    for other in ("random", "pd_only"):
+        w, lo_, p = paired_successes(ok["contact"], ok[other])
+        fig[f"studio_confirm_contact_vs_{other}_wins_losses"] = [w, lo_]
+        fig[f"studio_confirm_contact_vs_{other}_p"] = p
+        fig[f"studio_confirm_contact_lower_object_err_vs_{other}"] = int(sum(
+            a["obj"] < b["obj"] for a, b in zip(per["contact"], per[other], strict=True)))
+        rows.append([other, sum(ok["contact"]), sum(ok[other]), w, lo_, p,
+                     p < STUDIO_CONFIRM_ALPHA])
+    # "clearly better than random sampling AND PD-only": both tests at 5 % (intersection-union)
+    fig["studio_confirm_p"] = max(r[5] for r in rows)
+    fig["studio_confirm_clearly_better"] = bool(fig["studio_confirm_p"] < STUDIO_CONFIRM_ALPHA)
+    fig["studio_confirm_per_capture"] = per
+    print_table(f"studio confirmatory batch, primary analysis: one-sided sign test of contact "
+                f"sampling against each baseline at {STUDIO_CONFIRM_ALPHA:g} "
+                f"({fig['studio_confirm_captures']} captures, successes)",
+                ["baseline", "contact_successes", "baseline_successes", "contact_alone",
+                 "baseline_alone", "p", "significant"], rows)
+    return fig
+
+
 def _errors(model: HandModel, truth: Any, hand_q: np.ndarray, object_pose: np.ndarray
             ) -> tuple[float, float]:
     """Mean object position error and mean 21-keypoint hand error against the truth [mm]."""
@@ -162,6 +438,14 @@ def sign_test_p(wins: int, losses: int) -> float:
     return float(sum(math.comb(n, k) for k in range(wins, n + 1)) / 2 ** n) if n else 1.0
 
 
+def paired_successes(a: list[bool], b: list[bool]) -> tuple[int, int, float]:
+    """Paired successes of two methods on the same captures: where ``a`` alone succeeds,
+    where ``b`` alone does, and the one-sided sign test's p of ``a`` being the better."""
+    wins = sum(x and not y for x, y in zip(a, b, strict=True))
+    losses = sum(y and not x for x, y in zip(a, b, strict=True))
+    return wins, losses, sign_test_p(wins, losses)
+
+
 def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     """The figures (see the module docstring)."""
     from hand_capture.cameras.threads import limit_blas_threads
@@ -173,10 +457,6 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         print(f"skipped: {name}: no grasp of the hand can hold it")
     model = HandModel()
 
-    def config(n: int, width: float, method: str) -> PhysCapConfig:
-        return PhysCapConfig(n_samples=n, n_keep=max(2, n // 4), finger_width=width,
-                             **_METHODS[method])
-
     # --- validation (light and heavy captures together): the contact method's settings
     # (samples, finger half-width); more samples and a wider hypercube are candidates for
     # the heavy objects' sake
@@ -187,7 +467,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     for n_c, w_c in candidates:
         ok, errs, fam_ok = [], [], {"light": [], "heavy": []}
         for fam, sc in val:
-            r = optimise_capture(sc.capture, config(n_c, w_c, "contact"))
+            r = optimise_capture(sc.capture, _config(n_c, w_c, "contact"))
             ok.append(r.success)
             fam_ok[fam].append(r.success)
             errs.append(_errors(model, sc.truth, r.hand_q, r.object_pose)[0])
@@ -208,7 +488,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
             continue
         ref_obj, ref_hand = _errors(model, sc.truth, sc.capture.hand_q, sc.capture.object_pose)
         for method in _METHODS:
-            r = optimise_capture(sc.capture, config(n, width, method))
+            r = optimise_capture(sc.capture, _config(n, width, method))
             obj_err, hand_err = _errors(model, sc.truth, r.hand_q, r.object_pose)
             per[method].append(dict(split=split, family=fam, success=r.success, obj=obj_err,
                                     hand=hand_err, ref_obj=ref_obj, ref_hand=ref_hand,
@@ -237,11 +517,8 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     def paired(other: str, family: str | None = None) -> tuple[int, int, float]:
         """Test captures (of ``family``; None = pooled) where contact sampling succeeds and
         ``other`` fails, the reverse, and the one-sided sign test's p."""
-        a = [p["success"] for p in sel("contact", "test", family)]
-        b = [p["success"] for p in sel(other, "test", family)]
-        wins = sum(x and not y for x, y in zip(a, b, strict=True))
-        losses = sum(y and not x for x, y in zip(a, b, strict=True))
-        return wins, losses, sign_test_p(wins, losses)
+        return paired_successes([p["success"] for p in sel("contact", "test", family)],
+                                [p["success"] for p in sel(other, "test", family)])
 
     def lower_err(other: str, family: str | None = None) -> int:
         a = [p["obj"] for p in sel("contact", "test", family)]
@@ -260,6 +537,11 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
                 ["captures", "n", "contact", "random", "pd_only", "contact_mm", "random_mm",
                  "pd_only_mm"], s_rows)
 
+    # the studio family: tracked by the multi-view tracker, at the chosen setting
+    studio = _studio_family(quick, smoke, model, lambda method: _config(n, width, method))
+    # the confirmatory studio batch: new render seeds, its pre-registered setting
+    studio.update(studio_confirm(model, skip=quick or smoke))
+
     # sensitivity: the nearest width not chosen, contact and random sampling, test captures
     sens: dict[str, Any] = {}
     other = sorted({w for _, w in candidates if w != width},
@@ -272,7 +554,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
             for split, _, sc in caps:
                 if split != "test":
                     continue
-                r = optimise_capture(sc.capture, config(n, w_o, method))
+                r = optimise_capture(sc.capture, _config(n, w_o, method))
                 ok.append(r.success)
                 errs.append(_errors(model, sc.truth, r.hand_q, r.object_pose)[0])
             sens[f"sensitivity_{method}_success"] = float(np.mean(ok))
@@ -374,6 +656,6 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         "random_object_err_mm": mean("random", "obj", "test"),
         "pd_only_object_err_mm": mean("pd_only", "obj", "test"),
         "retarget_success": float(np.mean(ok)), "retarget_cases": len(ok),
-        "low_friction_slipped": bool(not slip.success), **sens, **threads,
+        "low_friction_slipped": bool(not slip.success), **sens, **threads, **studio,
         **{k: v for k, v in dask.items() if k.startswith("dask_")},
     }

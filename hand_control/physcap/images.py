@@ -22,10 +22,10 @@ from hand_capture.model.hand import HandModel
 from hand_capture.model.joints import quat_wxyz_to_matrix
 from hand_control.physcap.capture import CapturedObject, CaptureError
 
-__all__ = ["CaptureImages", "capture_images"]
+__all__ = ["CaptureImages", "capture_images", "pose_matrices"]
 
 
-def _transforms(object_pose: np.ndarray) -> np.ndarray:
+def pose_matrices(object_pose: np.ndarray) -> np.ndarray:
     """(N, 4, 4) world <- object of (N, 7) poses (position, quaternion w x y z)."""
     p = np.atleast_2d(np.asarray(object_pose, float))
     T = np.tile(np.eye(4), (len(p), 1, 1))
@@ -68,7 +68,7 @@ class CaptureImages:
         """(N, n_params) scene parameters of (N, 27) hand poses and (N, 7) object poses."""
         scene = self.cost.scene
         hq = np.atleast_2d(np.asarray(hand_q, float))
-        T = _transforms(object_pose)
+        T = pose_matrices(object_pose)
         return np.stack([scene.pack([h], [t]) for h, t in zip(hq, T, strict=True)])
 
     def energies(self, frame: int, hand_q: np.ndarray, object_pose: np.ndarray
