@@ -100,13 +100,18 @@ class StudioCapture:
 
 
 def _design_key(truth: Capture, rig: Any, seed: int, lo_config: Any) -> str:
+    """What the tracked poses depend on: the truth, the cameras, the render seed, the local
+    optimiser's settings and the tracker's (default) lost / prediction settings."""
+    from hand_capture.multiview.tracker import MultiviewTrackerConfig
+
     h = hashlib.sha256()
     for a in (truth.times, truth.hand_q, truth.object_pose):
         h.update(np.ascontiguousarray(a, float).tobytes())
     cams = [(c.name, c.intrinsics.width, c.intrinsics.height) for c in rig.cameras]
     return json.dumps({"truth": h.hexdigest(), "obj": [truth.obj.kind, list(truth.obj.size)],
                        "rig": rig.name, "cameras": cams, "seed": seed,
-                       "lo": asdict(lo_config)}, sort_keys=True, default=str)
+                       "lo": asdict(lo_config), "tracker": asdict(MultiviewTrackerConfig())},
+                      sort_keys=True, default=str)
 
 
 def studio_capture(truth: Capture, *, rig: Any = None, seed: int = 0, lo_config: Any = None,
