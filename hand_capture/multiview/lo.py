@@ -82,23 +82,6 @@ class LOConfig:
                                  lo=0.5, hi=10.0)
     robust_px: float = param(2.0, "scale of the Cauchy weights of correspondences [px]; "
                              "0 = plain least squares", lo=0.0, hi=100.0)
-    edge_blur_px: float = param(0.6, "Gaussian smoothing of the images before Canny [px] (0: "
-                                "none); 1 px put the edges of the hand's curved, shaded "
-                                "outline 1 px off it (median), 0.6 px 0.65 px", lo=0.0,
-                                hi=5.0)
-    robust_adapt: float = param(2.0, "per part, the Cauchy scale is widened to this many "
-                                "times the median pixel error of the part's correspondences "
-                                "when that is wider than robust_px (a part that moved far "
-                                "since the last frame keeps its true matches; a part near "
-                                "the images keeps robust_px against clutter); 0 = off",
-                                lo=0.0, hi=20.0)
-    robust_adapt_from_px: float = param(0.0, "the per-part widening applies only to a part "
-                                        "whose median pixel error exceeds this [px] (a "
-                                        "clearly moved part; a part held near its image by "
-                                        "clutter keeps robust_px); 0 = any part",
-                                        lo=0.0, hi=100.0)
-    robust_adapt_hands: bool = param(True, "the per-part widening applies to the hands too "
-                                     "(False: objects only, hands at robust_px)")
     support_px: float = param(4.0, "a model edge is supported by an image edge this near [px]",
                               lo=0.5, hi=50.0)
     colour_check_px: float = param(3.0, "a hand's edge correspondence is kept only when the "
@@ -237,7 +220,7 @@ class LocalOptimizer:
         for c, cam in enumerate(self.rig.cameras):
             img = images.get(cam.name)
             if img is not None:
-                feats[c] = image_features(img, blur_px=self.cfg.edge_blur_px)
+                feats[c] = image_features(img)
         dets = {}
         for c, cam in enumerate(self.rig.cameras):
             d = None if detections is None else detections.get(cam.name)
@@ -377,11 +360,7 @@ class LocalOptimizer:
     def _robust_weights(self, x: np.ndarray, corr: Correspondences) -> Correspondences:
         """Cauchy weights ``1 / (1 + (e / c)^2)`` of each correspondence's pixel error ``e``
         at ``x`` (iteratively reweighted least squares): structure that is not the model's
-        (clutter, occluders) pulls less than the correspondences that agree. ``c`` is
-        ``robust_px``, per part widened to ``robust_adapt`` times the median of its errors
-        (a scale estimated from the residuals): a part that moved far since the last frame
-        (a thrown ball, fingers closing 0.3 rad a frame) has all its true matches far and
-        keeps them; a part near its image keeps ``robust_px`` against clutter."""
+        (clutter, occluders) pulls less than the correspondences that agree."""
         c = self.cfg.robust_px
         if not len(corr) or c <= 0:
             return corr
@@ -389,16 +368,7 @@ class LocalOptimizer:
         res, _ = self._residuals(x, corr, CollisionPairs.empty(), None)
         sw = self._weights(corr)
         e = np.hypot(res[0::2], res[1::2]) / np.maximum(sw, 1e-12)
-        cc = np.full(len(corr), c)
-        if self.cfg.robust_adapt > 0:
-            for p in np.unique(corr.part):
-                if p < self.model.n_hands and not self.cfg.robust_adapt_hands:
-                    continue
-                sel = corr.part == p
-                med = float(np.median(e[sel]))
-                if med > self.cfg.robust_adapt_from_px:
-                    cc[sel] = max(c, self.cfg.robust_adapt * med)
-        corr.robust = 1.0 / (1.0 + (e / cc) ** 2)
+        corr.robust = 1.0 / (1.0 + (e / c) ** 2)
         return corr
 
     # ------------------------------------------------------------------- least squares
