@@ -105,6 +105,11 @@ def test_root_rotation_conventions() -> None:
     # MuJoCo's (w, x, y, z) order, one and many
     np.testing.assert_allclose(J.quat_wxyz_to_matrix(q[:, [3, 0, 1, 2]]), r, atol=1e-12)
     np.testing.assert_allclose(J.quat_wxyz_to_matrix(q[7, [3, 0, 1, 2]]), r[7], atol=1e-12)
+    wxyz = J.matrix_to_quat_wxyz(r)
+    np.testing.assert_array_equal(wxyz, q[:, [3, 0, 1, 2]])
+    assert np.all(wxyz[:, 0] >= 0)
+    np.testing.assert_allclose(J.quat_wxyz_to_matrix(J.matrix_to_quat_wxyz(r[7])), r[7],
+                               atol=1e-12)
     # gimbal lock still reproduces the rotation
     lock = J.root_rotation_matrix([0.3, math.pi / 2, 0.4])
     np.testing.assert_allclose(J.root_rotation_matrix(J.root_angles_from_matrix(lock)), lock,

@@ -306,6 +306,12 @@ def matrix_to_quat(rot: object) -> np.ndarray:
     return out.reshape(r.shape[:-2] + (4,))
 
 
+def matrix_to_quat_wxyz(rot: object) -> np.ndarray:
+    """Rotation matrix (..., 3, 3) -> unit quaternion (..., 4) in (w, x, y, z) order
+    (MuJoCo's), w >= 0: the inverse of :func:`quat_wxyz_to_matrix`."""
+    return matrix_to_quat(rot)[..., [3, 0, 1, 2]]
+
+
 def root_angles_from_quat(quat_xyzw: object) -> np.ndarray:
     """Root hinge angles (rx, ry, rz) of a wrist orientation quaternion (x, y, z, w)."""
     return root_angles_from_matrix(quat_to_matrix(quat_xyzw))

@@ -36,7 +36,7 @@ import numpy as np
 
 from hand_capture.errors import InputError
 from hand_capture.model import HandModel
-from hand_capture.model.joints import JOINT_INDEX, JOINT_LIMITS, N_DOF, matrix_to_quat
+from hand_capture.model.joints import JOINT_INDEX, JOINT_LIMITS, N_DOF, matrix_to_quat_wxyz
 from hand_capture.multiview.rig import Rig
 from hand_capture.multiview.scene_model import SceneModel, object_mesh
 
@@ -217,8 +217,7 @@ def _studio_objects(seq: Sequence) -> list:
 def _object_qpos(poses: np.ndarray) -> np.ndarray:
     out = []
     for T in poses:
-        x, y, z, w = matrix_to_quat(T[:3, :3])
-        out.extend([*T[:3, 3], w, x, y, z])
+        out.extend([*T[:3, 3], *matrix_to_quat_wxyz(T[:3, :3])])
     return np.array(out)
 
 

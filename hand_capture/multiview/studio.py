@@ -31,7 +31,7 @@ import numpy as np
 
 from hand_capture.config import param, validate
 from hand_capture.errors import ConfigError, InputError
-from hand_capture.model.joints import N_DOF, matrix_to_quat
+from hand_capture.model.joints import N_DOF, matrix_to_quat_wxyz
 from hand_capture.multiview.rig import Rig, RigCamera
 
 __all__ = ["HAND_LABEL", "LEFT_PREFIX", "ParallelStudio", "Studio", "StudioNoise", "StudioView",
@@ -126,9 +126,9 @@ def _check_ideal(cam: RigCamera) -> None:
 def _add_camera(spec: object, cam: RigCamera) -> None:
     """A fixed MuJoCo camera matching a rig camera (MuJoCo looks along -z with y up)."""
     R = cam.R_wc @ np.diag([1.0, -1.0, -1.0])
-    x, y, z, w = matrix_to_quat(R)
     k = cam.intrinsics
-    spec.worldbody.add_camera(name=cam.name, pos=cam.t_wc.tolist(), quat=[w, x, y, z],
+    spec.worldbody.add_camera(name=cam.name, pos=cam.t_wc.tolist(),
+                              quat=matrix_to_quat_wxyz(R).tolist(),
                               fovy=math.degrees(2.0 * math.atan(k.height / 2.0 / k.fy)))
 
 
@@ -185,8 +185,7 @@ def _euler_quat(euler: Sequence[float]) -> list[float]:
         v = np.zeros(3)
         v[axis] = a
         R = R @ rotvec_to_matrix(v)
-    x, y, z, w = matrix_to_quat(R)
-    return [w, x, y, z]
+    return matrix_to_quat_wxyz(R).tolist()
 
 
 class Studio:

@@ -61,7 +61,7 @@ import numpy as np
 
 from hand_capture.config import from_mapping, load_yaml, param, validate
 from hand_capture.errors import BagError, ConfigError, InputError
-from hand_capture.model.joints import matrix_to_quat, quat_wxyz_to_matrix
+from hand_capture.model.joints import matrix_to_quat_wxyz, quat_wxyz_to_matrix
 from hand_capture.posemsg import HAND_LEFT, HAND_RIGHT, STATUS
 from hand_control.physcap.capture import (
     Capture,
@@ -503,8 +503,7 @@ def _object_from_hand(q: np.ndarray, pose: np.ndarray, config: ArchiveConfig
     rel_R, rel_p = R_k.T @ R_obj, R_k.T @ (pose[:3] - q[k, :3])
     for i in range(k, len(q)):
         R_i = root_rotation_matrix(q[i, 3:6])
-        xyzw = matrix_to_quat(R_i @ rel_R)
-        out[i] = np.r_[q[i, :3] + R_i @ rel_p, xyzw[3], xyzw[:3]]
+        out[i] = np.r_[q[i, :3] + R_i @ rel_p, matrix_to_quat_wxyz(R_i @ rel_R)]
     return out
 
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hand_capture.model.joints import matrix_to_quat
+from hand_capture.model.joints import matrix_to_quat_wxyz
 from hand_control.physcap.capture import CapturedObject, PhysCapResult
 from hand_control.physcap.optimise import _goal_figures, quat_mul, replay_control
 from hand_control.physcap.world import mesh_principal_frame, object_half_height, object_spec
@@ -64,8 +64,7 @@ def align_object(source: CapturedObject, source_pose: np.ndarray, target: Captur
     m[ps, pt] = 1.0  # target axis pt[i] -> source axis ps[i]
     if np.linalg.det(m) < 0:
         m[:, pt[2]] *= -1.0
-    xyzw = matrix_to_quat(m)
-    q_align = np.r_[xyzw[3], xyzw[0:3]]  # w, x, y, z
+    q_align = matrix_to_quat_wxyz(m)
     quat = quat_mul(source_pose[3:7], q_align)
     quat = quat / np.linalg.norm(quat)
     pos = np.asarray(source_pose[0:3], float).copy()

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from hand_capture.model.joints import matrix_to_quat
+from hand_capture.model.joints import matrix_to_quat_wxyz
 from hand_control.physcap.capture import Capture, CaptureError
 from hand_control.physcap.images import pose_matrices
 from hand_control.physcap.synth import SyntheticCapture
@@ -172,8 +172,7 @@ def studio_capture(truth: Capture, *, rig: Any = None, seed: int = 0, lo_config:
         secs.append(time.perf_counter() - t0)
         hand_q[t] = model.part_params(p, 0)
         T = model.object_transform(model.part_params(p, 1))
-        x, y, z, w = matrix_to_quat(T[:3, :3])
-        obj_pose[t] = [*T[:3, 3], w, x, y, z]
+        obj_pose[t] = [*T[:3, 3], *matrix_to_quat_wxyz(T[:3, :3])]
         if verbose:
             print(f"  {truth.name} frame {t}: tracked in {secs[-1]:.1f} s", flush=True)
     if not cached:
