@@ -63,6 +63,20 @@ def _padded(depth: np.ndarray) -> np.ndarray:
     return np.where(depth > 0, depth, np.float32(BACKGROUND_M)).astype(np.float32)
 
 
+def _probe_difference(flat: np.ndarray, H: int, W: int, u: np.ndarray, v: np.ndarray,
+                      off: np.ndarray, su: np.ndarray, sv: np.ndarray) -> np.ndarray:
+    """``d(probe 1) - d(probe 2)`` of pixels (u, v) for metric offsets ``off`` (..., 2, 2)
+    [m] (probe, (du, dv)), scaled to pixels by ``su`` = fx / z and ``sv`` = fy / z; probes
+    off the image read its border. Shapes broadcast: u, v, su, sv (n, 1) against ``off``'s
+    leading dimensions."""
+    vals = []
+    for k in range(2):
+        uu = np.clip(np.rint(u + off[..., k, 0] * su).astype(np.intp), 0, W - 1)
+        vv = np.clip(np.rint(v + off[..., k, 1] * sv).astype(np.intp), 0, H - 1)
+        vals.append(flat[vv * W + uu])
+    return vals[0] - vals[1]
+
+
 def pixel_features(img: np.ndarray, v: np.ndarray, u: np.ndarray, z: np.ndarray,
                    offsets: np.ndarray, fx: float, fy: float) -> np.ndarray:
     """Depth-difference features of pixels (Shotton et al.; see the module docstring).
@@ -77,16 +91,9 @@ def pixel_features(img: np.ndarray, v: np.ndarray, u: np.ndarray, z: np.ndarray,
         (N, F) float32 ``d(probe 1) - d(probe 2)`` [m].
     """
     H, W = img.shape
-    flat = img.reshape(-1)
     inv = (1.0 / np.maximum(z, 1e-3)).astype(np.float32)[:, None]
-    vals = []
-    for k in range(2):
-        du = offsets[None, :, k, 0] * (fx * inv)
-        dv = offsets[None, :, k, 1] * (fy * inv)
-        uu = np.clip(np.rint(u[:, None] + du).astype(np.int64), 0, W - 1)
-        vv = np.clip(np.rint(v[:, None] + dv).astype(np.int64), 0, H - 1)
-        vals.append(flat[vv * W + uu])
-    return vals[0] - vals[1]
+    return _probe_difference(img.reshape(-1), H, W, u[:, None], v[:, None], offsets[None],
+                             fx * inv, fy * inv)
 
 
 @dataclass
@@ -140,16 +147,10 @@ class ArmClassifier:
         node = np.broadcast_to(self.forest.roots.astype(np.intp)[None, :], (n, T)).copy()
         inv = (1.0 / np.maximum(z, 1e-3)).astype(np.float32)[:, None]
         su, sv = intr.fx * inv, intr.fy * inv
-        off = self.offsets
         vi, ui = v[:, None].astype(np.float32), u[:, None].astype(np.float32)
         for _ in range(self.forest.depth):
-            o = off[f[node]]                                      # (n, T, 2, 2)
-            vals = []
-            for k in range(2):
-                uu = np.clip(np.rint(ui + o[..., k, 0] * su).astype(np.intp), 0, W - 1)
-                vv = np.clip(np.rint(vi + o[..., k, 1] * sv).astype(np.intp), 0, H - 1)
-                vals.append(flat[vv * W + uu])
-            node = left[node] + ((vals[0] - vals[1]) >= t[node])
+            diff = _probe_difference(flat, H, W, ui, vi, self.offsets[f[node]], su, sv)
+            node = left[node] + (diff >= t[node])                # offsets: (n, T, 2, 2)
         return self.forest.value[self.forest.leaf[node], 0].mean(axis=1)
 
     def segment_probability(self, depth: np.ndarray, mask: np.ndarray, box: tuple[int, ...],

@@ -277,7 +277,7 @@ class HybridTracker:
             plane = self._wrist_plane()
             if plane is None:
                 whole = obs
-            obs, cut_g = cut_forearm(obs, cfg, self.model.shape.global_scale, plane, flip)
+            obs, cut_g = cut_forearm(obs, cfg, scale, plane, flip)
             cut = cut or cut_g
             cloud = cut_g and plane is None
         timing["preprocess"] = time.perf_counter() - t0
