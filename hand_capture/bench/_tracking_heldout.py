@@ -325,6 +325,28 @@ def _score_first(tracker, frames, truth, labels) -> dict:
     return s
 
 
+def _suite_calibration(true, intr, seed: int, base):
+    """The calibration of the validation subject ``true`` from its rendered calibration
+    frames (:func:`~hand_capture.tracking.calibration.render_calibration_frames`, drawn from
+    ``seed + 500``), starting from ``base``."""
+    from hand_capture.tracking.calibration import calibrate, render_calibration_frames
+
+    return calibrate(render_calibration_frames(true, intr, np.random.default_rng(seed + 500)),
+                     model=base)
+
+
+def _track_both_paths(reg, base, cal, cfg, frames, kps, labels) -> tuple[object, dict]:
+    """A tracker with ``cfg``, calibrated by ``cal``, scored on the sequence tracked through
+    (:func:`_score`) and from a reset tracker on every frame (:func:`_score_first`).
+    Returns the tracker and the scores by path (``sequence``, ``first frame``)."""
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    tracker = HybridTracker(base, cfg, reg)
+    tracker.set_calibration(cal)
+    return tracker, {path: fn(tracker, frames, kps, labels)
+                     for path, fn in (("sequence", _score), ("first frame", _score_first))}
+
+
 def forearm_validation_section(reg, config, quick: bool) -> dict:
     """The tracker with a forearm in view on the suite's own generator (validation shapes
     :data:`ARM_VAL_SEEDS`; :func:`suite_forearm_sequence`), calibrated per shape: where
@@ -336,8 +358,6 @@ def forearm_validation_section(reg, config, quick: bool) -> dict:
     without a previous wrist. Also the arm classifier's pixel accuracy on these frames."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
-    from hand_capture.tracking.calibration import calibrate, render_calibration_frames
-    from hand_capture.tracking.hybrid import HybridTracker
 
     seeds = ARM_VAL_SEEDS[:1] if quick else ARM_VAL_SEEDS
     clips = ("finger_counting", "pinch") if quick else ("finger_counting", "wrist_rotation",
@@ -352,18 +372,14 @@ def forearm_validation_section(reg, config, quick: bool) -> dict:
     for seed in seeds:
         for clip in clips:
             true, intr, frames, kps, labels = suite_forearm_sequence(seed, clip, n, step)
-            cal = calibrate(render_calibration_frames(true, intr,
-                                                      np.random.default_rng(seed + 500)),
-                            model=base)
+            cal = _suite_calibration(true, intr, seed, base)
             for name, cfg in variants.items():
-                tracker = HybridTracker(base, cfg, reg)
-                tracker.set_calibration(cal)
+                tracker, scores = _track_both_paths(reg, base, cal, cfg, frames, kps, labels)
                 if name == "product":
                     arm = tracker.arm
                     acc = [a + b for a, b in zip(acc, arm_pixel_counts(
                         arm, frames, labels, cfg), strict=True)]
-                for path, fn in (("sequence", _score), ("first frame", _score_first)):
-                    s = fn(tracker, frames, kps, labels)
+                for path, s in scores.items():
                     res.setdefault((name, path), []).append((s["errs"], s["seg"]))
     rows, out = [], {}
     for (name, path), parts in res.items():
@@ -403,8 +419,6 @@ def _hard_forearm_validation(reg, config, seeds: tuple[int, ...], quick: bool) -
     and the cut alone, each tracked through and from a reset tracker on every frame."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
-    from hand_capture.tracking.calibration import calibrate, render_calibration_frames
-    from hand_capture.tracking.hybrid import HybridTracker
 
     clips = ("pinch",) if quick else ("pinch", "fist")
     n, step = (6, 6) if quick else (12, 3)
@@ -419,15 +433,11 @@ def _hard_forearm_validation(reg, config, seeds: tuple[int, ...], quick: bool) -
         for clip in clips:
             true, intr, frames, kps, labels = suite_forearm_sequence(
                 seed, clip, n, step, close=True, clutter=True, sleeve=True)
-            cal = calibrate(render_calibration_frames(true, intr,
-                                                      np.random.default_rng(seed + 500)),
-                            model=base)
+            cal = _suite_calibration(true, intr, seed, base)
             for name, (_, cfg) in variants.items():
-                tracker = HybridTracker(base, cfg, reg)
-                tracker.set_calibration(cal)
-                for path, fn in (("sequence", _score), ("first frame", _score_first)):
-                    res.setdefault((name, path), []).append(
-                        fn(tracker, frames, kps, labels)["errs"])
+                _, scores = _track_both_paths(reg, base, cal, cfg, frames, kps, labels)
+                for path, s in scores.items():
+                    res.setdefault((name, path), []).append(s["errs"])
     rows, out = [], {}
     for (name, path), parts in res.items():
         sm = _summary(np.concatenate(parts))
