@@ -427,3 +427,4 @@ def test_fewest_samples_primary_analysis(monkeypatch, capsys):
     monkeypatch.setattr(bench, "fewest_test", lambda *a: pytest.fail("the test ran"))
     none = bench.fewest_samples(HandModel(), [])
     assert none["fewest_n_samples"] == 32 and none["fewest_contact_success"] is None
+    assert none["fewest_clearly_better"] is False

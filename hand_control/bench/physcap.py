@@ -631,7 +631,8 @@ def fewest_samples(model: HandModel | None = None, val: list[tuple[str, Any]] | 
                    *, skip: bool = False) -> dict[str, Any]:
     """The pre-registered fewest-samples analysis (module docstring): :func:`fewest_choose`
     on ``val`` (default: the bench's synthetic validation split), then, when a candidate
-    qualified, :func:`fewest_test` and :func:`fewest_studio` at N*. ``skip`` (``--quick`` /
+    qualified, :func:`fewest_test` and :func:`fewest_studio` at N*; none qualified: the
+    test's figures null and ``fewest_clearly_better`` False. ``skip`` (``--quick`` /
     ``--smoke``): nothing runs, the figures null. Returns its JSON figures."""
     if skip:
         print("fewest-samples analysis: NOT RUN in --quick / --smoke (7 validation captures "
@@ -645,7 +646,8 @@ def fewest_samples(model: HandModel | None = None, val: list[tuple[str, Any]] | 
     if not fig["fewest_chosen"]:
         print(f"fewest-samples analysis: no candidate of {FEWEST_CANDIDATES} matched "
               f"{FEWEST_REFERENCE_N} samples on validation: N* = {FEWEST_REFERENCE_N}, the "
-              "test does not run")
+              "test does not run (not clearly better under this analysis)")
+        fig["fewest_clearly_better"] = False  # the analysis ended at its first step
         return fig
     n = fig["fewest_n_samples"]
     fig.update(fewest_test(model, n))
