@@ -42,7 +42,8 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                  "low_friction_slipped", "dask_speedup_2w", "heavy_test_contact_sampling_success",
                  "light_test_contact_sampling_success", "test_contact_vs_random_p",
                  "studio_contact_success", "studio_image_object_err_mm",
-                 "studio_confirm_contact_success", "studio_confirm_p"),
+                 "studio_confirm_contact_success", "studio_confirm_p", "fewest_n_samples",
+                 "fewest_clearly_better"),
                 (pytest.mark.slow,)),  # 3 optimisations + a 1- and a 2-worker Dask cluster
     "multiview": (("lo_full_mean_mm", "lo_full_own_mesh_mean_mm", "lo_ec_mean_mm",
                    "lo_eco_mean_mm", "isa128_mean_mm", "object_err_mm", "object_err_deg",

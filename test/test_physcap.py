@@ -326,3 +326,105 @@ def test_heavy_family_checked_by_the_feasibility_lp():
     assert lp_feasible(spec) == (True, "optimal")
     ok, status = lp_feasible(heavy_spec("lift_box", 8.0).with_(object_friction=0.3))
     assert not ok and status in ("torque_limits", "infeasible")
+
+
+# ------------------------------------------------------- the fewest-samples analysis (bench)
+def test_fewest_samples_choice_rule():
+    """N*: the fewest candidate samples with every validation capture a success and a mean
+    object error at most 1 mm above 32 samples'; none: 32 (then the test does not run)."""
+    from hand_control.bench.physcap import FEWEST_CANDIDATES, fewest_choice
+
+    assert FEWEST_CANDIDATES == (4, 8, 16)
+    ok = {4: (1.0, 5.5), 8: (1.0, 3.8), 16: (1.0, 3.1), 32: (1.0, 3.0)}
+    assert fewest_choice(ok) == 8                        # 4 is 2.5 mm worse
+    assert fewest_choice({**ok, 4: (1.0, 4.0)}) == 4     # exactly 1 mm above: qualifies
+    assert fewest_choice({**ok, 4: (6 / 7, 3.0)}) == 8   # one failure disqualifies
+    assert fewest_choice({**ok, 8: (6 / 7, 3.0), 4: (6 / 7, 2.0)}) == 16
+    none = {4: (6 / 7, 3.0), 8: (1.0, 4.5), 16: (1.0, 4.01), 32: (6 / 7, 3.0)}
+    assert fewest_choice(none) == 32
+    with pytest.raises(KeyError):
+        fewest_choice({4: (1.0, 1.0), 8: (1.0, 1.0), 16: (1.0, 1.0)})
+
+
+def test_fewest_samples_split_is_new(monkeypatch):
+    """The fewest-samples test split: the studio family's 9 truths x 4 ``contacts`` noise
+    seeds, truth-major, none of them a seed of any other split of the bench (validation,
+    test, held out; quick and smoke) nor a studio render seed."""
+    from types import SimpleNamespace
+
+    import hand_control.bench.physcap as bench
+
+    used: list[tuple[str, str, int]] = []
+
+    def fake_corrupt(truth, model="tracker", seed=0, **kw):
+        used.append((truth.name, model, seed))
+        return SimpleNamespace(capture=SimpleNamespace(name=f"{truth.name}_{model}{seed}"),
+                               truth=truth)
+
+    monkeypatch.setattr(bench, "scenario_capture",
+                        lambda spec, **kw: SimpleNamespace(name=spec.name))
+    monkeypatch.setattr(bench, "lp_feasible", lambda spec: (True, "optimal"))
+    monkeypatch.setattr(bench, "corrupt", fake_corrupt)
+    for quick, smoke in ((False, False), (True, False), (False, True)):
+        bench._captures(quick, smoke)
+    other = {s for _, _, s in used}
+    other |= {bench.STUDIO_SEED0 + i for i in range(9)}
+    other |= {s0 + i for s0 in bench.STUDIO_CONFIRM_SEED0S for i in range(9)}
+    used.clear()
+    entries = bench.fewest_entries()
+    seeds = [s for _, _, s in used]
+    assert len(entries) == 36 and len(set(seeds)) == 36
+    assert not set(seeds) & other
+    assert {m for _, m, _ in used} == {"contacts"}
+    names = [n for n, _, _ in used]
+    assert len(set(names)) == 9 and all(len(set(names[i:i + 4])) == 1 for i in (0, 4, 32))
+    assert seeds == sorted(seeds)                        # truth-major, fixed order
+    assert [f for f, _ in entries].count("heavy") == 24
+
+
+def test_fewest_samples_primary_analysis(monkeypatch, capsys):
+    """Every method at N* on the same captures; "clearly better" needs both one-sided sign
+    tests below 0.05 / 4 AND contact success >= 80 %; a skipped run (--quick / --smoke) and
+    a run where no candidate qualified leave the test's figures null."""
+    from types import SimpleNamespace
+
+    import hand_control.bench.physcap as bench
+
+    fails = {"contact": set(), "random": set(range(7)), "pd_only": set(range(7))}
+    seen = []
+
+    def fake_opt(capture, config):
+        method = "random" if config.sampling == "random" else \
+            "pd_only" if config.control == "pd_only" else "contact"
+        seen.append((config.n_samples, config.finger_width))
+        return SimpleNamespace(success=capture.name not in fails[method], hand_q=None,
+                               object_pose=None, s_per_frame=0.1)
+
+    monkeypatch.setattr(bench, "optimise_capture", fake_opt)
+    monkeypatch.setattr(bench, "_errors", lambda *a: (1.0, 2.0))
+    entries = [("heavy", SimpleNamespace(capture=SimpleNamespace(name=i, hand_q=None,
+                                                                 object_pose=None),
+                                         truth=None)) for i in range(10)]
+    fig = bench.fewest_test(HandModel(), 8, entries)
+    assert set(seen) == {(8, bench.FEWEST_WIDTH)} and len(seen) == 30
+    assert fig["fewest_contact_vs_random_wins_losses"] == [7, 0]
+    assert fig["fewest_p_random"] == pytest.approx(1 / 128)
+    assert fig["fewest_clearly_better"] is True
+    assert fig["fewest_heavy_random_success"] == pytest.approx(0.3)
+    fails["pd_only"] = set(range(6))                     # p = 1/64 > 0.0125
+    assert bench.fewest_test(HandModel(), 8, entries)["fewest_clearly_better"] is False
+    fails.update(contact={7, 8, 9}, random=set(range(10)), pd_only=set(range(10)))
+    # p = 1/128 against both, but 70 % success
+    fig = bench.fewest_test(HandModel(), 8, entries)
+    assert fig["fewest_p"] < bench.FEWEST_ALPHA and fig["fewest_contact_success"] == 0.7
+    assert fig["fewest_clearly_better"] is False
+    capsys.readouterr()
+    skipped = bench.fewest_samples(skip=True)
+    assert "NOT RUN" in capsys.readouterr().out
+    assert skipped["fewest_n_samples"] is None and skipped["fewest_clearly_better"] is None
+    monkeypatch.setattr(bench, "fewest_choose", lambda model, val: {
+        "fewest_n_samples": 32, "fewest_chosen": False, "fewest_validation": {}})
+    monkeypatch.setattr(bench, "fewest_test", lambda *a: pytest.fail("the test ran"))
+    none = bench.fewest_samples(HandModel(), [])
+    assert none["fewest_n_samples"] == 32 and none["fewest_contact_success"] is None
+    assert none["fewest_clearly_better"] is False

@@ -58,6 +58,35 @@ two new seeds each (18 captures), the three methods at 32 samples / 0.12 rad, an
 sign test of contact sampling against each baseline on this batch alone at 5 %
 (``studio_confirm_p``: the larger of the two). Not run in ``--quick`` / ``--smoke`` (its keys
 null, said in the output).
+
+**Fewest-samples analysis** (``fewest_*`` keys; pre-registered, its design below fixed and
+committed before any of it ran, after the three tests above found contact sampling no clearly
+more successful than random sampling at 32 samples). Issue 16 asks for "fewer samples when
+that gives the same result" and seed 000 sec. 6 says contact-based sampling speeds up the
+search's convergence; the question: at the smallest sample count that gives contact sampling
+the same validation result, is it clearly more successful than random sampling (and PD-only)
+at that same count?
+
+1. Choice (:data:`FEWEST_CANDIDATES`), on the existing synthetic validation split only (7
+   captures), contact sampling only, :data:`FEWEST_WIDTH`, ``n_keep = max(2, n // 4)``: N* is
+   the smallest candidate with every validation capture a success and a mean object error at
+   most :data:`FEWEST_ERR_MARGIN_MM` above that of :data:`FEWEST_REFERENCE_N` samples in the
+   same run (same code); none: N* = 32, reported, and the test does not run. The baselines
+   play no part in the choice.
+2. Primary test, on a new split never used before: the 9 truths of the studio family (each
+   light lift at its own mass and at 0.5 and 1.0 kg, LP-checked), each corrupted by the
+   ``contacts`` model with :data:`FEWEST_SEEDS_PER_TRUTH` new noise seeds from
+   :data:`FEWEST_SEED0` (truth-major: truth ``i`` gets seeds 100 + 4 i .. 100 + 4 i + 3; 36
+   captures), all three methods at N* samples, the same width. Primary analysis: the
+   one-sided exact sign test of contact sampling against each baseline on this split alone at
+   :data:`FEWEST_ALPHA` (0.05 / 4: the fourth test of the claim, Bonferroni); "clearly
+   better" (``fewest_clearly_better``) needs both p below it AND contact success at least
+   :data:`FEWEST_MIN_SUCCESS`. Reported whatever comes out.
+3. Secondary (reported, not decisive): the 27 cached studio captures (family and
+   confirmatory batch) at N*, the three methods, success counts and sign-test p
+   (``fewest_studio_*``).
+
+``--quick`` / ``--smoke``: not run (its keys null, said in the output).
 """
 
 from __future__ import annotations
@@ -273,23 +302,46 @@ def _studio_family(quick: bool, smoke: bool, model: HandModel,
     fig: dict[str, Any] = {"studio_captures": len(truths), "studio_skipped": skipped,
                            "studio_track_s_per_frame": float(np.mean(track_s)) if track_s
                            else float("nan")}
-    for method, key in (("contact", "contact"), ("random", "random"), ("pd_only", "pd_only"),
-                        ("contact+images", "image")):
-        fig[f"studio_{key}_success"] = _rate(col(method, "success"))
-        fig[f"studio_{key}_object_err_mm"] = float(np.mean(col(method, "obj")))
-        fig[f"studio_{key}_hand_err_mm"] = float(np.mean(col(method, "hand")))
+    summary, rows = _method_summary(per, "studio", {"contact+images": "image"})
+    fig.update(summary)
     fig["studio_object_err_mm"] = fig["studio_contact_object_err_mm"]
     fig["studio_hand_err_mm"] = fig["studio_contact_hand_err_mm"]
     fig["studio_ref_object_err_mm"] = float(np.mean(col("contact", "ref_obj")))
     fig["studio_ref_hand_err_mm"] = float(np.mean(col("contact", "ref_hand")))
     fig["studio_ref_max_penetration_mm"] = float(np.max(col("contact", "pen")))
-    for other in ("random", "pd_only"):
-        w, lo_, p = paired_successes(col("contact", "success"), col(other, "success"))
-        fig[f"studio_contact_vs_{other}_wins_losses"] = [w, lo_]
-        fig[f"studio_contact_vs_{other}_p"] = p
+    for other, _, _, w, lo_, p in rows:
         print(f"studio ({len(truths)}), contact vs {other}: contact alone succeeds on {w}, "
               f"{other} alone on {lo_}: one-sided sign test p = {p:.3g}")
     return fig
+
+
+def _method_summary(per: dict[str, list[dict[str, Any]]], prefix: str,
+                    keys: dict[str, str] | None = None
+                    ) -> tuple[dict[str, Any], list[list[Any]]]:
+    """The figures of one batch of captures from its per-capture results (per method, the
+    captures in the same order: ``success``, ``obj`` and ``hand`` errors [mm]): per method
+    ``{prefix}_{key}_success`` (rate), ``_object_err_mm`` and ``_hand_err_mm`` (means;
+    ``key`` = ``keys.get(method, method)``), and contact sampling paired with each baseline
+    (random sampling, PD-only): ``{prefix}_contact_vs_{other}_wins_losses``, ``_p`` (the
+    one-sided sign test) and ``{prefix}_contact_lower_object_err_vs_{other}``. Also returns
+    one row per baseline: ``[other, contact successes, its successes, wins, losses, p]``."""
+    keys = keys or {}
+    ok = {m: [bool(p["success"]) for p in v] for m, v in per.items()}
+    fig: dict[str, Any] = {}
+    for m, v in per.items():
+        key = keys.get(m, m)
+        fig[f"{prefix}_{key}_success"] = _rate(ok[m])
+        fig[f"{prefix}_{key}_object_err_mm"] = float(np.mean([p["obj"] for p in v]))
+        fig[f"{prefix}_{key}_hand_err_mm"] = float(np.mean([p["hand"] for p in v]))
+    rows = []
+    for other in ("random", "pd_only"):
+        w, lo_, p = paired_successes(ok["contact"], ok[other])
+        fig[f"{prefix}_contact_vs_{other}_wins_losses"] = [w, lo_]
+        fig[f"{prefix}_contact_vs_{other}_p"] = p
+        fig[f"{prefix}_contact_lower_object_err_vs_{other}"] = int(sum(
+            a["obj"] < b["obj"] for a, b in zip(per["contact"], per[other], strict=True)))
+        rows.append([other, sum(ok["contact"]), sum(ok[other]), w, lo_, p])
+    return fig, rows
 
 
 #: the confirmatory studio batch, designed and committed before it ran (added after the
@@ -304,6 +356,23 @@ def _studio_family(quick: bool, smoke: bool, model: HandModel,
 STUDIO_CONFIRM_SEED0S = (60, 70)
 STUDIO_CONFIRM_SETTING = (32, 0.12)
 STUDIO_CONFIRM_ALPHA = 0.05
+
+
+#: the fewest-samples analysis (module docstring), pre-registered: candidate sample counts,
+#: the reference count they are compared with, the finger half-width [rad] and the margin on
+#: the mean validation object error [mm]; n_keep = max(2, n // 4) as everywhere in the bench
+FEWEST_CANDIDATES = (4, 8, 16)
+FEWEST_REFERENCE_N = 32
+FEWEST_WIDTH = 0.12
+FEWEST_ERR_MARGIN_MM = 1.0
+#: its new test split: the ``contacts`` model's noise seeds FEWEST_SEED0 + 4 i + k (truth i
+#: of the 9, k < 4; 36 captures, truth-major), disjoint from every other split's
+FEWEST_SEED0 = 100
+FEWEST_SEEDS_PER_TRUTH = 4
+#: its primary analysis: each one-sided sign test at 0.05 / 4 (the fourth test of the claim:
+#: Bonferroni) and contact sampling's success rate at least this
+FEWEST_ALPHA = 0.05 / 4
+FEWEST_MIN_SUCCESS = 0.8
 
 
 def studio_confirm_entries() -> list[tuple[str, Any, int]]:
@@ -389,21 +458,10 @@ def studio_confirm_figures(per: dict[str, list[dict[str, Any]]]) -> dict[str, An
     (per method of :data:`_METHODS`, in the batch's order: ``capture``, ``success``, ``obj``
     and ``hand`` errors [mm]; kept in the figures as ``studio_confirm_per_capture``, so that
     the passes run apart combine: ``studio_confirm_figures`` of the concatenated lists)."""
-    ok = {m: [p["success"] for p in per[m]] for m in _METHODS}
-    fig: dict[str, Any] = {"studio_confirm_captures": len(ok["contact"])}
-    for m in _METHODS:
-        fig[f"studio_confirm_{m}_success"] = _rate(ok[m])
-        fig[f"studio_confirm_{m}_object_err_mm"] = float(np.mean([p["obj"] for p in per[m]]))
-        fig[f"studio_confirm_{m}_hand_err_mm"] = float(np.mean([p["hand"] for p in per[m]]))
-    rows = []
-    for other in ("random", "pd_only"):
-        w, lo_, p = paired_successes(ok["contact"], ok[other])
-        fig[f"studio_confirm_contact_vs_{other}_wins_losses"] = [w, lo_]
-        fig[f"studio_confirm_contact_vs_{other}_p"] = p
-        fig[f"studio_confirm_contact_lower_object_err_vs_{other}"] = int(sum(
-            a["obj"] < b["obj"] for a, b in zip(per["contact"], per[other], strict=True)))
-        rows.append([other, sum(ok["contact"]), sum(ok[other]), w, lo_, p,
-                     p < STUDIO_CONFIRM_ALPHA])
+    fig: dict[str, Any] = {"studio_confirm_captures": len(per["contact"])}
+    summary, rows = _method_summary({m: per[m] for m in _METHODS}, "studio_confirm")
+    fig.update(summary)
+    rows = [r + [r[5] < STUDIO_CONFIRM_ALPHA] for r in rows]
     # "clearly better than random sampling AND PD-only": both tests at 5 % (intersection-union)
     fig["studio_confirm_p"] = max(r[5] for r in rows)
     fig["studio_confirm_clearly_better"] = bool(fig["studio_confirm_p"] < STUDIO_CONFIRM_ALPHA)
@@ -413,6 +471,187 @@ def studio_confirm_figures(per: dict[str, list[dict[str, Any]]]) -> dict[str, An
                 f"({fig['studio_confirm_captures']} captures, successes)",
                 ["baseline", "contact_successes", "baseline_successes", "contact_alone",
                  "baseline_alone", "p", "significant"], rows)
+    return fig
+
+
+def fewest_choice(table: dict[int, tuple[float, float]]) -> int:
+    """N* of the fewest-samples analysis from the validation figures ``{n: (success rate,
+    mean object error [mm])}`` of contact sampling: the smallest of
+    :data:`FEWEST_CANDIDATES` with every validation capture a success and an error at most
+    :data:`FEWEST_ERR_MARGIN_MM` above :data:`FEWEST_REFERENCE_N`'s; none:
+    :data:`FEWEST_REFERENCE_N`.
+
+    Raises:
+        KeyError: the table lacks a candidate or the reference count.
+    """
+    ref_err = table[FEWEST_REFERENCE_N][1]
+    for n in sorted(FEWEST_CANDIDATES):
+        rate, err = table[n]
+        if rate >= 1.0 and err <= ref_err + FEWEST_ERR_MARGIN_MM:
+            return n
+    return FEWEST_REFERENCE_N
+
+
+def fewest_choose(model: HandModel, val: list[tuple[str, Any]]) -> dict[str, Any]:
+    """Step 1 of the fewest-samples analysis: contact sampling at every candidate count and
+    at the reference count (:data:`FEWEST_WIDTH`) on the validation captures ``val``
+    (``(family, SyntheticCapture)``), then :func:`fewest_choice`. Returns
+    ``fewest_n_samples``, ``fewest_chosen`` (False when no candidate qualified) and
+    ``fewest_validation`` (``{n: [success rate, object error mm]}``)."""
+    table, rows = {}, []
+    for n in (*sorted(FEWEST_CANDIDATES), FEWEST_REFERENCE_N):
+        ok, errs = [], []
+        for _, sc in val:
+            r = optimise_capture(sc.capture, _config(n, FEWEST_WIDTH, "contact"))
+            ok.append(r.success)
+            errs.append(_errors(model, sc.truth, r.hand_q, r.object_pose)[0])
+        table[n] = (_rate(ok), float(np.mean(errs)))
+        rows.append([n, max(2, n // 4), sum(ok), len(ok), table[n][1]])
+    n_star = fewest_choice(table)
+    chosen = n_star in FEWEST_CANDIDATES
+    print_table(f"fewest-samples analysis, choice on validation ({len(val)} captures, contact "
+                f"sampling, {FEWEST_WIDTH} rad): N* = {n_star}"
+                + ("" if chosen else " (no candidate qualified: the test does not run)"),
+                ["samples", "kept", "successes", "captures", "object_err_mm"], rows)
+    return {"fewest_n_samples": n_star, "fewest_chosen": chosen,
+            "fewest_validation": {str(n): list(v) for n, v in table.items()}}
+
+
+def fewest_seeds(n_truths: int) -> list[list[int]]:
+    """The new split's ``contacts`` noise seeds per truth, truth-major
+    (:data:`FEWEST_SEED0`, :data:`FEWEST_SEEDS_PER_TRUTH`)."""
+    k = FEWEST_SEEDS_PER_TRUTH
+    return [[FEWEST_SEED0 + k * i + j for j in range(k)] for i in range(n_truths)]
+
+
+def fewest_entries() -> list[tuple[str, Any]]:
+    """(family, SyntheticCapture) of the fewest-samples analysis' test split, in its fixed
+    order: the studio family's 9 truths (LP-checked), each with its :func:`fewest_seeds`."""
+    skipped: list[str] = []
+    truths = _studio_truths(False, False, skipped)
+    for name in skipped:
+        print(f"skipped: {name}: no grasp of the hand can hold it")
+    return [(fam, corrupt(truth, "contacts", seed=s))
+            for (fam, truth), seeds in zip(truths, fewest_seeds(len(truths)), strict=True)
+            for s in seeds]
+
+
+def _fewest_analysis(per: dict[str, list[dict[str, Any]]], prefix: str,
+                     title: str) -> dict[str, Any]:
+    """Figures (:func:`_method_summary`) and the sign tests at :data:`FEWEST_ALPHA` of one
+    batch of the fewest-samples analysis; per family (light, heavy) success rates too."""
+    fig, rows = _method_summary(per, prefix)
+    fig[f"{prefix}_captures"] = len(per["contact"])
+    for fam in ("light", "heavy"):
+        for m, v in per.items():
+            fig[f"{prefix}_{fam}_{m}_success"] = _rate(
+                [p["success"] for p in v if p["family"] == fam])
+    fig[f"{prefix}_p_random"], fig[f"{prefix}_p_pd_only"] = rows[0][5], rows[1][5]
+    fig[f"{prefix}_p"] = max(rows[0][5], rows[1][5])
+    print_table(f"{title}: one-sided sign test of contact sampling against each baseline at "
+                f"{FEWEST_ALPHA:g} ({len(per['contact'])} captures, successes)",
+                ["baseline", "contact_successes", "baseline_successes", "contact_alone",
+                 "baseline_alone", "p", "significant"],
+                [r + [r[5] < FEWEST_ALPHA] for r in rows])
+    return fig
+
+
+def fewest_test(model: HandModel, n: int,
+                entries: list[tuple[str, Any]] | None = None) -> dict[str, Any]:
+    """Step 2 of the fewest-samples analysis, the primary test: every method at ``n``
+    samples (:data:`FEWEST_WIDTH`) on ``entries`` (default :func:`fewest_entries`, the new
+    split); ``fewest_clearly_better``: both sign tests below :data:`FEWEST_ALPHA` and contact
+    sampling's success at least :data:`FEWEST_MIN_SUCCESS`. ``fewest_per_capture``: per
+    method the captures' names, families, successes and errors."""
+    entries = fewest_entries() if entries is None else entries
+    per: dict[str, list[dict[str, Any]]] = {m: [] for m in _METHODS}
+    rows = []
+    for fam, sc in entries:
+        ref_obj = _errors(model, sc.truth, sc.capture.hand_q, sc.capture.object_pose)[0]
+        for method in _METHODS:
+            r = optimise_capture(sc.capture, _config(n, FEWEST_WIDTH, method))
+            obj_err, hand_err = _errors(model, sc.truth, r.hand_q, r.object_pose)
+            per[method].append(dict(capture=sc.capture.name, family=fam,
+                                    success=bool(r.success), obj=obj_err, hand=hand_err,
+                                    s=r.s_per_frame))
+            rows.append([sc.capture.name, fam, method, r.success, obj_err, hand_err, ref_obj,
+                         r.s_per_frame])
+        print(f"fewest test {sc.capture.name}: "
+              + ", ".join(f"{m} {p[-1]['success']}" for m, p in per.items()), flush=True)
+    print_table(f"fewest-samples analysis, test split ({len(entries)} new captures, {n} "
+                f"samples, {FEWEST_WIDTH} rad)",
+                ["capture", "family", "method", "success", "object_err_mm", "hand_err_mm",
+                 "ref_object_err_mm", "s_per_frame"], rows)
+    fig = _fewest_analysis(per, "fewest", "fewest-samples analysis, primary")
+    fig["fewest_s_per_frame"] = {m: float(np.mean([p["s"] for p in v])) for m, v in per.items()}
+    fig["fewest_clearly_better"] = bool(fig["fewest_p"] < FEWEST_ALPHA
+                                        and fig["fewest_contact_success"] >= FEWEST_MIN_SUCCESS)
+    fig["fewest_per_capture"] = per
+    return fig
+
+
+def fewest_studio(model: HandModel, n: int) -> dict[str, Any]:
+    """Step 3 of the fewest-samples analysis (secondary): the studio family's and the
+    confirmatory batch's tracked captures (cached in ``out/bench/physcap_studio``; one not
+    cached is tracked first), every method at ``n`` samples, no image cost
+    (``fewest_studio_*``)."""
+    from hand_capture.multiview.lo import LOConfig
+    from hand_capture.multiview.rig import load_rig
+    from hand_control.physcap.studio import STUDIO_RIG
+
+    skipped: list[str] = []
+    family = [(fam, truth, STUDIO_SEED0 + i)
+              for i, (fam, truth) in enumerate(_studio_truths(False, False, skipped))]
+    entries = family + studio_confirm_entries()
+    per, _ = _studio_optimise(
+        entries, load_rig(STUDIO_RIG), LOConfig(), list(_METHODS), model,
+        lambda method: _config(n, FEWEST_WIDTH, method), _STUDIO_CACHE, False,
+        f"fewest-samples analysis, secondary: the studio captures ({len(entries)}, {n} "
+        f"samples, {FEWEST_WIDTH} rad)")
+    for v in per.values():
+        for e, p in zip(entries, v, strict=True):
+            p["capture"] = f"{e[1].name}_studio{e[2]}"
+    fig = _fewest_analysis(per, "fewest_studio", "fewest-samples analysis, secondary "
+                           "(studio family + confirmatory batch)")
+    fig["fewest_studio_per_capture"] = {
+        m: [{k: p[k] for k in ("capture", "family", "success", "obj", "hand")} for p in v]
+        for m, v in per.items()}
+    return fig
+
+
+_FEWEST_KEYS = ("fewest_n_samples", "fewest_chosen", "fewest_captures",
+                "fewest_contact_success", "fewest_random_success", "fewest_pd_only_success",
+                "fewest_p_random", "fewest_p_pd_only", "fewest_p", "fewest_clearly_better",
+                "fewest_studio_captures", "fewest_studio_contact_success",
+                "fewest_studio_random_success", "fewest_studio_pd_only_success",
+                "fewest_studio_p_random", "fewest_studio_p_pd_only")
+
+
+def fewest_samples(model: HandModel | None = None, val: list[tuple[str, Any]] | None = None,
+                   *, skip: bool = False) -> dict[str, Any]:
+    """The pre-registered fewest-samples analysis (module docstring): :func:`fewest_choose`
+    on ``val`` (default: the bench's synthetic validation split), then, when a candidate
+    qualified, :func:`fewest_test` and :func:`fewest_studio` at N*; none qualified: the
+    test's figures null and ``fewest_clearly_better`` False. ``skip`` (``--quick`` /
+    ``--smoke``): nothing runs, the figures null. Returns its JSON figures."""
+    if skip:
+        print("fewest-samples analysis: NOT RUN in --quick / --smoke (7 validation captures "
+              "x 4 sample counts, 36 + 27 captures x 3 methods; its fewest_* figures are null)")
+        return dict.fromkeys(_FEWEST_KEYS)
+    model = HandModel() if model is None else model
+    if val is None:
+        val = [(fam, sc) for split, fam, sc in _captures(False, False) if split == "validation"]
+    fig: dict[str, Any] = dict.fromkeys(_FEWEST_KEYS)
+    fig.update(fewest_choose(model, val))
+    if not fig["fewest_chosen"]:
+        print(f"fewest-samples analysis: no candidate of {FEWEST_CANDIDATES} matched "
+              f"{FEWEST_REFERENCE_N} samples on validation: N* = {FEWEST_REFERENCE_N}, the "
+              "test does not run (not clearly better under this analysis)")
+        fig["fewest_clearly_better"] = False  # the analysis ended at its first step
+        return fig
+    n = fig["fewest_n_samples"]
+    fig.update(fewest_test(model, n))
+    fig.update(fewest_studio(model, n))
     return fig
 
 
@@ -541,6 +780,8 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     studio = _studio_family(quick, smoke, model, lambda method: _config(n, width, method))
     # the confirmatory studio batch: new render seeds, its pre-registered setting
     studio.update(studio_confirm(model, skip=quick or smoke))
+    # the pre-registered fewest-samples analysis: validation chooses N*, a new split tests it
+    studio.update(fewest_samples(model, val, skip=quick or smoke))
 
     # sensitivity: the nearest width not chosen, contact and random sampling, test captures
     sens: dict[str, Any] = {}
