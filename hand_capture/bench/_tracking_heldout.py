@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -304,6 +305,77 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
         labels.append(np.select([res.label == 255, res.label == 254, res.label > 0],
                                 [2, 4, 1], 0).astype(np.int16))
     return cam.model, cam.intrinsics, frames, kps, labels
+
+
+@dataclass(frozen=True)
+class SurfaceVariant:
+    """Another hand surface on the suite's own model and renderer (the validation family of
+    surface tolerance, issue 13; nothing of the held-out family): the template mesh with
+    its palm and fingers moved along their normals and its wrist stub cut short.
+
+    Attributes:
+        palm_mm: the palm's surface (vertex label 0) moved outwards by this [mm].
+        finger_mm: the fingers' surface moved outwards by this [mm].
+        stub_m: the mesh kept up to this far beyond the wrist keypoint (the template's
+            reaches 0.036) [m, at template size].
+    """
+
+    palm_mm: float = 0.0
+    finger_mm: float = 0.0
+    stub_m: float = 0.036
+
+    @staticmethod
+    def sample(rng: np.random.Generator) -> SurfaceVariant:
+        """A random variant: palm -1..+3 mm, fingers -1..+1.5 mm, stub 0..20 mm."""
+        return SurfaceVariant(float(rng.uniform(-1.0, 3.0)), float(rng.uniform(-1.0, 1.5)),
+                              float(rng.uniform(0.0, 0.02)))
+
+    def mesh_fn(self, model: HandModel):
+        """``q (27,) -> Mesh`` of ``model`` in pose ``q`` with this surface."""
+        from hand_capture.cameras.render import Mesh
+
+        kp = model.joint_positions(np.zeros(27))
+        d = (kp[0] - kp[9]) / np.linalg.norm(kp[0] - kp[9])
+        beyond = (model.rest_vertices - kp[0]) @ d
+        keep = beyond <= self.stub_m * float(model.shape.global_scale) + 1e-9
+        faces = model.faces[keep[model.faces].all(axis=1)]
+        off = np.where(model.vertex_labels == 0, self.palm_mm, self.finger_mm) * 1e-3
+        closed = bool(keep.all())
+
+        def fn(q: np.ndarray) -> Mesh:
+            V = model.vertices(q)
+            return Mesh(V + model.normals(V) * off[:, None], faces, 1, closed=closed)
+
+        return fn
+
+
+def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
+                           variant: SurfaceVariant
+                           ) -> tuple[HandModel, Intrinsics, list, list, list]:
+    """A sequence of the suite's generator (the synthetic camera's shape ``seed``, motion
+    ``clip``, rasteriser and noise model, 320x240) with the hand's surface replaced by
+    ``variant``. Returns ``(model, intrinsics, frames, keypoints, calibration frames)``
+    (the calibration poses rendered with the same surface and noise)."""
+    from hand_capture.cameras.render import make_renderer
+    from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
+    from hand_capture.tracking.calibration import render_calibration_frames
+
+    rng = np.random.default_rng(seed * 1000 + 7 + sum(map(ord, clip)))
+    cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed, clip=clip,
+                                                noise_seed=seed + 2000))
+    cam.open()
+    mesh = variant.mesh_fn(cam.model)
+    renderer = make_renderer("zbuffer")
+    last = int(math.floor(cam.motion.duration * 30))
+    frames, kps = [], []
+    for i in list(range(0, last + 1, step))[:n]:
+        pose = cam.truth_pose(i / 30.0)
+        res = renderer.render([mesh(pose)], cam.intrinsics)
+        frames.append((cam.noise.apply_mm(res.depth, res.cos_incidence, cam.intrinsics, rng),
+                       cam.intrinsics))
+        kps.append(cam.model.joint_positions(pose))
+    cal = render_calibration_frames(cam.model, cam.intrinsics, rng, mesh_fn=mesh)
+    return cam.model, cam.intrinsics, frames, kps, cal
 
 
 def _score_first(tracker, frames, truth, labels) -> dict:

@@ -80,6 +80,14 @@ class TrackerConfig:
     reverse_weight: float = param(0.5, "weight of the model-to-data pairs (off-silhouette "
                                   "facing vertices to their nearest point; 0 = eq. II.23 only)",
                                   lo=0.0)
+    wrist_optional: bool = param(True, "the template's wrist stub (surface beyond "
+                                 "wrist_optional_m past the wrist keypoint) is optional: no "
+                                 "model-to-data pairs (II.23) and in E_d (II.19) its pixels "
+                                 "count only where the camera sees something (real data "
+                                 "there is forearm, sleeve, cut or nothing)")
+    wrist_optional_m: float = param(0.0, "where the optional wrist stub begins, beyond the "
+                                    "wrist keypoint along the forearm [m, at template size]",
+                                    lo=-0.02, hi=0.036)
     reverse_margin_px: float = param(2.0, "model-to-data pairs only for vertices projecting "
                                      "farther than this off the hand [px]", lo=0.0)
     damping: float = param(1e-2, "Levenberg damping added to J^T J (stabilises II.27)",
