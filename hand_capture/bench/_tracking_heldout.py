@@ -137,6 +137,8 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
     cpu: dict[str, list] = {"heldout": [], "forearm": []}
     seg: dict[str, list] = {"heldout": [], "forearm": []}
     cut_only: list[np.ndarray] = []
+    stub_off: list[np.ndarray] = []
+    drift: dict[str, list] = {}
     acc = [0, 0]
     for arm in (False, True):
         key = "forearm" if arm else "heldout"
@@ -173,6 +175,19 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                          s["median"], s["s20"], float(np.mean(s["flags"])),
                          float(np.mean(s["seg"][:, 0])), float(np.mean(s["seg"][:, 1])),
                          1e3 * float(np.mean(s["cpu"])), 1e3 * t_render])
+            if not arm:   # before -> after: the wrist stub not optional (tracking and
+                # calibration), and how far each drifts from the true pose
+                cfg0 = dataclasses.replace(config, wrist_optional=False)
+                cal0 = calibrate(calibration_frames(seq.model, seq.surface,
+                                                    list(CALIBRATION_POSES.values()), cam,
+                                                    np.random.default_rng(seed)),
+                                 model=base, config=cfg0)
+                t0_ = HybridTracker(base, cfg0, reg)
+                t0_.set_calibration(cal0)
+                stub_off.append(_score(t0_, seq.frames, seq.keypoints)["errs"])
+                for name, c in (("product", config), ("stub not optional", cfg0)):
+                    drift.setdefault(name, []).append(truth_drift_mm(
+                        seq.model, c, reg, seq.frames, seq.poses, seq.keypoints))
             if not arm and k == 0:   # what the first sequence's error is made of
                 exact = make_sequence(seed, n, cam, clutter=clutter, step=step, noise=False)
                 diag = {"same": s,
@@ -227,6 +242,19 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
         out.update({"forearm_cut_only_mean_mm": e_cut["mean"],
                     "forearm_cut_only_success_20mm": e_cut["s20"],
                     "heldout_arm_pixel_acc": acc[0] / max(acc[1], 1)})
+    e_off, e_on = _summary(np.concatenate(stub_off)), _summary(np.concatenate(agg["heldout"]))
+    d_on, d_off = (np.concatenate(drift[k]) for k in ("product", "stub not optional"))
+    print_table("held-out, no forearm: the template's wrist stub optional (product) or not "
+                "(before; tracking and calibration); drift = mean keypoint distance after 5 "
+                "ICP passes started at the true pose with the true shape",
+                ["wrist stub", "mean mm", "median mm", "succ@20", "drift mm"],
+                [["optional", e_on["mean"], e_on["median"], e_on["s20"], float(d_on.mean())],
+                 ["not optional", e_off["mean"], e_off["median"], e_off["s20"],
+                  float(d_off.mean())]])
+    out.update({"heldout_stub_not_optional_mean_mm": e_off["mean"],
+                "heldout_stub_not_optional_success_20mm": e_off["s20"],
+                "heldout_truth_drift_mm": float(d_on.mean()),
+                "heldout_stub_not_optional_truth_drift_mm": float(d_off.mean())})
     for key in ("heldout", "forearm"):
         e = np.concatenate(agg[key])
         s = _summary(e)
@@ -351,11 +379,11 @@ class SurfaceVariant:
 
 def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
                            variant: SurfaceVariant
-                           ) -> tuple[HandModel, Intrinsics, list, list, list]:
+                           ) -> tuple[HandModel, Intrinsics, list, list, list, list]:
     """A sequence of the suite's generator (the synthetic camera's shape ``seed``, motion
     ``clip``, rasteriser and noise model, 320x240) with the hand's surface replaced by
-    ``variant``. Returns ``(model, intrinsics, frames, keypoints, calibration frames)``
-    (the calibration poses rendered with the same surface and noise)."""
+    ``variant``. Returns ``(model, intrinsics, frames, keypoints, poses, calibration
+    frames)`` (the calibration poses rendered with the same surface and noise)."""
     from hand_capture.cameras.render import make_renderer
     from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
     from hand_capture.tracking.calibration import render_calibration_frames
@@ -367,15 +395,84 @@ def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
     mesh = variant.mesh_fn(cam.model)
     renderer = make_renderer("zbuffer")
     last = int(math.floor(cam.motion.duration * 30))
-    frames, kps = [], []
+    frames, kps, poses = [], [], []
     for i in list(range(0, last + 1, step))[:n]:
         pose = cam.truth_pose(i / 30.0)
+        poses.append(pose)
         res = renderer.render([mesh(pose)], cam.intrinsics)
         frames.append((cam.noise.apply_mm(res.depth, res.cos_incidence, cam.intrinsics, rng),
                        cam.intrinsics))
         kps.append(cam.model.joint_positions(pose))
     cal = render_calibration_frames(cam.model, cam.intrinsics, rng, mesh_fn=mesh)
-    return cam.model, cam.intrinsics, frames, kps, cal
+    return cam.model, cam.intrinsics, frames, kps, poses, cal
+
+
+def truth_drift_mm(model: HandModel, config, reg, frames: list, poses, keypoints,
+                   passes: int = 5, every: int = 6) -> np.ndarray:
+    """How far the fit moves away from the truth: every ``every``-th frame, ICP alone
+    (``mode`` icp, the true shape ``model``) started at the true pose and run ``passes``
+    times on that frame; the mean keypoint distance to the truth after it [mm], per frame."""
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    tr = HybridTracker(model, dataclasses.replace(config, mode="icp"), reg)
+    out = []
+    for (depth, intr), q, kp in list(zip(frames, poses, keypoints, strict=True))[::every]:
+        q = np.asarray(q, float)
+        for _ in range(passes):
+            tr.reset(q)
+            q = tr.process(depth, intr).pose
+        out.append(float(np.linalg.norm(model.joint_positions(q) - kp, axis=1).mean()) * 1e3)
+    return np.array(out)
+
+
+def surface_validation_section(reg, config, quick: bool) -> dict:
+    """Surface tolerance on the validation family (:class:`SurfaceVariant` on the suite's
+    own mesh, renderer and noise, shapes :data:`ARM_VAL_SEEDS`): where the optional wrist
+    stub (``wrist_optional``, ``wrist_optional_m``) was chosen. Product against the stub
+    not optional (tracking and calibration), each calibrated per sequence from the same
+    surface: keypoint error, success@20, calibrated bone-length error and the drift from
+    the true pose (:func:`truth_drift_mm`)."""
+    from hand_capture.bench.tracking import _summary
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import calibrate
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    seeds = ARM_VAL_SEEDS[:1] if quick else ARM_VAL_SEEDS
+    clips = ("finger_counting", "pinch") if quick else ("finger_counting", "wrist_rotation",
+                                                        "pinch", "fist")
+    n, step = (8, 4) if quick else (20, 3)
+    base = HandModel()
+    variants = {"optional (product)": ("val_surface", config),
+                "not optional": ("val_surface_stub_not_optional",
+                                 dataclasses.replace(config, wrist_optional=False))}
+    res: dict[str, dict[str, list]] = {k: {"e": [], "b": [], "d": []} for k in variants}
+    for seed in seeds:
+        for clip in clips:
+            v = SurfaceVariant.sample(np.random.default_rng(seed * 10 + len(clip)))
+            true, _, frames, kps, poses, calf = suite_surface_sequence(seed, clip, n, step, v)
+            for name, (_, cfg) in variants.items():
+                cal = calibrate(calf, model=base, config=cfg)
+                tr = HybridTracker(base, cfg, reg)
+                tr.set_calibration(cal)
+                res[name]["e"].append(_score(tr, frames, kps)["errs"])
+                res[name]["b"].append(_bone_err_pct(tr.model, true))
+                res[name]["d"].append(truth_drift_mm(true, cfg, reg, frames, poses, kps,
+                                                     every=4))
+    rows, out = [], {}
+    for name, (key, _) in variants.items():
+        sm = _summary(np.concatenate(res[name]["e"]))
+        b = res[name]["b"]
+        d = float(np.concatenate(res[name]["d"]).mean())
+        rows.append([name, sm["mean"], sm["median"], sm["s20"], float(np.mean(b)),
+                     float(np.max(b)), d])
+        out.update({f"{key}_mean_mm": sm["mean"], f"{key}_success_20mm": sm["s20"],
+                    f"{key}_bone_err_pct": float(np.mean(b)), f"{key}_truth_drift_mm": d})
+    print_table(f"surface validation family (the suite's mesh: palm -1..+3 mm, fingers -1..+1.5 "
+                f"mm, wrist stub cut 0-20 mm past the wrist; shapes {seeds}): the template's "
+                "wrist stub optional or not", ["wrist stub", "mean mm", "median mm", "succ@20",
+                                              "bone err %", "bone err max %", "drift mm"],
+                rows)
+    return out
 
 
 def _score_first(tracker, frames, truth, labels) -> dict:
@@ -683,6 +780,7 @@ def run_sections(reg, config, quick: bool) -> dict:
     """Every section above, in order; their figures merged."""
     out = {}
     out.update(heldout_section(reg, config, quick))
+    out.update(surface_validation_section(reg, config, quick))
     out.update(forearm_validation_section(reg, config, quick))
     out.update(calibration_section(quick))
     out.update(split_section(reg, config, quick))
