@@ -108,3 +108,35 @@ def test_calibration_keeps_the_size_of_a_hand_ending_at_the_wrist(scale):
                  / np.asarray(true.bone_lengths) - 1.0)
     assert float(err.mean()) < 0.04          # 1-2.5 % (before: 11-13 %, the hand shrank)
     assert abs(res.shape.global_scale / scale - 1.0) < 0.05
+
+
+def test_finger_swap_combines_the_right_fingers_of_two_candidates():
+    """Two refined candidates, each with another finger wrong: the finger-wise selection
+    (``finger_swap``) takes each finger from the candidate that explains it."""
+    from hand_capture.model import JOINT_INDEX
+
+    m = HandModel()
+    intr = default_intrinsics()
+    rng = np.random.default_rng(4)
+    q_true = random_pose(rng, m)
+    for f in ("index", "middle"):
+        q_true[JOINT_INDEX[f"{f}_mcp_flex"]] = 0.1
+        q_true[JOINT_INDEX[f"{f}_pip_flex"]] = 0.1
+    res = make_renderer("zbuffer").render([SurfaceVariant().mesh_fn(m)(q_true)], intr)
+    depth = np.rint(res.depth * 1000).astype(np.uint16)
+    a, b = q_true.copy(), q_true.copy()
+    a[JOINT_INDEX["index_mcp_flex"]] = a[JOINT_INDEX["index_pip_flex"]] = 1.4
+    b[JOINT_INDEX["middle_mcp_flex"]] = b[JOINT_INDEX["middle_pip_flex"]] = 1.4
+    tr = HybridTracker(m, TrackerConfig(finger_swap=True), None)
+    tr.reset()
+    obs = segment_hand(depth, intr, tr.cfg)
+    obs_ds = obs.depth_m[::2, ::2]
+    costs = tr._costs([a, b], obs, obs_ds)
+    best = int(np.argmin([c[0] for c in costs]))
+    q, c = tr._swap_fingers([a, b], costs, best, obs, obs_ds, obs.subsample(160))
+    assert c[0] < min(x[0] for x in costs)
+    err = np.linalg.norm(m.joint_positions(q) - m.joint_positions(q_true), axis=1).max()
+    assert err * 1e3 < 10.0                    # both fingers right (each candidate: > 40)
+    for cand in (a, b):
+        assert np.linalg.norm(m.joint_positions(cand) - m.joint_positions(q_true),
+                              axis=1).max() * 1e3 > 40.0

@@ -137,7 +137,7 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
     cpu: dict[str, list] = {"heldout": [], "forearm": []}
     seg: dict[str, list] = {"heldout": [], "forearm": []}
     cut_only: list[np.ndarray] = []
-    stub_off: list[np.ndarray] = []
+    by_var: dict[str, list] = {}
     drift: dict[str, list] = {}
     acc = [0, 0]
     for arm in (False, True):
@@ -175,17 +175,19 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                          s["median"], s["s20"], float(np.mean(s["flags"])),
                          float(np.mean(s["seg"][:, 0])), float(np.mean(s["seg"][:, 1])),
                          1e3 * float(np.mean(s["cpu"])), 1e3 * t_render])
-            if not arm:   # before -> after: the wrist stub not optional (tracking and
-                # calibration), and how far each drifts from the true pose
-                cfg0 = dataclasses.replace(config, wrist_optional=False)
-                cal0 = calibrate(calibration_frames(seq.model, seq.surface,
-                                                    list(CALIBRATION_POSES.values()), cam,
-                                                    np.random.default_rng(seed)),
-                                 model=base, config=cfg0)
-                t0_ = HybridTracker(base, cfg0, reg)
-                t0_.set_calibration(cal0)
-                stub_off.append(_score(t0_, seq.frames, seq.keypoints)["errs"])
-                for name, c in (("product", config), ("stub not optional", cfg0)):
+            if not arm:   # before -> after: the surface-tolerance settings one by one
+                # (tracking and calibration), and how far each drifts from the true pose
+                for name, (_, c) in surface_variants(config).items():
+                    if c == config:
+                        e_v = s["errs"]
+                    else:
+                        cal_v = calibrate(calibration_frames(
+                            seq.model, seq.surface, list(CALIBRATION_POSES.values()), cam,
+                            np.random.default_rng(seed)), model=base, config=c)
+                        t_v = HybridTracker(base, c, reg)
+                        t_v.set_calibration(cal_v)
+                        e_v = _score(t_v, seq.frames, seq.keypoints)["errs"]
+                    by_var.setdefault(name, []).append(e_v)
                     drift.setdefault(name, []).append(truth_drift_mm(
                         seq.model, c, reg, seq.frames, seq.poses, seq.keypoints))
             if not arm and k == 0:   # what the first sequence's error is made of
@@ -242,19 +244,17 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
         out.update({"forearm_cut_only_mean_mm": e_cut["mean"],
                     "forearm_cut_only_success_20mm": e_cut["s20"],
                     "heldout_arm_pixel_acc": acc[0] / max(acc[1], 1)})
-    e_off, e_on = _summary(np.concatenate(stub_off)), _summary(np.concatenate(agg["heldout"]))
-    d_on, d_off = (np.concatenate(drift[k]) for k in ("product", "stub not optional"))
-    print_table("held-out, no forearm: the template's wrist stub optional (product) or not "
-                "(before; tracking and calibration); drift = mean keypoint distance after 5 "
-                "ICP passes started at the true pose with the true shape",
-                ["wrist stub", "mean mm", "median mm", "succ@20", "drift mm"],
-                [["optional", e_on["mean"], e_on["median"], e_on["s20"], float(d_on.mean())],
-                 ["not optional", e_off["mean"], e_off["median"], e_off["s20"],
-                  float(d_off.mean())]])
-    out.update({"heldout_stub_not_optional_mean_mm": e_off["mean"],
-                "heldout_stub_not_optional_success_20mm": e_off["s20"],
-                "heldout_truth_drift_mm": float(d_on.mean()),
-                "heldout_stub_not_optional_truth_drift_mm": float(d_off.mean())})
+    vrows = []
+    for name, (key, _) in surface_variants(config).items():
+        sm = _summary(np.concatenate(by_var[name]))
+        d = float(np.concatenate(drift[name]).mean())
+        vrows.append([name, sm["mean"], sm["median"], sm["s20"], d])
+        out.update({f"heldout{key}_mean_mm": sm["mean"], f"heldout{key}_success_20mm": sm["s20"],
+                    f"heldout{key}_truth_drift_mm": d})
+    print_table("held-out, no forearm: surface-tolerance settings (before = neither; each "
+                "calibrates and tracks with its settings); drift = mean keypoint distance "
+                "after 5 ICP passes started at the true pose with the true shape",
+                ["settings", "mean mm", "median mm", "succ@20", "drift mm"], vrows)
     for key in ("heldout", "forearm"):
         e = np.concatenate(agg[key])
         s = _summary(e)
@@ -425,13 +425,26 @@ def truth_drift_mm(model: HandModel, config, reg, frames: list, poses, keypoints
     return np.array(out)
 
 
+def surface_variants(config) -> dict[str, tuple[str, object]]:
+    """The surface-tolerance settings compared in the same run: ``name -> (key suffix,
+    config)``: the product, without the optional wrist stub, without the finger-wise
+    selection, and before (neither)."""
+    rep = dataclasses.replace
+    return {"product": ("", config),
+            "stub not optional": ("_stub_not_optional", rep(config, wrist_optional=False)),
+            "no finger swap": ("_no_finger_swap", rep(config, finger_swap=False)),
+            "before (neither)": ("_before", rep(config, wrist_optional=False,
+                                                finger_swap=False))}
+
+
 def surface_validation_section(reg, config, quick: bool) -> dict:
     """Surface tolerance on the validation family (:class:`SurfaceVariant` on the suite's
     own mesh, renderer and noise, shapes :data:`ARM_VAL_SEEDS`): where the optional wrist
-    stub (``wrist_optional``, ``wrist_optional_m``) was chosen. Product against the stub
-    not optional (tracking and calibration), each calibrated per sequence from the same
-    surface: keypoint error, success@20, calibrated bone-length error and the drift from
-    the true pose (:func:`truth_drift_mm`)."""
+    stub (``wrist_optional``, ``wrist_optional_m``) and the finger-wise selection
+    (``finger_swap``) were chosen. The variants of :func:`surface_variants` (tracking and
+    calibration), each calibrated per sequence from the same surface: keypoint error,
+    success@20, calibrated bone-length error and the drift from the true pose
+    (:func:`truth_drift_mm`)."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
     from hand_capture.tracking.calibration import calibrate
@@ -442,9 +455,7 @@ def surface_validation_section(reg, config, quick: bool) -> dict:
                                                         "pinch", "fist")
     n, step = (8, 4) if quick else (20, 3)
     base = HandModel()
-    variants = {"optional (product)": ("val_surface", config),
-                "not optional": ("val_surface_stub_not_optional",
-                                 dataclasses.replace(config, wrist_optional=False))}
+    variants = surface_variants(config)
     res: dict[str, dict[str, list]] = {k: {"e": [], "b": [], "d": []} for k in variants}
     for seed in seeds:
         for clip in clips:
@@ -465,13 +476,14 @@ def surface_validation_section(reg, config, quick: bool) -> dict:
         d = float(np.concatenate(res[name]["d"]).mean())
         rows.append([name, sm["mean"], sm["median"], sm["s20"], float(np.mean(b)),
                      float(np.max(b)), d])
-        out.update({f"{key}_mean_mm": sm["mean"], f"{key}_success_20mm": sm["s20"],
-                    f"{key}_bone_err_pct": float(np.mean(b)), f"{key}_truth_drift_mm": d})
+        out.update({f"val_surface{key}_mean_mm": sm["mean"],
+                    f"val_surface{key}_success_20mm": sm["s20"],
+                    f"val_surface{key}_bone_err_pct": float(np.mean(b)),
+                    f"val_surface{key}_truth_drift_mm": d})
     print_table(f"surface validation family (the suite's mesh: palm -1..+3 mm, fingers -1..+1.5 "
-                f"mm, wrist stub cut 0-20 mm past the wrist; shapes {seeds}): the template's "
-                "wrist stub optional or not", ["wrist stub", "mean mm", "median mm", "succ@20",
-                                              "bone err %", "bone err max %", "drift mm"],
-                rows)
+                f"mm, wrist stub cut 0-20 mm past the wrist; shapes {seeds}): surface-tolerance "
+                "settings", ["settings", "mean mm", "median mm", "succ@20", "bone err %",
+                             "bone err max %", "drift mm"], rows)
     return out
 
 

@@ -124,6 +124,10 @@ class TrackerConfig:
     cost_temporal_weight: float = param(0.0, "lambda_2 of the candidate cost (eq. II.20; "
                                         "mm per rad^2 / m^2 of pose change); 0 chosen on the "
                                         "bench's validation split (bench tracking)", lo=0.0)
+    finger_swap: bool = param(True, "after step 4, each finger of the selected pose may "
+                              "take another refined candidate's angles for that finger when "
+                              "that lowers the candidate cost of eq. II.20 (greedy, finger "
+                              "by finger), then one more Gauss-Newton iteration")
     # -- regression (II.4) ---------------------------------------------------------------
     n_modes: int = param(2, "palm modes kept by clustering the leaves (II.4.3)", lo=1, hi=16)
     ik_iterations: int = param(2, "finger IK Gauss-Newton steps per finger cascade stage",
