@@ -2,8 +2,8 @@
 
 The template mesh reaches 36 mm past the wrist keypoint; a hand whose surface ends at the
 wrist (no forearm in view, or another surface) left that stub without data, and the
-model-to-data pairs and E_d (eq. II.19) pulled the whole hand towards the fingers: the fit
-drifted from the true pose and calibration shrank the hand. These tests fail on the code
+model-to-data pairs pulled the whole hand towards the fingers: the fit drifted from the true
+pose and calibration shrank the hand. These tests fail on the code
 before ``wrist_optional``.
 """
 
@@ -20,7 +20,7 @@ from hand_capture.model import HandModel, HandShape
 from hand_capture.tracking.calibration import calibrate, render_calibration_frames
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.hybrid import HybridTracker
-from hand_capture.tracking.icp import ModelTracker, depth_error, optional_vertices
+from hand_capture.tracking.icp import ModelTracker, optional_vertices
 from hand_capture.tracking.preprocess import segment_hand
 from hand_capture.tracking.train import default_intrinsics, random_pose
 
@@ -46,20 +46,6 @@ def test_optional_vertices_are_the_wrist_stub():
         assert not optional_vertices(m, OFF).any()
         later = optional_vertices(m, TrackerConfig(wrist_optional_m=0.02))
         assert later.sum() < opt.sum() and np.all(opt[later])
-
-
-def test_depth_error_counts_free_pixels_only_where_observed():
-    r = np.zeros((4, 4), np.float32)
-    o = np.zeros((4, 4), np.float32)
-    r[0:2, :] = 0.5                 # hand rows, observed 2 mm nearer
-    o[0:2, :] = 0.498
-    r[2:4, :] = 0.5                 # stub rows: one observed exactly, one not at all
-    o[2, :] = 0.5
-    free = np.zeros((4, 4), bool)
-    free[2:4, :] = True
-    assert depth_error(r, o, 60.0) == pytest.approx((8 * 2.0 + 4 * 60.0) / 16, rel=1e-4)
-    # the unobserved stub row leaves the union; the observed one still counts
-    assert depth_error(r, o, 60.0, free) == pytest.approx(8 * 2.0 / 12, rel=1e-4)
 
 
 def test_no_model_to_data_pairs_from_the_stub():

@@ -82,9 +82,9 @@ class TrackerConfig:
                                   lo=0.0)
     wrist_optional: bool = param(True, "the template's wrist stub (surface beyond "
                                  "wrist_optional_m past the wrist keypoint) is optional: no "
-                                 "model-to-data pairs (II.23) and in E_d (II.19) its pixels "
-                                 "count only where the camera sees something (real data "
-                                 "there is forearm, sleeve, cut or nothing)")
+                                 "model-to-data pairs from it (II.23), nor in calibration's "
+                                 "off-hand test (real data there is forearm, sleeve, cut or "
+                                 "nothing)")
     wrist_optional_m: float = param(0.0, "where the optional wrist stub begins, beyond the "
                                     "wrist keypoint along the forearm [m, at template size]",
                                     lo=-0.02, hi=0.036)

@@ -39,7 +39,7 @@ while tracking, else from the cloud's shape; after a cloud-only cut the selected
 wrist cuts again and the pose is refined on those points); the ICP data term is
 Huber-weighted (``robust_mm``); tau of eq. II.19 follows the calibration fit
 (:attr:`HybridTracker.tau_mm`, :meth:`set_calibration`); the template's wrist stub is
-optional in the data term and E_d (``wrist_optional``, ``icp.optional_vertices``); step 5
+optional in the model-to-data pairs (``wrist_optional``, ``icp.optional_vertices``); step 5
 selects finger by finger among the refined candidates (``finger_swap``,
 :meth:`HybridTracker._swap_fingers`: on another surface the regression often gets one finger
 wrong in the best candidate and right in another).

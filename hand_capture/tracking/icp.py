@@ -20,6 +20,11 @@ correspondences at every Gauss-Newton iteration. Points the model cannot explain
 stub, a sleeve, a surface thicker than the model's) then pull with a bounded force instead
 of a force growing with their distance.
 
+Optional wrist stub (``wrist_optional``, :func:`optional_vertices`): the model-to-data pairs
+(the addition to eq. II.23 below) leave out the template's surface beyond the wrist keypoint,
+where real data is forearm, sleeve, cut or nothing; a hand surface ending at the wrist
+otherwise pulls the whole model towards the fingers (and calibration shrinks it).
+
 Units: the data residuals are in millimetres (so l1 = 1, l2 = 0.2 and l3 = 1000 of the
 dissertation weigh a millimetre against a radian); root translations in E_smooth are in
 millimetres too. A small Levenberg damping keeps the normal equations regular when a finger
@@ -41,7 +46,7 @@ from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.preprocess import HandObservation
 
 __all__ = ["Correspondences", "ModelTracker", "depth_error", "huber_sqrt_weights",
-           "optional_vertices", "render_depth", "render_depth_free"]
+           "optional_vertices", "render_depth"]
 
 _MM = 1000.0
 #: per-DoF unit scale of E_smooth: root translation in mm, angles in rad
@@ -75,40 +80,26 @@ def render_depth(vertices: np.ndarray, intr: Intrinsics, ds: int = 1) -> np.ndar
     splatted into its nearest pixel and the one-pixel holes left between vertices are closed
     (3x3 morphological closing of the silhouette, filled with the nearest neighbour depth).
     """
-    return render_depth_free(vertices, None, intr, ds)[0]
-
-
-def render_depth_free(vertices: np.ndarray, optional: np.ndarray | None, intr: Intrinsics,
-                      ds: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`render_depth` and the pixels ``free`` (H, W) bool that only ``optional``
-    (V,) bool vertices cover (the model's wrist stub, :attr:`ModelTracker.optional`); all
-    False when ``optional`` is None."""
     W = (intr.width + ds - 1) // ds
     H = (intr.height + ds - 1) // ds
     out = np.zeros((H, W), np.float32)
-    free = np.zeros((H, W), bool)
-    win, r0, c0, fw = _render_window(vertices, intr, ds, None, optional)
+    win, r0, c0 = _render_window(vertices, intr, ds, None)
     out[r0:r0 + win.shape[0], c0:c0 + win.shape[1]] = win
-    if fw is not None:
-        free[r0:r0 + win.shape[0], c0:c0 + win.shape[1]] = fw
-    return out, free
+    return out
 
 
 def _render_window(vertices: np.ndarray, intr: Intrinsics, ds: int,
-                   box: tuple[int, int, int, int] | None, optional: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, int, int, np.ndarray | None]:
-    """:func:`render_depth` computed in a window only: ``(image, row0, col0, free)``. The
-    window holds every splatted pixel with a 2-pixel margin (so the 3x3 closing is the same
-    as on the whole image) and the rows / columns ``box = (r0, r1, c0, c1)`` (end
-    exclusive). ``free``: the rendered pixels no vertex outside ``optional`` (V,) bool covers
-    (after the same closing); None without ``optional``."""
+                   box: tuple[int, int, int, int] | None
+                   ) -> tuple[np.ndarray, int, int]:
+    """:func:`render_depth` computed in a window only: ``(image, row0, col0)``. The window
+    holds every splatted pixel with a 2-pixel margin (so the 3x3 closing is the same as on
+    the whole image) and the rows / columns ``box = (r0, r1, c0, c1)`` (end exclusive)."""
     W = (intr.width + ds - 1) // ds
     H = (intr.height + ds - 1) // ds
     z = vertices[:, 2]
     ok = z > 1e-3
     v = vertices[ok]
     z = z[ok]
-    opt = None if optional is None else np.asarray(optional, bool)[ok]
     u = np.rint((intr.fx * v[:, 0] / z + intr.cx) / ds).astype(np.int64)
     w = np.rint((intr.fy * v[:, 1] / z + intr.cy) / ds).astype(np.int64)
     inside = (u >= 0) & (u < W) & (w >= 0) & (w < H)
@@ -119,14 +110,12 @@ def _render_window(vertices: np.ndarray, intr: Intrinsics, ds: int,
         rows += [int(w.min()) - 2, int(w.max()) + 2]
         cols += [int(u.min()) - 2, int(u.max()) + 2]
     if not rows:
-        return np.zeros((0, 0), np.float32), 0, 0, None if opt is None else \
-            np.zeros((0, 0), bool)
+        return np.zeros((0, 0), np.float32), 0, 0
     r0, r1 = max(min(rows), 0), min(max(rows) + 1, H)
     c0, c1 = max(min(cols), 0), min(max(cols) + 1, W)
     h, wd = r1 - r0, c1 - c0
-    flat = (w - r0) * wd + (u - c0)
     buf = np.full(h * wd, _FAR, np.float32)
-    np.minimum.at(buf, flat, z.astype(np.float32))
+    np.minimum.at(buf, (w - r0) * wd + (u - c0), z.astype(np.float32))
     buf = buf.reshape(h, wd)
     occ = (buf < _FAR).astype(np.uint8)
     closed = cv2.morphologyEx(occ, cv2.MORPH_CLOSE, _K3)
@@ -134,31 +123,18 @@ def _render_window(vertices: np.ndarray, intr: Intrinsics, ds: int,
     if holes.any():
         buf[holes] = cv2.erode(buf, _K3)[holes]
     buf[buf >= _FAR] = 0.0
-    free = None
-    if opt is not None:
-        core = np.zeros(h * wd, np.uint8)
-        core[flat[~opt[inside]]] = 1
-        core = cv2.morphologyEx(core.reshape(h, wd), cv2.MORPH_CLOSE, _K3)
-        free = (buf > 0) & (core == 0)
-    return buf, r0, c0, free
+    return buf, r0, c0
 
 
-def depth_error(rendered_m: np.ndarray, observed_m: np.ndarray, cap_mm: float,
-                free: np.ndarray | None = None) -> float:
+def depth_error(rendered_m: np.ndarray, observed_m: np.ndarray, cap_mm: float) -> float:
     """E_d of eq. II.19: sum |I_r - I| over the union of both silhouettes / its size [mm].
 
     The per-pixel difference is capped at ``cap_mm`` (a pixel covered by one image only
-    counts the cap). An empty union (no hand, no model) gives ``cap_mm``. ``free`` (same
-    shape, bool): rendered pixels of the model's optional part (the wrist stub,
-    :attr:`ModelTracker.optional`) that count only where the camera sees something there
-    (a departure from eq. II.19: the surface beyond the wrist is the forearm's, present,
-    cut or missing in real data).
+    counts the cap). An empty union (no hand, no model) gives ``cap_mm``.
     """
     r = rendered_m
     o = observed_m
     union = (r > 0) | (o > 0)
-    if free is not None:
-        union &= ~(free & (o <= 0))
     n = int(np.count_nonzero(union))
     if n == 0:
         return float(cap_mm)
@@ -212,8 +188,9 @@ def optional_vertices(model: HandModel, cfg: TrackerConfig) -> np.ndarray:
     """(V,) bool: the vertices of ``model``'s wrist stub, farther than ``wrist_optional_m``
     (times the global scale) beyond the wrist keypoint along the forearm (middle MCP to
     wrist) in the rest pose; all False without ``wrist_optional``. The template mesh
-    reaches 36 mm past the wrist keypoint there, a real hand's surface goes on into the
-    forearm (cut, sleeved, or out of view), a hand surface without a forearm ends sooner."""
+    reaches 36 mm past the wrist keypoint there; a real hand's surface goes on into the
+    forearm (cut, sleeved, or out of view), a hand surface without a forearm ends sooner,
+    so these vertices get no model-to-data pairs (an addition to eq. II.23 left out)."""
     if not cfg.wrist_optional:
         return np.zeros(model.n_vertices, bool)
     kp = model.joint_positions(np.zeros(N_DOF))
@@ -256,7 +233,6 @@ class ModelTracker:
         self.rest_normals = model.normals(model.rest_vertices)
         self.labels = model.vertex_labels
         self.optional = optional_vertices(model, self.cfg)
-        self._opt_or_none = self.optional if self.optional.any() else None
         self.cand = np.arange(0, model.n_vertices, self.cfg.model_stride)
         self._cand_opt = self.optional[self.cand]
         # fast path of step(): the candidate vertices and their normals from one sparse
@@ -336,7 +312,7 @@ class ModelTracker:
         pulls back model parts that stick out where the camera sees nothing (e.g. a finger
         extended in front of a fist)."""
         f = facing[::stride]
-        f = f[~self.optional[f]]
+        f = f[~self.optional[f]]   # not from the optional wrist stub
         if len(f) == 0 or len(points) == 0:
             return _empty_corr()
         Vf = V[f]
@@ -607,13 +583,10 @@ class ModelTracker:
             return out
         Vs = self.model.vertices(Q)
         for b, V in enumerate(Vs):
-            r, r0, c0, free = _render_window(V, obs.intrinsics, ds, box, self._opt_or_none)
+            r, r0, c0 = _render_window(V, obs.intrinsics, ds, box)
             # both silhouettes lie inside the window: E_d over it is E_d over the image
             ob = o[r0:r0 + r.shape[0], c0:c0 + r.shape[1]]
-            if free is not None:
-                free = free[:ob.shape[0], :ob.shape[1]]
-            out[b] = depth_error(r[:ob.shape[0], :ob.shape[1]], ob, self.cfg.depth_cap_mm,
-                                 free)
+            out[b] = depth_error(r[:ob.shape[0], :ob.shape[1]], ob, self.cfg.depth_cap_mm)
         return out
 
     def _observed_box(self, o: np.ndarray) -> tuple[int, int, int, int] | None:
