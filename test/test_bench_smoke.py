@@ -77,7 +77,9 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                   "forearm_mean_mm", "forearm_success_20mm", "calib_bone_err_pct",
                   "large_frame_delivery", "temporal_weight_chosen", "forearm_seg_arm_pct",
                   "val_forearm_mean_mm", "val_forearm_first_mean_mm", "val_arm_pixel_acc",
-                  "forearm_cut_only_mean_mm", "heldout_arm_pixel_acc"), ()),
+                  "forearm_cut_only_mean_mm", "heldout_arm_pixel_acc", "val_surface_mean_mm",
+                  "val_surface_before_mean_mm", "heldout_before_mean_mm",
+                  "heldout_truth_drift_mm"), ()),
 }
 
 

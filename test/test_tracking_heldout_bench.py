@@ -35,6 +35,11 @@ def test_heldout_and_calibration_sections_report_their_figures(capsys) -> None:
     # pixel accuracy on the held-out forearm frames
     assert math.isfinite(out["forearm_cut_only_mean_mm"]) and out["forearm_cut_only_mean_mm"] > 0
     assert 0.5 < out["heldout_arm_pixel_acc"] <= 1.0
+    # before -> after of the surface-tolerance settings in the same run, and the drift from
+    # the true pose
+    for key in ("", "_stub_not_optional", "_no_finger_swap", "_before"):
+        assert math.isfinite(out[f"heldout{key}_mean_mm"]) and out[f"heldout{key}_mean_mm"] > 0
+        assert 0.0 <= out[f"heldout{key}_truth_drift_mm"] < 100.0
     cal = calibration_section(True, scales=(0.9,))
     assert cal["calib_scales"] == [0.9]
     assert cal["calib_bone_err_pct"] >= cal["calib_bone_err_pct_mean"] > 0
@@ -43,6 +48,7 @@ def test_heldout_and_calibration_sections_report_their_figures(capsys) -> None:
     text = capsys.readouterr().out
     assert "forearm frames" in text and "classifier + cut" in text
     assert "held-out family" in text and "d435_848" in text and "bone-length" in text
+    assert "surface-tolerance settings" in text
     assert TEMPORAL_GRID[0] == 0.0 and np.all(np.diff(TEMPORAL_GRID) > 0)
 
 

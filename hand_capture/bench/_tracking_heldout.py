@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -136,6 +137,8 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
     cpu: dict[str, list] = {"heldout": [], "forearm": []}
     seg: dict[str, list] = {"heldout": [], "forearm": []}
     cut_only: list[np.ndarray] = []
+    by_var: dict[str, list] = {}
+    drift: dict[str, list] = {}
     acc = [0, 0]
     for arm in (False, True):
         key = "forearm" if arm else "heldout"
@@ -172,6 +175,21 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                          s["median"], s["s20"], float(np.mean(s["flags"])),
                          float(np.mean(s["seg"][:, 0])), float(np.mean(s["seg"][:, 1])),
                          1e3 * float(np.mean(s["cpu"])), 1e3 * t_render])
+            if not arm:   # before -> after: the surface-tolerance settings one by one
+                # (tracking and calibration), and how far each drifts from the true pose
+                for name, (_, c) in surface_variants(config).items():
+                    if c == config:
+                        e_v = s["errs"]
+                    else:
+                        cal_v = calibrate(calibration_frames(
+                            seq.model, seq.surface, list(CALIBRATION_POSES.values()), cam,
+                            np.random.default_rng(seed)), model=base, config=c)
+                        t_v = HybridTracker(base, c, reg)
+                        t_v.set_calibration(cal_v)
+                        e_v = _score(t_v, seq.frames, seq.keypoints)["errs"]
+                    by_var.setdefault(name, []).append(e_v)
+                    drift.setdefault(name, []).append(truth_drift_mm(
+                        seq.model, c, reg, seq.frames, seq.poses, seq.keypoints))
             if not arm and k == 0:   # what the first sequence's error is made of
                 exact = make_sequence(seed, n, cam, clutter=clutter, step=step, noise=False)
                 diag = {"same": s,
@@ -226,6 +244,17 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
         out.update({"forearm_cut_only_mean_mm": e_cut["mean"],
                     "forearm_cut_only_success_20mm": e_cut["s20"],
                     "heldout_arm_pixel_acc": acc[0] / max(acc[1], 1)})
+    vrows = []
+    for name, (key, _) in surface_variants(config).items():
+        sm = _summary(np.concatenate(by_var[name]))
+        d = float(np.concatenate(drift[name]).mean())
+        vrows.append([name, sm["mean"], sm["median"], sm["s20"], d])
+        out.update({f"heldout{key}_mean_mm": sm["mean"], f"heldout{key}_success_20mm": sm["s20"],
+                    f"heldout{key}_truth_drift_mm": d})
+    print_table("held-out, no forearm: surface-tolerance settings (before = neither; each "
+                "calibrates and tracks with its settings); drift = mean keypoint distance "
+                "after 5 ICP passes started at the true pose with the true shape",
+                ["settings", "mean mm", "median mm", "succ@20", "drift mm"], vrows)
     for key in ("heldout", "forearm"):
         e = np.concatenate(agg[key])
         s = _summary(e)
@@ -304,6 +333,158 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
         labels.append(np.select([res.label == 255, res.label == 254, res.label > 0],
                                 [2, 4, 1], 0).astype(np.int16))
     return cam.model, cam.intrinsics, frames, kps, labels
+
+
+@dataclass(frozen=True)
+class SurfaceVariant:
+    """Another hand surface on the suite's own model and renderer (the validation family of
+    surface tolerance, issue 13; nothing of the held-out family): the template mesh with
+    its palm and fingers moved along their normals and its wrist stub cut short.
+
+    Attributes:
+        palm_mm: the palm's surface (vertex label 0) moved outwards by this [mm].
+        finger_mm: the fingers' surface moved outwards by this [mm].
+        stub_m: the mesh kept up to this far beyond the wrist keypoint (the template's
+            reaches 0.036) [m, at template size].
+    """
+
+    palm_mm: float = 0.0
+    finger_mm: float = 0.0
+    stub_m: float = 0.036
+
+    @staticmethod
+    def sample(rng: np.random.Generator) -> SurfaceVariant:
+        """A random variant: palm -1..+3 mm, fingers -1..+1.5 mm, stub 0..20 mm."""
+        return SurfaceVariant(float(rng.uniform(-1.0, 3.0)), float(rng.uniform(-1.0, 1.5)),
+                              float(rng.uniform(0.0, 0.02)))
+
+    def mesh_fn(self, model: HandModel):
+        """``q (27,) -> Mesh`` of ``model`` in pose ``q`` with this surface."""
+        from hand_capture.cameras.render import Mesh
+
+        kp = model.joint_positions(np.zeros(27))
+        d = (kp[0] - kp[9]) / np.linalg.norm(kp[0] - kp[9])
+        beyond = (model.rest_vertices - kp[0]) @ d
+        keep = beyond <= self.stub_m * float(model.shape.global_scale) + 1e-9
+        faces = model.faces[keep[model.faces].all(axis=1)]
+        off = np.where(model.vertex_labels == 0, self.palm_mm, self.finger_mm) * 1e-3
+        closed = bool(keep.all())
+
+        def fn(q: np.ndarray) -> Mesh:
+            V = model.vertices(q)
+            return Mesh(V + model.normals(V) * off[:, None], faces, 1, closed=closed)
+
+        return fn
+
+
+def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
+                           variant: SurfaceVariant
+                           ) -> tuple[HandModel, Intrinsics, list, list, list, list]:
+    """A sequence of the suite's generator (the synthetic camera's shape ``seed``, motion
+    ``clip``, rasteriser and noise model, 320x240) with the hand's surface replaced by
+    ``variant``. Returns ``(model, intrinsics, frames, keypoints, poses, calibration
+    frames)`` (the calibration poses rendered with the same surface and noise)."""
+    from hand_capture.cameras.render import make_renderer
+    from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
+    from hand_capture.tracking.calibration import render_calibration_frames
+
+    rng = np.random.default_rng(seed * 1000 + 7 + sum(map(ord, clip)))
+    cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed, clip=clip,
+                                                noise_seed=seed + 2000))
+    cam.open()
+    mesh = variant.mesh_fn(cam.model)
+    renderer = make_renderer("zbuffer")
+    last = int(math.floor(cam.motion.duration * 30))
+    frames, kps, poses = [], [], []
+    for i in list(range(0, last + 1, step))[:n]:
+        pose = cam.truth_pose(i / 30.0)
+        poses.append(pose)
+        res = renderer.render([mesh(pose)], cam.intrinsics)
+        frames.append((cam.noise.apply_mm(res.depth, res.cos_incidence, cam.intrinsics, rng),
+                       cam.intrinsics))
+        kps.append(cam.model.joint_positions(pose))
+    cal = render_calibration_frames(cam.model, cam.intrinsics, rng, mesh_fn=mesh)
+    return cam.model, cam.intrinsics, frames, kps, poses, cal
+
+
+def truth_drift_mm(model: HandModel, config, reg, frames: list, poses, keypoints,
+                   passes: int = 5, every: int = 6) -> np.ndarray:
+    """How far the fit moves away from the truth: every ``every``-th frame, ICP alone
+    (``mode`` icp, the true shape ``model``) started at the true pose and run ``passes``
+    times on that frame; the mean keypoint distance to the truth after it [mm], per frame."""
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    tr = HybridTracker(model, dataclasses.replace(config, mode="icp"), reg)
+    out = []
+    for (depth, intr), q, kp in list(zip(frames, poses, keypoints, strict=True))[::every]:
+        q = np.asarray(q, float)
+        for _ in range(passes):
+            tr.reset(q)
+            q = tr.process(depth, intr).pose
+        out.append(float(np.linalg.norm(model.joint_positions(q) - kp, axis=1).mean()) * 1e3)
+    return np.array(out)
+
+
+def surface_variants(config) -> dict[str, tuple[str, object]]:
+    """The surface-tolerance settings compared in the same run: ``name -> (key suffix,
+    config)``: the product, without the optional wrist stub, without the finger-wise
+    selection, and before (neither)."""
+    rep = dataclasses.replace
+    return {"product": ("", config),
+            "stub not optional": ("_stub_not_optional", rep(config, wrist_optional=False)),
+            "no finger swap": ("_no_finger_swap", rep(config, finger_swap=False)),
+            "before (neither)": ("_before", rep(config, wrist_optional=False,
+                                                finger_swap=False))}
+
+
+def surface_validation_section(reg, config, quick: bool) -> dict:
+    """Surface tolerance on the validation family (:class:`SurfaceVariant` on the suite's
+    own mesh, renderer and noise, shapes :data:`ARM_VAL_SEEDS`): where the optional wrist
+    stub (``wrist_optional``, ``wrist_optional_m``) and the finger-wise selection
+    (``finger_swap``) were chosen. The variants of :func:`surface_variants` (tracking and
+    calibration), each calibrated per sequence from the same surface: keypoint error,
+    success@20, calibrated bone-length error and the drift from the true pose
+    (:func:`truth_drift_mm`)."""
+    from hand_capture.bench.tracking import _summary
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import calibrate
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    seeds = ARM_VAL_SEEDS[:1] if quick else ARM_VAL_SEEDS
+    clips = ("finger_counting", "pinch") if quick else ("finger_counting", "wrist_rotation",
+                                                        "pinch", "fist")
+    n, step = (8, 4) if quick else (20, 3)
+    base = HandModel()
+    variants = surface_variants(config)
+    res: dict[str, dict[str, list]] = {k: {"e": [], "b": [], "d": []} for k in variants}
+    for seed in seeds:
+        for clip in clips:
+            v = SurfaceVariant.sample(np.random.default_rng(seed * 10 + len(clip)))
+            true, _, frames, kps, poses, calf = suite_surface_sequence(seed, clip, n, step, v)
+            for name, (_, cfg) in variants.items():
+                cal = calibrate(calf, model=base, config=cfg)
+                tr = HybridTracker(base, cfg, reg)
+                tr.set_calibration(cal)
+                res[name]["e"].append(_score(tr, frames, kps)["errs"])
+                res[name]["b"].append(_bone_err_pct(tr.model, true))
+                res[name]["d"].append(truth_drift_mm(true, cfg, reg, frames, poses, kps,
+                                                     every=4))
+    rows, out = [], {}
+    for name, (key, _) in variants.items():
+        sm = _summary(np.concatenate(res[name]["e"]))
+        b = res[name]["b"]
+        d = float(np.concatenate(res[name]["d"]).mean())
+        rows.append([name, sm["mean"], sm["median"], sm["s20"], float(np.mean(b)),
+                     float(np.max(b)), d])
+        out.update({f"val_surface{key}_mean_mm": sm["mean"],
+                    f"val_surface{key}_success_20mm": sm["s20"],
+                    f"val_surface{key}_bone_err_pct": float(np.mean(b)),
+                    f"val_surface{key}_truth_drift_mm": d})
+    print_table(f"surface validation family (the suite's mesh: palm -1..+3 mm, fingers -1..+1.5 "
+                f"mm, wrist stub cut 0-20 mm past the wrist; shapes {seeds}): surface-tolerance "
+                "settings", ["settings", "mean mm", "median mm", "succ@20", "bone err %",
+                             "bone err max %", "drift mm"], rows)
+    return out
 
 
 def _score_first(tracker, frames, truth, labels) -> dict:
@@ -611,6 +792,7 @@ def run_sections(reg, config, quick: bool) -> dict:
     """Every section above, in order; their figures merged."""
     out = {}
     out.update(heldout_section(reg, config, quick))
+    out.update(surface_validation_section(reg, config, quick))
     out.update(forearm_validation_section(reg, config, quick))
     out.update(calibration_section(quick))
     out.update(split_section(reg, config, quick))

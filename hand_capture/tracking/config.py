@@ -80,6 +80,14 @@ class TrackerConfig:
     reverse_weight: float = param(0.5, "weight of the model-to-data pairs (off-silhouette "
                                   "facing vertices to their nearest point; 0 = eq. II.23 only)",
                                   lo=0.0)
+    wrist_optional: bool = param(True, "the template's wrist stub (surface beyond "
+                                 "wrist_optional_m past the wrist keypoint) is optional: no "
+                                 "model-to-data pairs from it (II.23), nor in calibration's "
+                                 "off-hand test (real data there is forearm, sleeve, cut or "
+                                 "nothing)")
+    wrist_optional_m: float = param(0.0, "where the optional wrist stub begins, beyond the "
+                                    "wrist keypoint along the forearm [m, at template size]",
+                                    lo=-0.02, hi=0.036)
     reverse_margin_px: float = param(2.0, "model-to-data pairs only for vertices projecting "
                                      "farther than this off the hand [px]", lo=0.0)
     damping: float = param(1e-2, "Levenberg damping added to J^T J (stabilises II.27)",
@@ -116,6 +124,10 @@ class TrackerConfig:
     cost_temporal_weight: float = param(0.0, "lambda_2 of the candidate cost (eq. II.20; "
                                         "mm per rad^2 / m^2 of pose change); 0 chosen on the "
                                         "bench's validation split (bench tracking)", lo=0.0)
+    finger_swap: bool = param(True, "after step 4, each finger of the selected pose may "
+                              "take another refined candidate's angles for that finger when "
+                              "that lowers the candidate cost of eq. II.20 (greedy, finger "
+                              "by finger), then one more Gauss-Newton iteration")
     # -- regression (II.4) ---------------------------------------------------------------
     n_modes: int = param(2, "palm modes kept by clustering the leaves (II.4.3)", lo=1, hi=16)
     ik_iterations: int = param(2, "finger IK Gauss-Newton steps per finger cascade stage",

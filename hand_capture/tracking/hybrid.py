@@ -38,7 +38,11 @@ the forearm is cut off the segment (``preprocess.cut_forearm``: at the previous 
 while tracking, else from the cloud's shape; after a cloud-only cut the selected pose's
 wrist cuts again and the pose is refined on those points); the ICP data term is
 Huber-weighted (``robust_mm``); tau of eq. II.19 follows the calibration fit
-(:attr:`HybridTracker.tau_mm`, :meth:`set_calibration`).
+(:attr:`HybridTracker.tau_mm`, :meth:`set_calibration`); the template's wrist stub is
+optional in the model-to-data pairs (``wrist_optional``, ``icp.optional_vertices``); step 5
+selects finger by finger among the refined candidates (``finger_swap``,
+:meth:`HybridTracker._swap_fingers`: on another surface the regression often gets one finger
+wrong in the best candidate and right in another).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -53,7 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from hand_capture.cameras.base import Intrinsics
-from hand_capture.model import N_DOF, HandModel, HandShape
+from hand_capture.model import FINGERS, JOINT_NAMES, N_DOF, HandModel, HandShape
 from hand_capture.model.joints import root_rotation_matrix
 from hand_capture.tracking.armseg import ArmClassifier, load_arm_classifier, remove_arm
 from hand_capture.tracking.config import TrackerConfig
@@ -64,6 +68,9 @@ from hand_capture.tracking.regressor import DepthLookup, HandRegressor, ModelFra
 __all__ = ["HybridTracker", "TrackResult", "default_model_path", "STAGES"]
 
 STAGES = ("preprocess", "regression", "icp", "selection")
+#: DoF indices of each finger (thumb .. little) in JOINT_NAMES order
+_FINGER_DOFS = tuple(np.array([i for i, n in enumerate(JOINT_NAMES) if n.startswith(f + "_")])
+                     for f in FINGERS)
 
 
 def default_model_path() -> Path:
@@ -217,8 +224,9 @@ class HybridTracker:
         """Track one depth frame (uint16 mm or float m).
 
         With ``arm_fallback``: a frame that fails eq. (II.19) after the arm classifier
-        dropped pixels is tracked again from the same state on the forearm cut alone, and
-        the result of lower E_d is kept (both steps' time counted). The classifier's segment
+        dropped pixels, or any such frame without a tracked wrist (the first frame, after a
+        loss), is tracked again from the same state on the forearm cut alone, and the
+        result of lower E_d is kept (both steps' time counted). The classifier's segment
         can lose the hand where its training never looked (clutter touching the hand
         reads half arm, half hand: with the arm gone, the clutter dominates the cloud the
         cut and the PCA start go by); the cut alone is then one more candidate, as the
@@ -235,8 +243,12 @@ class HybridTracker:
         if cfg.flip_retry:
             retries.append((None if dropped else self.arm, True))
         best = r
+        # without a tracked wrist the classifier's segment is also checked against the cut
+        # alone on a frame that passes eq. II.19: a hand fitted to the arm alone can pass it
+        # (E_d 22-26 mm against tau 25 on the suite's generator)
+        untracked = not (before["delta"] and before["prev"] is not None)
         for arm, flip in retries:
-            if best.success:
+            if best.success and (flip or not untracked):
                 break
             if flip and not cloud:
                 continue
@@ -358,6 +370,11 @@ class HybridTracker:
             costs = self._costs(refined, obs, obs_ds)
             timing["selection"] += time.perf_counter() - t
         best = int(np.argmin([c[0] for c in costs]))
+        if cfg.finger_swap and refine and len(pool) > 1:
+            t = time.perf_counter()
+            q, c = self._swap_fingers([p[0] for p in pool], costs, best, obs, obs_ds, pts)
+            pool[best], costs[best] = (q, q), c
+            timing["selection"] += time.perf_counter() - t
         q = pool[best][0]
         e_d = costs[best][1]
         if whole is not None and refine:
@@ -391,6 +408,38 @@ class HybridTracker:
         conf = float(np.clip(1.0 - e_d / cfg.depth_cap_mm, 0.0, 1.0))
         return TrackResult(q.copy(), success, status, e_d, conf, self.last_good, len(costs),
                            timing, obs, regress, cut, self.tau_mm), dropped, cloud
+
+    def _swap_fingers(self, qs: list[np.ndarray], costs: list[tuple[float, float]],
+                      best: int, obs: HandObservation, obs_ds: np.ndarray,
+                      pts: tuple[np.ndarray, np.ndarray]
+                      ) -> tuple[np.ndarray, tuple[float, float]]:
+        """Finger-wise selection (``finger_swap``, an extension of step 5): starting from
+        the candidate ``best``, each finger in turn takes the angles another refined
+        candidate has for it when the cost (E_c of eq. II.20) goes down; a changed pose is
+        refined by one Gauss-Newton iteration and kept if its cost stays lower. Returns
+        the pose and its ``(E_c, E_d)``."""
+        q, c = qs[best].copy(), costs[best]
+        changed = False
+        for dofs in _FINGER_DOFS:
+            trials = []
+            for j, qj in enumerate(qs):
+                if j != best and not np.allclose(qj[dofs], q[dofs]):
+                    t = q.copy()
+                    t[dofs] = qj[dofs]
+                    trials.append(t)
+            if not trials:
+                continue
+            tc = self._costs(trials, obs, obs_ds)
+            k = int(np.argmin([x[0] for x in tc]))
+            if tc[k][0] < c[0]:
+                q, c, changed = trials[k], tc[k], True
+        if changed:
+            ref = self.prev if (self.delta and self.prev is not None) else q
+            q2 = self.icp.refine_batch([q], obs, 1, q_refs=[ref], points=pts)[0]
+            c2 = self._costs([q2], obs, obs_ds)[0]
+            if c2[0] < c[0]:
+                q, c = q2, c2
+        return q, c
 
     def _palm_modes(self, obs: HandObservation, intr: Intrinsics
                     ) -> tuple[DepthLookup, list[np.ndarray]]:

@@ -20,6 +20,11 @@ correspondences at every Gauss-Newton iteration. Points the model cannot explain
 stub, a sleeve, a surface thicker than the model's) then pull with a bounded force instead
 of a force growing with their distance.
 
+Optional wrist stub (``wrist_optional``, :func:`optional_vertices`): the model-to-data pairs
+(the addition to eq. II.23 below) leave out the template's surface beyond the wrist keypoint,
+where real data is forearm, sleeve, cut or nothing; a hand surface ending at the wrist
+otherwise pulls the whole model towards the fingers (and calibration shrinks it).
+
 Units: the data residuals are in millimetres (so l1 = 1, l2 = 0.2 and l3 = 1000 of the
 dissertation weigh a millimetre against a radian); root translations in E_smooth are in
 millimetres too. A small Levenberg damping keeps the normal equations regular when a finger
@@ -40,7 +45,8 @@ from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.preprocess import HandObservation
 
-__all__ = ["Correspondences", "ModelTracker", "depth_error", "huber_sqrt_weights", "render_depth"]
+__all__ = ["Correspondences", "ModelTracker", "depth_error", "huber_sqrt_weights",
+           "optional_vertices", "render_depth"]
 
 _MM = 1000.0
 #: per-DoF unit scale of E_smooth: root translation in mm, angles in rad
@@ -178,6 +184,22 @@ def _project(V: np.ndarray, intr: Intrinsics) -> np.ndarray:
     return uv
 
 
+def optional_vertices(model: HandModel, cfg: TrackerConfig) -> np.ndarray:
+    """(V,) bool: the vertices of ``model``'s wrist stub, farther than ``wrist_optional_m``
+    (times the global scale) beyond the wrist keypoint along the forearm (middle MCP to
+    wrist) in the rest pose; all False without ``wrist_optional``. The template mesh
+    reaches 36 mm past the wrist keypoint there; a real hand's surface goes on into the
+    forearm (cut, sleeved, or out of view), a hand surface without a forearm ends sooner,
+    so these vertices get no model-to-data pairs (an addition to eq. II.23 left out)."""
+    if not cfg.wrist_optional:
+        return np.zeros(model.n_vertices, bool)
+    kp = model.joint_positions(np.zeros(N_DOF))
+    d = kp[0] - kp[9]
+    d /= np.linalg.norm(d)
+    beyond = (model.rest_vertices - kp[0]) @ d
+    return beyond > cfg.wrist_optional_m * float(model.shape.global_scale)
+
+
 class _DofTerms:
     """Per-DoF-set constants of the smoothness (II.24) and joint-limit (II.25) terms."""
 
@@ -210,7 +232,9 @@ class ModelTracker:
         self.model = model
         self.rest_normals = model.normals(model.rest_vertices)
         self.labels = model.vertex_labels
+        self.optional = optional_vertices(model, self.cfg)
         self.cand = np.arange(0, model.n_vertices, self.cfg.model_stride)
+        self._cand_opt = self.optional[self.cand]
         # fast path of step(): the candidate vertices and their normals from one sparse
         # product [X_c | N_c] @ [[T, 0], [0, R]] (normals: rest normal turned by the main bone)
         c = self.cand
@@ -288,6 +312,7 @@ class ModelTracker:
         pulls back model parts that stick out where the camera sees nothing (e.g. a finger
         extended in front of a fist)."""
         f = facing[::stride]
+        f = f[~self.optional[f]]   # not from the optional wrist stub
         if len(f) == 0 or len(points) == 0:
             return _empty_corr()
         Vf = V[f]
@@ -428,10 +453,11 @@ class ModelTracker:
                 keep, sel = self._window_match(points, pixels, Vf, uv)
                 rows_d = facing[sel[keep]]
                 pts_d = points[keep]
-                if wr > 0:
-                    kr, ir = self._reverse_match(points, Vf[::3], uv[::3], obs, tree)
+                if wr > 0:   # model-to-data pairs, not from the optional wrist stub
+                    fr = np.flatnonzero(~self._cand_opt[facing[::3]]) * 3
+                    kr, ir = self._reverse_match(points, Vf[fr], uv[fr], obs, tree)
                     if kr is not None:
-                        rows_r = facing[::3][kr]
+                        rows_r = facing[fr][kr]
                         pts_r = points[ir]
             if with_pairs:
                 d = (np.zeros(0, np.int64), np.zeros((0, 3))) if rows_d is None else \
