@@ -109,7 +109,7 @@ def classifiers(seed: int) -> dict[str, object]:
 VALIDATION = tuple(GenConfig(sequences=500, frames=8, seed=s, shape_seed=h, yaw_deg=45.0,
                              roll_sd_deg=10.0, pitch_deg=(-12.0, 10.0), curl=(0.0, 0.9),
                              curl_sd=0.12) for s, h in ((52, 17), (53, 18), (54, 19)))
-NN_SCALES = (0.25, 0.5, 1.0, 2.0, 4.0, 1e3)
+NN_SCALES = (0.25, 0.5, 1.0, 2.0, 4.0, 100.0)
 
 
 def validation(frames: int = 2000) -> dict[str, list[float]]:
