@@ -70,7 +70,7 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
     "touch": (("quadratic_wrist_cm", "quadratic_angle_deg", "pcaik_wrist_cm", "label_acc_5",
                "eval_us", "eval_speedup_vs_pcaik", "heldout_quadratic_wrist_cm",
                "heldout_quadratic_angle_deg", "heldout_label_acc_2", "heldout_label_acc_3",
-               "heldout_label_acc_4", "heldout_label_acc_5"),
+               "heldout_label_acc_4", "heldout_label_acc_5", "heldout_layout_nn025_label_acc"),
               (pytest.mark.slow,)),  # new data sets
     "tracking": (("fps", "mean_joint_err_mm", "success_20mm", "icp_only_mean_joint_err_mm",
                   "fps_ratio_vs_icp_only", "heldout_mean_mm", "heldout_success_20mm",

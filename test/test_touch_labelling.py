@@ -268,3 +268,28 @@ def test_pcaik_reaches_the_contacts(hand, data, model):
     target = surface_to_table_xy(data.pads[rows])
     err = np.linalg.norm(pads[..., :2] - target, axis=-1)[c]
     assert np.median(err) < 0.002 and np.median(np.abs(pads[..., 2][c])) < 0.002
+
+
+def test_shipped_labeller_names_the_most_frequent_layouts_anywhere_on_the_surface():
+    """Known answers: for each contact count, the contacts at the mean layout of the finger set
+    training saw most often (the layout prior's mean), shuffled and placed at three spots, get
+    every finger right with the shipped settings."""
+    from hand_capture.touch.touch_model import TouchModel
+
+    shipped = TouchModel.load()
+    prior = shipped.layout
+    lab = FingerLabeller(shipped.encoder("quadratic"), shipped.reference_poses,
+                         layout=prior)
+    keys = np.arange(32)
+    count = np.array([bin(k).count("1") for k in keys])
+    rng = np.random.default_rng(4)
+    for n in range(2, 6):
+        sets = keys[(count == n) & np.isfinite(prior.const)]
+        log_freq = prior.const[sets] - 0.5 * np.log(  # less the normaliser (same 2 pi terms)
+            np.where(prior.inv_var[sets] > 0, prior.inv_var[sets], 1.0)).sum(axis=1)
+        key = int(sets[np.argmax(log_freq)])
+        fingers = np.flatnonzero(key >> np.arange(5) & 1)
+        for spot in ((0.05, 0.05), (0.10, 0.07), (0.15, 0.10)):
+            perm = rng.permutation(n)
+            pads = prior.mean[key, :2 * n].reshape(n, 2)[perm] + spot
+            assert np.array_equal(lab.search(pads).labels, fingers[perm]), (n, spot)

@@ -22,8 +22,9 @@ an iPad-sized surface, panel offset, jitter and quantisation); 1,200 frames (480
   shuffled and labelled from scratch (all labellings searched, nearest training neighbour);
   a frame counts as correct when every contact gets its finger. The row "Quadratic + layout"
   is the shipped labeller (nearest neighbour plus the layout prior,
-  :class:`~hand_capture.touch.labelling.LayoutPrior`); ``label_acc_N`` are its figures, and
-  ``quadratic_nearest_label_acc`` the paper's criterion alone.
+  :class:`~hand_capture.touch.labelling.LayoutPrior`); ``label_acc_N`` are its figures,
+  ``quadratic_nearest_label_acc`` the paper's criterion alone and ``layout_nn025_label_acc``
+  the shipped labeller with the nearest-neighbour weight it had before (0.25 rad).
 * Held-out tables H1 / H2: Table 1 and Table 2 on the held-out family (``heldout_*`` keys).
 * Timing, on one BLAS thread: quadratic evaluation per pose (batched) and one complete
   5-contact labelling (median and fastest of 3 passes over the test frames), against the
@@ -151,6 +152,7 @@ def _methods_table(title: str, model: Any, pk: PcaIk, test: TouchDataset, n_ik: 
 
 def _label(name: str) -> str:
     return {"pcaik": "PCA IK", "layout": "Quadratic + layout",
+            "layout_nn025": "Quadratic + layout, nn_scale 0.25 (before)",
             "leftmost": "Quadratic, paper's frame"}.get(name, name.capitalize())
 
 
@@ -248,6 +250,10 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     labellers["pcaik"] = FingerLabeller(model.encoders["linear"], u_train, mode="input")
     labellers["layout"] = FingerLabeller(model.encoders["quadratic"], reference,
                                          layout=model.layout)
+    # the nearest-neighbour weight shipped before (0.25 rad; issue #13): same-run comparison
+    labellers["layout_nn025"] = FingerLabeller(model.encoders["quadratic"], reference,
+                                               LabellerConfig(nn_scale=0.25),
+                                               layout=model.layout)
     n_quick = 40 if smoke else 400
     for section, data, n_lab, seed in (("", test, n_quick if quick else len(test), 4),
                                        ("heldout_", heldout_in,
@@ -258,7 +264,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         for n in range(2, 6):
             figures[f"{section}label_acc_{n}"] = accs["layout"][n]
         figures[f"{section}label_frames"] = {str(n): c for n, c in counts.items()}
-        for name in ("linear", "cubic", "pcaik"):
+        for name in ("linear", "cubic", "pcaik", "layout_nn025"):
             figures[f"{section}{name}_label_acc"] = {str(n): accs[name][n] for n in range(2, 6)}
         figures[f"{section}quadratic_nearest_label_acc"] = {
             str(n): accs["quadratic"][n] for n in range(2, 6)}
