@@ -102,7 +102,8 @@ def test_a_deferred_regression_runs_after_the_frame_and_feeds_the_next_one(cam, 
     out first) but in run_deferred() on the same frame; a candidate better than the tracked
     pose joins the next frame's pool. After a loss it runs at once."""
     spy = _Counting(regressor)
-    cfg = TrackerConfig(regress_every=3, refine_top=1, defer_regression=True)
+    cfg = TrackerConfig(regress_every=3, refine_top=1, defer_regression=True,
+                        finger_postures=False)  # as in config/teleop.yaml
     tr = HybridTracker(cam.model, cfg, spy)
     flags, deferred = [], []
     for i in range(7):

@@ -427,10 +427,11 @@ def truth_drift_mm(model: HandModel, config, reg, frames: list, poses, keypoints
 
 def surface_variants(config) -> dict[str, tuple[str, object]]:
     """The surface-tolerance settings compared in the same run: ``name -> (key suffix,
-    config)``: the product, without the optional wrist stub, without the finger-wise
-    selection, and before (neither)."""
+    config)``: the product, without the straight / curled finger postures, without the
+    optional wrist stub, without the finger-wise selection, and before (neither)."""
     rep = dataclasses.replace
     return {"product": ("", config),
+            "no finger postures": ("_no_finger_postures", rep(config, finger_postures=False)),
             "stub not optional": ("_stub_not_optional", rep(config, wrist_optional=False)),
             "no finger swap": ("_no_finger_swap", rep(config, finger_swap=False)),
             "before (neither)": ("_before", rep(config, wrist_optional=False,

@@ -128,6 +128,10 @@ class TrackerConfig:
                               "take another refined candidate's angles for that finger when "
                               "that lowers the candidate cost of eq. II.20 (greedy, finger "
                               "by finger), then one more Gauss-Newton iteration")
+    finger_postures: bool = param(True, "the finger-wise selection (finger_swap) also "
+                                  "tries each finger straight and curled (flexion angles at "
+                                  "fixed postures, abduction kept), so a finger none of the "
+                                  "candidates has right can still be found")
     # -- regression (II.4) ---------------------------------------------------------------
     n_modes: int = param(2, "palm modes kept by clustering the leaves (II.4.3)", lo=1, hi=16)
     ik_iterations: int = param(2, "finger IK Gauss-Newton steps per finger cascade stage",

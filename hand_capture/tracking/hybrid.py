@@ -42,7 +42,8 @@ Huber-weighted (``robust_mm``); tau of eq. II.19 follows the calibration fit
 optional in the model-to-data pairs (``wrist_optional``, ``icp.optional_vertices``); step 5
 selects finger by finger among the refined candidates (``finger_swap``,
 :meth:`HybridTracker._swap_fingers`: on another surface the regression often gets one finger
-wrong in the best candidate and right in another).
+wrong in the best candidate and right in another), each finger also tried straight and
+curled (``finger_postures``: a finger that no candidate has right).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -57,7 +58,14 @@ from pathlib import Path
 import numpy as np
 
 from hand_capture.cameras.base import Intrinsics
-from hand_capture.model import FINGERS, JOINT_NAMES, N_DOF, HandModel, HandShape
+from hand_capture.model import (
+    FINGERS,
+    JOINT_LIMITS,
+    JOINT_NAMES,
+    N_DOF,
+    HandModel,
+    HandShape,
+)
 from hand_capture.model.joints import root_rotation_matrix
 from hand_capture.tracking.armseg import ArmClassifier, load_arm_classifier, remove_arm
 from hand_capture.tracking.config import TrackerConfig
@@ -71,6 +79,28 @@ STAGES = ("preprocess", "regression", "icp", "selection")
 #: DoF indices of each finger (thumb .. little) in JOINT_NAMES order
 _FINGER_DOFS = tuple(np.array([i for i, n in enumerate(JOINT_NAMES) if n.startswith(f + "_")])
                      for f in FINGERS)
+
+
+#: flexion angles of the straight and the curled posture of ``finger_postures`` [rad], by
+#: the short joint name (abduction joints keep the selected pose's angle)
+_POSTURES: tuple[dict[str, float], ...] = (
+    {"mcp_flex": 0.0, "pip_flex": 0.0, "dip_flex": 0.0, "tm_flex": 0.0, "ip_flex": 0.0},
+    {"mcp_flex": 1.2, "pip_flex": 1.4, "dip_flex": 0.9, "tm_flex": 0.6, "ip_flex": 0.9},
+)
+
+
+def _finger_postures(q: np.ndarray, dofs: np.ndarray) -> list[np.ndarray]:
+    """The straight and curled alternatives of one finger (``dofs`` of the pose ``q``):
+    its flexion joints set to :data:`_POSTURES`, clipped to the joint limits."""
+    out = []
+    for posture in _POSTURES:
+        a = q[dofs].copy()
+        for k, i in enumerate(dofs):
+            short = JOINT_NAMES[i].split("_", 1)[1]
+            if short in posture:
+                a[k] = posture[short]
+        out.append(np.clip(a, JOINT_LIMITS[dofs, 0], JOINT_LIMITS[dofs, 1]))
+    return out
 
 
 def default_model_path() -> Path:
@@ -370,7 +400,7 @@ class HybridTracker:
             costs = self._costs(refined, obs, obs_ds)
             timing["selection"] += time.perf_counter() - t
         best = int(np.argmin([c[0] for c in costs]))
-        if cfg.finger_swap and refine and len(pool) > 1:
+        if cfg.finger_swap and refine and (len(pool) > 1 or cfg.finger_postures):
             t = time.perf_counter()
             q, c = self._swap_fingers([p[0] for p in pool], costs, best, obs, obs_ds, pts)
             pool[best], costs[best] = (q, q), c
@@ -415,17 +445,21 @@ class HybridTracker:
                       ) -> tuple[np.ndarray, tuple[float, float]]:
         """Finger-wise selection (``finger_swap``, an extension of step 5): starting from
         the candidate ``best``, each finger in turn takes the angles another refined
-        candidate has for it when the cost (E_c of eq. II.20) goes down; a changed pose is
+        candidate has for it (or, with ``finger_postures``, a straight or curled posture)
+        when the cost (E_c of eq. II.20) goes down; a changed pose is
         refined by one Gauss-Newton iteration and kept if its cost stays lower. Returns
         the pose and its ``(E_c, E_d)``."""
         q, c = qs[best].copy(), costs[best]
         changed = False
         for dofs in _FINGER_DOFS:
             trials = []
-            for j, qj in enumerate(qs):
-                if j != best and not np.allclose(qj[dofs], q[dofs]):
+            donors = [qj[dofs] for j, qj in enumerate(qs) if j != best]
+            if self.cfg.finger_postures:
+                donors += _finger_postures(q, dofs)
+            for d in donors:
+                if not np.allclose(d, q[dofs]):
                     t = q.copy()
-                    t[dofs] = qj[dofs]
+                    t[dofs] = d
                     trials.append(t)
             if not trials:
                 continue
