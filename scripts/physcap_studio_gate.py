@@ -8,6 +8,7 @@ frames. Run it once with PYTHONPATH on the old code and once on the new (differe
 folders) and compare.
 
     PYTHONPATH=TREE python scripts/physcap_studio_gate.py CACHE_DIR [--only lift_box]
+        [--lo KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -29,7 +30,27 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("cache_dir")
     ap.add_argument("--only", default="")
+    ap.add_argument("--lo", nargs="*", default=[], help="LOConfig overrides KEY=VALUE")
+    ap.add_argument("--tracker", nargs="*", default=[],
+                    help="MultiviewTrackerConfig overrides KEY=VALUE")
     a = ap.parse_args(argv)
+    from dataclasses import replace
+
+    import hand_capture.multiview.tracker as tracker
+    from hand_capture.multiview.lo import LOConfig
+
+    def kv(items: list[str]) -> dict:
+        out = {}
+        for item in items:
+            k, v = item.split("=")
+            out[k] = v == "True" if v in ("True", "False") else \
+                float(v) if "." in v else int(v)
+        return out
+
+    lo, over = kv(a.lo), kv(a.tracker)
+    if over:   # studio_capture builds the tracker with the default config
+        default = tracker.MultiviewTrackerConfig
+        tracker.MultiviewTrackerConfig = lambda: replace(default(), **over)
     # the bench's seeds: STUDIO_SEED0 + the index in _studio_truths (all 9 feasible)
     cases = {"lift_box": (load_scenario("lift_box"), STUDIO_SEED0 + 0),
              "lift_ball_1000g": (heavy_spec("lift_ball", 1.0), STUDIO_SEED0 + 8)}
@@ -39,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
         if a.only and name != a.only:
             continue
         truth = scenario_capture(spec)
-        sc = studio_capture(truth, seed=seed, images=False, cache_dir=a.cache_dir)
+        sc = studio_capture(truth, seed=seed, images=False, cache_dir=a.cache_dir,
+                            lo_config=LOConfig(**lo))
         tr = sc.synthetic.capture
         obj = np.linalg.norm(tr.object_pose[1:, :3] - truth.object_pose[1:, :3], axis=1) * 1e3
         jt = np.array([np.mean(np.linalg.norm(hand.forward(q).joint_positions -

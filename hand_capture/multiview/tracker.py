@@ -15,8 +15,9 @@ first-frame initialiser's proposal when one is given; the best-supported candida
 by a short local optimisation and the part is TRACKED again when the support passes
 ``recover_support``.
 
-Start of a frame: the previous estimate (seed 002), plus, for the objects, their last
-frame-to-frame motion (``predict_objects``: a thrown ball moves 4-6 cm a frame at 30 fps).
+Start of a frame: the previous estimate (seed 002), plus, for the objects no hand holds
+(none within ``held_m``), their last frame-to-frame motion (``predict_objects``: a thrown
+ball moves 4-6 cm a frame at 30 fps).
 
 Confidence of a tracked part: its support times the share of the rig's cameras present in
 the group (a camera missing from a group lowers it; tracking continues on the others).
@@ -73,6 +74,8 @@ class MultiviewTrackerConfig:
     predict_objects: float = param(1.0, "the same for the objects' 6 parameters (a thrown "
                                    "or passed object keeps its velocity; hands change "
                                    "theirs)", lo=0.0, hi=1.0)
+    held_m: float = param(0.01, "an object with a vertex this near a hand's is held: not "
+                          "predicted [m]", lo=0.0, hi=0.2)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -279,14 +282,31 @@ class MultiviewTracker:
 
     def _predict_gain(self, active: list[int]) -> np.ndarray:
         """(n_params,) share of the last frame-to-frame motion added to each parameter's
-        start: ``predict`` for the hands, ``predict_objects`` for the objects, 0 for the
-        parts not ``active`` (lost: held at their last good pose)."""
+        start: ``predict`` for the hands, ``predict_objects`` for the free objects (none
+        of their vertices within ``held_m`` of a hand's at the current estimate: a held
+        object moves with the hand, which is not predicted, and starting it ahead would
+        push it into the fingers), 0 for the parts not ``active`` (lost: held at their
+        last good pose)."""
         m = self.model
         g = np.zeros(m.n_params)
+        state = m.pose(self.params) if self.cfg.predict_objects > 0 else None
         for p in active:
-            g[self._slice(p)] = self.cfg.predict if p < m.n_hands else \
-                self.cfg.predict_objects
+            if p < m.n_hands:
+                g[self._slice(p)] = self.cfg.predict
+            elif state is not None and not self._held(state, p):
+                g[self._slice(p)] = self.cfg.predict_objects
         return g
+
+    def _held(self, state: SceneState, part: int) -> bool:
+        """Whether object ``part`` is within ``held_m`` of a hand at ``state``."""
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(state.vertices[part])
+        for h in range(self.model.n_hands):
+            d, _ = tree.query(state.vertices[h], distance_upper_bound=self.cfg.held_m)
+            if np.isfinite(d).any():
+                return True
+        return False
 
     def _hands_in_place(self, frame: object, active: list[int]) -> bool:
         """Every tracked hand's outline at the current estimate is supported by the images
