@@ -184,6 +184,35 @@ def test_objects_start_from_their_constant_velocity_prediction(scene):
     assert starts[2][54] - r1[54] > 0.05 and starts[2][0] == r1[0]
 
 
+def test_a_held_object_is_not_predicted(scene):
+    """An object within ``held_m`` of a hand moves with the hand (not predicted): starting
+    it ahead of the fingers holding it would push it into them."""
+    from hand_capture.multiview.lo import LOResult
+
+    rig = load_rig("studio6")
+    tr = MultiviewTracker(scene, rig, LOConfig(iterations=1))
+    p0 = _params(scene)
+    st = scene.pose(p0)
+    r = float(np.linalg.norm(st.vertices[2] - st.object_poses[0][:3, 3], axis=1).max())
+    v = st.vertices[0][np.argmax(st.vertices[0][:, 0])]    # the hand's far end
+    p0[54:57] = v + np.array([r + 0.003, 0.0, 0.0])          # the ball touching it
+    step = np.zeros(scene.n_params)
+    step[54] = 0.001
+    starts = []
+
+    def solve(params0, frame, parts=None, iterations=None):
+        starts.append(np.array(params0))
+        n = len(scene.part_names)
+        return LOResult(params0 + step, 0.0, np.ones(n), np.full(n, 100.0))
+
+    tr.lo.solve = solve
+    tr.lo.prepare = lambda *a, **k: FrameData({}, {}, _empty_flow())
+    tr.reset(p0)
+    images = {c: np.zeros((480, 640, 3), np.uint8) for c in rig.names}
+    for _ in range(3):
+        tr.step(images)
+    np.testing.assert_allclose(starts[2], starts[1] + step, atol=1e-12)
+
 def _empty_flow():
     from hand_capture.multiview.lo import Correspondences
 
