@@ -92,7 +92,7 @@ class LOConfig:
                                "sees (SceneModel.salient_seen: the hand's surface within "
                                "15 mm in front of the vertex); False: the vertices visible "
                                "themselves")
-    edge_blur_px: float = param(0.6, "Gaussian smoothing of the images before Canny [px] "
+    edge_blur_px: float = param(1.0, "Gaussian smoothing of the images before Canny [px] "
                                 "(0: none)", lo=0.0, hi=5.0)
     seed: int = param(0, "subsampling seed", lo=0)
 
