@@ -151,18 +151,13 @@ def test_levenberg_marquardt_pushes_colliding_meshes_apart(scene):
     assert np.linalg.norm(moved) > 0.005
 
 
-def test_objects_start_from_their_constant_velocity_prediction(scene):
-    """``predict_objects``: a frame starts each object at its last pose plus its last
-    frame-to-frame motion (a thrown ball keeps flying); hands start where they were."""
+def _frame_starts(scene, p0: np.ndarray, step: np.ndarray, config=None) -> list:
+    """The start of each of 3 frames' solves of a tracker whose every solve moves the
+    parameters by ``step`` (no images involved)."""
     from hand_capture.multiview.lo import LOResult
-    from hand_capture.multiview.tracker import MultiviewTrackerConfig
 
     rig = load_rig("studio6")
-    tr = MultiviewTracker(scene, rig, LOConfig(iterations=1),
-                          MultiviewTrackerConfig(predict_objects=1.0))
-    step = np.zeros(scene.n_params)
-    step[0] = 0.004            # the right hand's wrist
-    step[54] = 0.03            # the ball
+    tr = MultiviewTracker(scene, rig, LOConfig(iterations=1), config)
     starts = []
 
     def solve(params0, frame, parts=None, iterations=None):
@@ -172,11 +167,23 @@ def test_objects_start_from_their_constant_velocity_prediction(scene):
 
     tr.lo.solve = solve
     tr.lo.prepare = lambda *a, **k: FrameData({}, {}, _empty_flow())
-    p0 = _params(scene)
     tr.reset(p0)
     images = {c: np.zeros((480, 640, 3), np.uint8) for c in rig.names}
     for _ in range(3):
         tr.step(images)
+    return starts
+
+
+def test_objects_start_from_their_constant_velocity_prediction(scene):
+    """``predict_objects``: a frame starts each object at its last pose plus its last
+    frame-to-frame motion (a thrown ball keeps flying); hands start where they were."""
+    from hand_capture.multiview.tracker import MultiviewTrackerConfig
+
+    step = np.zeros(scene.n_params)
+    step[0] = 0.004            # the right hand's wrist
+    step[54] = 0.03            # the ball
+    starts = _frame_starts(scene, _params(scene), step,
+                           MultiviewTrackerConfig(predict_objects=1.0))
     r0, r1 = starts[0] + step, starts[1] + step      # the first two frames' estimates
     expect = r1.copy()
     expect[54:60] += r1[54:60] - r0[54:60]            # the ball's last motion, not the hand's
@@ -187,10 +194,6 @@ def test_objects_start_from_their_constant_velocity_prediction(scene):
 def test_a_held_object_is_not_predicted(scene):
     """An object within ``held_m`` of a hand moves with the hand (not predicted): starting
     it ahead of the fingers holding it would push it into them."""
-    from hand_capture.multiview.lo import LOResult
-
-    rig = load_rig("studio6")
-    tr = MultiviewTracker(scene, rig, LOConfig(iterations=1))
     p0 = _params(scene)
     st = scene.pose(p0)
     r = float(np.linalg.norm(st.vertices[2] - st.object_poses[0][:3, 3], axis=1).max())
@@ -198,19 +201,7 @@ def test_a_held_object_is_not_predicted(scene):
     p0[54:57] = v + np.array([r + 0.003, 0.0, 0.0])          # the ball touching it
     step = np.zeros(scene.n_params)
     step[54] = 0.001
-    starts = []
-
-    def solve(params0, frame, parts=None, iterations=None):
-        starts.append(np.array(params0))
-        n = len(scene.part_names)
-        return LOResult(params0 + step, 0.0, np.ones(n), np.full(n, 100.0))
-
-    tr.lo.solve = solve
-    tr.lo.prepare = lambda *a, **k: FrameData({}, {}, _empty_flow())
-    tr.reset(p0)
-    images = {c: np.zeros((480, 640, 3), np.uint8) for c in rig.names}
-    for _ in range(3):
-        tr.step(images)
+    starts = _frame_starts(scene, p0, step)
     np.testing.assert_allclose(starts[2], starts[1] + step, atol=1e-12)
 
 def _empty_flow():
