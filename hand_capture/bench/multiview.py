@@ -138,7 +138,9 @@ def _leave(rig: Any, lo_cfg: Any) -> dict[str, float]:
             "recover_frames": float("nan") if rec is None else float(rec)}
 
 
-def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
+def run(quick: bool = False, smoke: bool = False, lo_seed: int = 0) -> dict[str, Any]:
+    """The bench (module docstring); ``lo_seed``: the local optimiser's subsampling seed
+    (``LOConfig.seed``; the run-to-run spread of its random draws)."""
     from hand_capture.multiview.lo import LOConfig
     from hand_capture.multiview.rig import Rig, load_rig
     from hand_capture.multiview.sequences import make_sequence, render_sequence
@@ -148,7 +150,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
         rig = Rig(rig.name, rig.cameras[:3], rig.world_frame)
     n = 2 if smoke else 4 if quick else 10
     seqs = ["box"] if smoke else ["box", "ball"] if quick else ["fingers", "ball", "box"]
-    base = LOConfig(iterations=4 if smoke else 10 if quick else 15)
+    base = LOConfig(iterations=4 if smoke else 10 if quick else 15, seed=lo_seed)
     rows, results = [], {}
     held_frames: dict[str, tuple[Any, Any, list]] = {}
     render_ms = float("nan")

@@ -88,6 +88,12 @@ class LOConfig:
                                    "hand colour model (learned on the first frame) sees "
                                    "hand within this distance on either side of the image "
                                    "edge [px]; 0 = off", lo=0.0, hi=20.0)
+    salient_seen: bool = param(False, "match the salient vertices whose fingertip the "
+                               "camera sees (SceneModel.salient_seen: the hand's surface "
+                               "within 15 mm in front of the vertex); False: the vertices "
+                               "visible themselves (SceneModel.visible)")
+    edge_blur_px: float = param(1.0, "Gaussian smoothing of the images before Canny [px] "
+                                "(0: none)", lo=0.0, hi=5.0)
     seed: int = param(0, "subsampling seed", lo=0)
 
     def __post_init__(self) -> None:
@@ -220,7 +226,7 @@ class LocalOptimizer:
         for c, cam in enumerate(self.rig.cameras):
             img = images.get(cam.name)
             if img is not None:
-                feats[c] = image_features(img)
+                feats[c] = image_features(img, blur_px=self.cfg.edge_blur_px)
         dets = {}
         for c, cam in enumerate(self.rig.cameras):
             d = None if detections is None else detections.get(cam.name)
@@ -317,7 +323,8 @@ class LocalOptimizer:
                     out.append(Correspondences(np.full(n, p), idx[sel], np.full(n, c), tgt,
                                                np.full(n, EDGE), nrm))
                 if cfg.use_salient and p < m.n_hands and c in frame.detections:
-                    vis = np.isin(m.salient[p], idx)
+                    vis = m.salient_seen(cam, state, ren, p) if cfg.salient_seen else \
+                        np.isin(m.salient[p], idx)
                     sv = m.salient[p][vis]
                     if len(sv):
                         sal_uv.append(m.project(cam, state.vertices[p][sv])[0])

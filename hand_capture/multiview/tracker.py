@@ -15,6 +15,10 @@ first-frame initialiser's proposal when one is given; the best-supported candida
 by a short local optimisation and the part is TRACKED again when the support passes
 ``recover_support``.
 
+Start of a frame: the previous estimate (seed 002), plus, for the objects no hand holds
+(none within ``held_m``), their last frame-to-frame motion (``predict_objects``: a thrown
+ball moves 4-6 cm a frame at 30 fps).
+
 Confidence of a tracked part: its support times the share of the rig's cameras present in
 the group (a camera missing from a group lowers it; tracking continues on the others).
 
@@ -67,6 +71,11 @@ class MultiviewTrackerConfig:
     predict: float = param(0.0, "share of the last frame-to-frame motion added to the start "
                            "of the next frame (0: start at the previous estimate, seed 002)",
                            lo=0.0, hi=1.0)
+    predict_objects: float = param(1.0, "the same for the objects' 6 parameters (a thrown "
+                                   "or passed object keeps its velocity; hands change "
+                                   "theirs)", lo=0.0, hi=1.0)
+    held_m: float = param(0.01, "an object with a vertex this near a hand's is held: not "
+                          "predicted [m]", lo=0.0, hi=0.2)
 
     def __post_init__(self) -> None:
         validate(self)
@@ -227,8 +236,9 @@ class MultiviewTracker:
         res = None
         if active:
             start = self.params
-            if self._velocity is not None and self.cfg.predict > 0:
-                start = self.model.clip(self.params + self.cfg.predict * self._velocity)
+            gain = self._predict_gain(active)
+            if self._velocity is not None and np.any(gain > 0):
+                start = self.model.clip(self.params + gain * self._velocity)
             res = self.lo.solve(start, frame, active)
             self._velocity = res.params - self.params
             self.params = res.params
@@ -253,6 +263,10 @@ class MultiviewTracker:
             if self._recover(p, images, frame):
                 recovered.add(p)
                 support[p] = self._recovered_support
+        if self._velocity is not None:    # no motion carried by a lost or re-found part
+            for p in range(len(m.part_names)):
+                if self.status[p] == LOST or p in recovered:
+                    self._velocity[self._slice(p)] = 0.0
         share = len(present) / len(self.rig.cameras)
         parts = []
         for p, name in enumerate(m.part_names):
@@ -265,6 +279,34 @@ class MultiviewTracker:
         self.frames += 1
         return TrackResult(self.params.copy(), parts, len(present), time.perf_counter() - t0,
                            res, state)
+
+    def _predict_gain(self, active: list[int]) -> np.ndarray:
+        """(n_params,) share of the last frame-to-frame motion added to each parameter's
+        start: ``predict`` for the hands, ``predict_objects`` for the free objects (none
+        of their vertices within ``held_m`` of a hand's at the current estimate: a held
+        object moves with the hand, which is not predicted, and starting it ahead would
+        push it into the fingers), 0 for the parts not ``active`` (lost: held at their
+        last good pose)."""
+        m = self.model
+        g = np.zeros(m.n_params)
+        state = m.pose(self.params) if self.cfg.predict_objects > 0 else None
+        for p in active:
+            if p < m.n_hands:
+                g[self._slice(p)] = self.cfg.predict
+            elif state is not None and not self._held(state, p):
+                g[self._slice(p)] = self.cfg.predict_objects
+        return g
+
+    def _held(self, state: SceneState, part: int) -> bool:
+        """Whether object ``part`` is within ``held_m`` of a hand at ``state``."""
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(state.vertices[part])
+        for h in range(self.model.n_hands):
+            d, _ = tree.query(state.vertices[h], distance_upper_bound=self.cfg.held_m)
+            if np.isfinite(d).any():
+                return True
+        return False
 
     def _hands_in_place(self, frame: object, active: list[int]) -> bool:
         """Every tracked hand's outline at the current estimate is supported by the images

@@ -1,0 +1,79 @@
+"""Downstream gate of the multi-view tracker's defaults: the physics capture's studio lifts.
+
+Tracks the ``lift_box`` (its own mass, render seed 40) and the 1 kg ``lift_ball`` (seed 48)
+truths of ``hand-suite bench physcap`` with ``hand_control.physcap.studio.studio_capture``
+(the multi-view tracker at its default settings) and prints the tracked object's position
+error and the hand's joint (21 keypoints) error against the truth [mm], mean and max over
+frames. Run it once with PYTHONPATH on the old code and once on the new (different cache
+folders) and compare.
+
+    PYTHONPATH=TREE python scripts/physcap_studio_gate.py CACHE_DIR [--only lift_box]
+        [--lo KEY=VALUE ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+
+def main(argv: list[str] | None = None) -> int:
+    from hand_capture.model.hand import HandModel
+    from hand_control.bench.physcap import STUDIO_SEED0, heavy_spec
+    from hand_control.physcap.studio import studio_capture
+    from hand_control.physcap.synth import scenario_capture
+    from hand_control.sim.scenario import load_scenario
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("cache_dir")
+    ap.add_argument("--only", default="")
+    ap.add_argument("--lo", nargs="*", default=[], help="LOConfig overrides KEY=VALUE")
+    ap.add_argument("--tracker", nargs="*", default=[],
+                    help="MultiviewTrackerConfig overrides KEY=VALUE")
+    a = ap.parse_args(argv)
+    from dataclasses import replace
+
+    import hand_capture.multiview.tracker as tracker
+    from hand_capture.multiview.lo import LOConfig
+
+    def kv(items: list[str]) -> dict:
+        out = {}
+        for item in items:
+            k, v = item.split("=")
+            out[k] = v == "True" if v in ("True", "False") else \
+                float(v) if "." in v else int(v)
+        return out
+
+    lo, over = kv(a.lo), kv(a.tracker)
+    if over:   # studio_capture builds the tracker with the default config
+        default = tracker.MultiviewTrackerConfig
+        tracker.MultiviewTrackerConfig = lambda: replace(default(), **over)
+    # the bench's seeds: STUDIO_SEED0 + the index in _studio_truths (all 9 feasible)
+    cases = {"lift_box": (load_scenario("lift_box"), STUDIO_SEED0 + 0),
+             "lift_ball_1000g": (heavy_spec("lift_ball", 1.0), STUDIO_SEED0 + 8)}
+    hand = HandModel()
+    out = {}
+    for name, (spec, seed) in cases.items():
+        if a.only and name != a.only:
+            continue
+        truth = scenario_capture(spec)
+        sc = studio_capture(truth, seed=seed, images=False, cache_dir=a.cache_dir,
+                            lo_config=LOConfig(**lo))
+        tr = sc.synthetic.capture
+        obj = np.linalg.norm(tr.object_pose[1:, :3] - truth.object_pose[1:, :3], axis=1) * 1e3
+        jt = np.array([np.mean(np.linalg.norm(hand.forward(q).joint_positions -
+                                              hand.forward(g).joint_positions, axis=1))
+                       for q, g in zip(tr.hand_q[1:], truth.hand_q[1:], strict=True)]) * 1e3
+        out[name] = {"frames": len(truth.times), "object_mm": float(obj.mean()),
+                     "object_max_mm": float(obj.max()), "joint_mm": float(jt.mean()),
+                     "joint_max_mm": float(jt.max()), "s_per_frame": sc.track_s_per_frame}
+        print(name, json.dumps(out[name]), flush=True)
+    print(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
