@@ -1,14 +1,17 @@
 """Downstream gate of the multi-view tracker's defaults: the physics capture's studio lifts.
 
-Tracks the ``lift_box`` (its own mass, render seed 40) and the 1 kg ``lift_ball`` (seed 48)
-truths of ``hand-suite bench physcap`` with ``hand_control.physcap.studio.studio_capture``
-(the multi-view tracker at its default settings) and prints the tracked object's position
+Tracks studio-family truths of ``hand-suite bench physcap`` (default the ``lift_box`` at its
+own mass, render seed 40, and the 1 kg ``lift_ball``, seed 48; ``--only`` a comma list of
+any of the 9: each light lift at its own mass and at 500 g / 1 kg, the bench's seeds) with
+``hand_control.physcap.studio.studio_capture`` (the multi-view tracker at its default
+settings, ``--lo`` / ``--tracker`` overriding them) and prints the tracked object's position
 error and the hand's joint (21 keypoints) error against the truth [mm], mean and max over
-frames. Run it once with PYTHONPATH on the old code and once on the new (different cache
-folders) and compare.
+frames. Run it once with PYTHONPATH on the old code and once on the new, in different cache
+folders (the cache's key holds the settings, not the code), and compare; the LO's ``seed``
+(``--lo seed=1``) gives the run-to-run spread.
 
-    PYTHONPATH=TREE python scripts/physcap_studio_gate.py CACHE_DIR [--only lift_box]
-        [--lo KEY=VALUE ...]
+    PYTHONPATH=TREE python scripts/physcap_studio_gate.py CACHE_DIR
+        [--only lift_box,lift_cylinder_1000g] [--lo KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import numpy as np
 
 def main(argv: list[str] | None = None) -> int:
     from hand_capture.model.hand import HandModel
-    from hand_control.bench.physcap import STUDIO_SEED0, heavy_spec
+    from hand_control.bench.physcap import _LIGHT_SCENARIOS, HEAVY_MASSES, STUDIO_SEED0, heavy_spec
     from hand_control.physcap.studio import studio_capture
     from hand_control.physcap.synth import scenario_capture
     from hand_control.sim.scenario import load_scenario
@@ -52,12 +55,20 @@ def main(argv: list[str] | None = None) -> int:
         default = tracker.MultiviewTrackerConfig
         tracker.MultiviewTrackerConfig = lambda: replace(default(), **over)
     # the bench's seeds: STUDIO_SEED0 + the index in _studio_truths (all 9 feasible)
-    cases = {"lift_box": (load_scenario("lift_box"), STUDIO_SEED0 + 0),
-             "lift_ball_1000g": (heavy_spec("lift_ball", 1.0), STUDIO_SEED0 + 8)}
+    cases = {}
+    for sc in _LIGHT_SCENARIOS:
+        cases[sc] = (load_scenario(sc), STUDIO_SEED0 + len(cases))
+        for m in HEAVY_MASSES:
+            spec = heavy_spec(sc, m)
+            cases[spec.name] = (spec, STUDIO_SEED0 + len(cases))
+    only = [n for n in a.only.split(",") if n] or ["lift_box", "lift_ball_1000g"]
+    unknown = sorted(set(only) - set(cases))
+    if unknown:
+        raise SystemExit(f"unknown --only {unknown}; valid: {sorted(cases)}")
     hand = HandModel()
-    out = {}
+    out: dict = {}
     for name, (spec, seed) in cases.items():
-        if a.only and name != a.only:
+        if name not in only:
             continue
         truth = scenario_capture(spec)
         sc = studio_capture(truth, seed=seed, images=False, cache_dir=a.cache_dir,

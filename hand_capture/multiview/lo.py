@@ -89,8 +89,8 @@ class LOConfig:
                                    "hand within this distance on either side of the image "
                                    "edge [px]; 0 = off", lo=0.0, hi=20.0)
     salient_seen: bool = param(False, "match the salient vertices whose fingertip the "
-                               "camera sees (SceneModel.salient_seen: the hand's surface "
-                               "within 15 mm in front of the vertex); False: the vertices "
+                               "camera sees (SceneModel.salient_seen: the nearest surface "
+                               "within 15 mm of the vertex, or none); False: the vertices "
                                "visible themselves (SceneModel.visible)")
     edge_blur_px: float = param(1.0, "Gaussian smoothing of the images before Canny [px] "
                                 "(0: none)", lo=0.0, hi=5.0)

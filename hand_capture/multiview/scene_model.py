@@ -394,12 +394,14 @@ class SceneModel:
     def salient_seen(self, camera: RigCamera, state: SceneState, render: SceneRender,
                      hand: int, tol_m: float = 0.015, window: int = 0) -> np.ndarray:
         """(5,) bool: the salient vertices of ``hand`` whose fingertip ``camera`` sees: in a
-        (2 ``window`` + 1)^2 neighbourhood of the vertex's rendered pixel, this hand's
-        surface at most ``tol_m`` in front of the vertex (a fingertip's thickness: a
-        fingertip detector fires on the tip whether its nail or its pad faces the camera;
-        another part in front hides it). :meth:`visible` answers for the vertex itself
-        (6 mm), which drops the tips seen from the pad side and keeps outline vertices over
-        the background beside the tip."""
+        (2 ``window`` + 1)^2 neighbourhood of the vertex's rendered pixel, the nearest
+        rendered surface (of any part) at most ``tol_m`` from the vertex, or no surface (the
+        tip on the outline, over the background). ``tol_m`` is a fingertip's thickness: a
+        fingertip detector fires on the tip whether its nail or its pad faces the camera, and
+        on a tip pressed on an object; another finger or the object farther in front hides
+        it. :meth:`visible` answers for the vertex itself (6 mm), which drops the tips seen
+        from the pad side. Testing only this hand's surface there (not the nearest one)
+        dropped tips the detector sees: on the (rendered) outline and pressed on an object."""
         v = state.vertices[hand][self.salient[hand]]
         uv, front = self.project(camera, v)
         z = camera.to_camera(v)[:, 2]
@@ -410,10 +412,8 @@ class SceneModel:
         for k in np.flatnonzero(front & (col >= 0) & (col < w) & (row >= 0) & (row < h)):
             r0, r1 = max(row[k] - window, 0), min(row[k] + window + 1, h)
             c0, c1 = max(col[k] - window, 0), min(col[k] + window + 1, w)
-            lab = render.labels[r0:r1, c0:c1]
             dep = render.depth[r0:r1, c0:c1]
-            on = (lab == hand + 1) & (np.abs(dep - z[k]) <= tol_m)
-            out[k] = bool(on.any())
+            out[k] = bool(np.any((dep == 0) | (np.abs(dep - z[k]) <= tol_m)))
         return out
 
     def visible(self, camera: RigCamera, state: SceneState, render: SceneRender,
