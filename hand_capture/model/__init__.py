@@ -25,6 +25,7 @@ angles, matching the MJCF export exactly). MuJoCo models and scenes: ``hand_capt
 from hand_capture.model.hand import Capsule, FKResult, HandModel, segment_distance
 from hand_capture.model.joints import (
     ARTICULATED_JOINTS,
+    FINGER_DOFS,
     FINGER_JOINTS,
     FINGERS,
     JOINT_INDEX,
@@ -73,8 +74,8 @@ from hand_capture.model.skeleton import (
 
 __all__ = [
     "ARTICULATED_JOINTS", "BETA_NAMES", "BONE_NAMES", "BONE_PARENT", "FINGERS",
-    "FINGERTIP_KEYPOINTS", "FINGER_JOINTS", "JOINT_INDEX", "JOINT_LIMITS", "JOINT_NAMES",
-    "KEYPOINT21_NAMES",
+    "FINGERTIP_KEYPOINTS", "FINGER_DOFS", "FINGER_JOINTS", "JOINT_INDEX", "JOINT_LIMITS",
+    "JOINT_NAMES", "KEYPOINT21_NAMES",
     "KEYPOINT_NAMES", "N_ALPHA", "N_BETA", "N_BONES", "N_DOF", "N_KEYPOINTS", "ROOT_JOINTS",
     "SCALE_NAMES", "THUMB_JOINTS", "Capsule", "FKResult", "HandModel", "HandShape",
     "clamp_to_limits", "default_shape", "joint_limits_dict", "keypoints21", "matrix_to_quat",

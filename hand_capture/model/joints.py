@@ -67,6 +67,11 @@ assert len(JOINT_NAMES) == 27 and len(set(JOINT_NAMES)) == 27
 
 N_DOF: int = len(JOINT_NAMES)
 JOINT_INDEX: dict[str, int] = {n: i for i, n in enumerate(JOINT_NAMES)}
+#: The DoF indices of each finger, thumb to little, in JOINT_NAMES order (5 for the thumb,
+#: 4 for each other finger).
+FINGER_DOFS: tuple[np.ndarray, ...] = tuple(
+    np.array([i for i, n in enumerate(JOINT_NAMES) if n.startswith(f + "_")]) for f in FINGERS
+)
 
 # ---------------------------------------------------------------------------------------------
 # Anatomical joint limits [deg] (active range of motion), converted to radians below.

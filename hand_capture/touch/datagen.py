@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from hand_capture.errors import InputError
-from hand_capture.model.joints import FINGERS, JOINT_INDEX, JOINT_LIMITS, N_DOF
+from hand_capture.model.joints import FINGER_DOFS, FINGERS, JOINT_INDEX, JOINT_LIMITS, N_DOF
 from hand_capture.touch.encoding import (
     N_FINGERS,
     ContactFrame,
@@ -48,12 +48,9 @@ from hand_capture.touch.encoding import (
 
 MOTIONS: tuple[str, ...] = ("moving", "rotating", "grasping", "pinching")
 
-_FINGER_DOFS: list[np.ndarray] = []
-for _f in FINGERS:
-    _FINGER_DOFS.append(np.array([i for n, i in JOINT_INDEX.items() if n.startswith(_f + "_")]))
 #: slot k of the finger joints: the k-th DoF of every finger (-1 where a finger has fewer)
 _SLOTS = np.full((5, N_FINGERS), -1, dtype=np.intp)
-for _fi, _d in enumerate(_FINGER_DOFS):
+for _fi, _d in enumerate(FINGER_DOFS):
     _SLOTS[: len(_d), _fi] = _d
 _ARTIC = np.arange(6, N_DOF)
 _LO, _HI = JOINT_LIMITS[:, 0].copy(), JOINT_LIMITS[:, 1].copy()

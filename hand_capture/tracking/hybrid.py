@@ -59,7 +59,7 @@ import numpy as np
 
 from hand_capture.cameras.base import Intrinsics
 from hand_capture.model import (
-    FINGERS,
+    FINGER_DOFS,
     JOINT_LIMITS,
     JOINT_NAMES,
     N_DOF,
@@ -76,9 +76,6 @@ from hand_capture.tracking.regressor import DepthLookup, HandRegressor, ModelFra
 __all__ = ["HybridTracker", "TrackResult", "default_model_path", "STAGES"]
 
 STAGES = ("preprocess", "regression", "icp", "selection")
-#: DoF indices of each finger (thumb .. little) in JOINT_NAMES order
-_FINGER_DOFS = tuple(np.array([i for i, n in enumerate(JOINT_NAMES) if n.startswith(f + "_")])
-                     for f in FINGERS)
 
 
 #: flexion angles of the straight and the curled posture of ``finger_postures`` [rad], by
@@ -451,7 +448,7 @@ class HybridTracker:
         the pose and its ``(E_c, E_d)``."""
         q, c = qs[best].copy(), costs[best]
         changed = False
-        for dofs in _FINGER_DOFS:
+        for dofs in FINGER_DOFS:
             trials = []
             donors = [qj[dofs] for j, qj in enumerate(qs) if j != best]
             if self.cfg.finger_postures:

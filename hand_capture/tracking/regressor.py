@@ -46,9 +46,6 @@ FINGER_KP = np.array([[2, 3, 4], [6, 7, 8], [10, 11, 12], [14, 15, 16], [18, 19,
 FINGER_ROOT_KP = np.array([1, 5, 9, 13, 17])
 #: per finger its first bone
 FINGER_BONE = np.array([1, 4, 7, 10, 13])
-#: per finger its DoFs (thumb 5, others 4)
-FINGER_DOFS = [np.arange(6, 11), np.arange(11, 15), np.arange(15, 19), np.arange(19, 23),
-               np.arange(23, 27)]
 _FINGER_ALL = np.arange(6, N_DOF)
 
 
