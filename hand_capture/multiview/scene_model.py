@@ -392,28 +392,22 @@ class SceneModel:
         return out
 
     def salient_seen(self, camera: RigCamera, state: SceneState, render: SceneRender,
-                     hand: int, tol_m: float = 0.015, window: int = 0) -> np.ndarray:
-        """(5,) bool: the salient vertices of ``hand`` whose fingertip ``camera`` sees: in a
-        (2 ``window`` + 1)^2 neighbourhood of the vertex's rendered pixel, the nearest
-        rendered surface (of any part) at most ``tol_m`` from the vertex, or no surface (the
-        tip on the outline, over the background). ``tol_m`` is a fingertip's thickness: a
-        fingertip detector fires on the tip whether its nail or its pad faces the camera, and
-        on a tip pressed on an object; another finger or the object farther in front hides
-        it. :meth:`visible` answers for the vertex itself (6 mm), which drops the tips seen
-        from the pad side. Testing only this hand's surface there (not the nearest one)
-        dropped tips the detector sees: on the (rendered) outline and pressed on an object."""
-        v = state.vertices[hand][self.salient[hand]]
-        uv, front = self.project(camera, v)
-        z = camera.to_camera(v)[:, 2]
-        h, w = render.depth.shape
-        col = np.floor((uv[:, 0] + 0.5) * render.scale).astype(np.int64)
-        row = np.floor((uv[:, 1] + 0.5) * render.scale).astype(np.int64)
-        out = np.zeros(len(v), bool)
-        for k in np.flatnonzero(front & (col >= 0) & (col < w) & (row >= 0) & (row < h)):
-            r0, r1 = max(row[k] - window, 0), min(row[k] + window + 1, h)
-            c0, c1 = max(col[k] - window, 0), min(col[k] + window + 1, w)
-            dep = render.depth[r0:r1, c0:c1]
-            out[k] = bool(np.any((dep == 0) | (np.abs(dep - z[k]) <= tol_m)))
+                     hand: int, tol_m: float = 0.015) -> np.ndarray:
+        """(5,) bool: the salient vertices of ``hand`` whose fingertip ``camera`` sees: at the
+        vertex's rendered pixel, the nearest rendered surface (of any part) at most ``tol_m``
+        from the vertex, or no surface (the tip on the outline, over the background).
+        ``tol_m`` is a fingertip's thickness: a fingertip detector fires on the tip whether
+        its nail or its pad faces the camera, and on a tip pressed on an object; another
+        finger or the object farther in front hides it. :meth:`visible` answers for the
+        vertex itself (6 mm), which drops the tips seen from the pad side. Testing only this
+        hand's surface there (not the nearest one) dropped tips the detector sees: on the
+        (rendered) outline and pressed on an object."""
+        _, z, row, col, ok = self._render_pixels(camera, state.vertices[hand][self.salient[hand]],
+                                                 render)
+        out = np.zeros(len(z), bool)
+        idx = np.flatnonzero(ok)
+        d = render.depth[row[idx], col[idx]]
+        out[idx] = (d == 0) | (np.abs(d - z[idx]) <= tol_m)
         return out
 
     def visible(self, camera: RigCamera, state: SceneState, render: SceneRender,
@@ -423,20 +417,27 @@ class SceneModel:
         A vertex is visible when it projects inside the image in front of the camera and is
         not behind the rendered surface by more than ``tol_m`` (vertices on the outline,
         where the rendered pixel misses the part, count as visible)."""
-        v = state.vertices[part]
-        uv, front = self.project(camera, v)
-        z = camera.to_camera(v)[:, 2]
-        h, w = render.depth.shape
-        s = render.scale
-        col = np.floor((uv[:, 0] + 0.5) * s).astype(np.int64)   # the scaled pixel it is in
-        row = np.floor((uv[:, 1] + 0.5) * s).astype(np.int64)
-        ok = front & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        uv, z, row, col, ok = self._render_pixels(camera, state.vertices[part], render)
         idx = np.flatnonzero(ok)
         d = render.depth[row[idx], col[idx]]
         lab = render.labels[row[idx], col[idx]]
         seen = (d == 0) | ((lab == part + 1) & (z[idx] <= d + tol_m)) | (z[idx] <= d + 1e-4)
         idx = idx[seen]
         return idx, uv[idx]
+
+    def _render_pixels(self, camera: RigCamera, v: np.ndarray, render: SceneRender
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Where points ``v`` (n, 3) [m, world] fall in ``render``: their image points (n, 2)
+        [px, full resolution], camera depths (n,) [m], the row and column (n,) of the scaled
+        pixel each is in, and whether that pixel is inside the render and the point in
+        front of the camera (n,)."""
+        uv, front = self.project(camera, v)
+        z = camera.to_camera(v)[:, 2]
+        h, w = render.depth.shape
+        col = np.floor((uv[:, 0] + 0.5) * render.scale).astype(np.int64)
+        row = np.floor((uv[:, 1] + 0.5) * render.scale).astype(np.int64)
+        ok = front & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        return uv, z, row, col, ok
 
 
 def _edge_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
