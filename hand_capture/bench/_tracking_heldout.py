@@ -361,11 +361,9 @@ class SurfaceVariant:
     def mesh_fn(self, model: HandModel):
         """``q (27,) -> Mesh`` of ``model`` in pose ``q`` with this surface."""
         from hand_capture.cameras.render import Mesh
+        from hand_capture.tracking.icp import beyond_wrist
 
-        kp = model.joint_positions(np.zeros(27))
-        d = (kp[0] - kp[9]) / np.linalg.norm(kp[0] - kp[9])
-        beyond = (model.rest_vertices - kp[0]) @ d
-        keep = beyond <= self.stub_m * float(model.shape.global_scale) + 1e-9
+        keep = beyond_wrist(model) <= self.stub_m * float(model.shape.global_scale) + 1e-9
         faces = model.faces[keep[model.faces].all(axis=1)]
         off = np.where(model.vertex_labels == 0, self.palm_mm, self.finger_mm) * 1e-3
         closed = bool(keep.all())

@@ -45,8 +45,8 @@ from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.preprocess import HandObservation
 
-__all__ = ["Correspondences", "ModelTracker", "depth_error", "huber_sqrt_weights",
-           "optional_vertices", "render_depth"]
+__all__ = ["Correspondences", "ModelTracker", "beyond_wrist", "depth_error",
+           "huber_sqrt_weights", "optional_vertices", "render_depth"]
 
 _MM = 1000.0
 #: per-DoF unit scale of E_smooth: root translation in mm, angles in rad
@@ -193,11 +193,16 @@ def optional_vertices(model: HandModel, cfg: TrackerConfig) -> np.ndarray:
     so these vertices get no model-to-data pairs (an addition to eq. II.23 left out)."""
     if not cfg.wrist_optional:
         return np.zeros(model.n_vertices, bool)
+    return beyond_wrist(model) > cfg.wrist_optional_m * float(model.shape.global_scale)
+
+
+def beyond_wrist(model: HandModel) -> np.ndarray:
+    """(V,) how far each rest-pose vertex of ``model`` lies beyond the wrist keypoint along
+    the forearm (the middle MCP to wrist direction) [m]; the wrist stub is where it is
+    positive."""
     kp = model.joint_positions(np.zeros(N_DOF))
     d = kp[0] - kp[9]
-    d /= np.linalg.norm(d)
-    beyond = (model.rest_vertices - kp[0]) @ d
-    return beyond > cfg.wrist_optional_m * float(model.shape.global_scale)
+    return (model.rest_vertices - kp[0]) @ (d / np.linalg.norm(d))
 
 
 class _DofTerms:
