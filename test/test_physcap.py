@@ -422,7 +422,7 @@ def test_fewest_samples_primary_analysis(monkeypatch, capsys):
     skipped = bench.fewest_samples(skip=True)
     assert "NOT RUN" in capsys.readouterr().out
     assert skipped["fewest_n_samples"] is None and skipped["fewest_clearly_better"] is None
-    monkeypatch.setattr(bench, "fewest_choose", lambda model, val: {
+    monkeypatch.setattr(bench, "fewest_choose", lambda model, val, known=None: {
         "fewest_n_samples": 32, "fewest_chosen": False, "fewest_validation": {}})
     monkeypatch.setattr(bench, "fewest_test", lambda *a: pytest.fail("the test ran"))
     none = bench.fewest_samples(HandModel(), [])

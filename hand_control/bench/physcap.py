@@ -461,17 +461,22 @@ def studio_confirm_figures(per: dict[str, list[dict[str, Any]]]) -> dict[str, An
     fig: dict[str, Any] = {"studio_confirm_captures": len(per["contact"])}
     summary, rows = _method_summary({m: per[m] for m in _METHODS}, "studio_confirm")
     fig.update(summary)
-    rows = [r + [r[5] < STUDIO_CONFIRM_ALPHA] for r in rows]
     # "clearly better than random sampling AND PD-only": both tests at 5 % (intersection-union)
     fig["studio_confirm_p"] = max(r[5] for r in rows)
     fig["studio_confirm_clearly_better"] = bool(fig["studio_confirm_p"] < STUDIO_CONFIRM_ALPHA)
     fig["studio_confirm_per_capture"] = per
-    print_table(f"studio confirmatory batch, primary analysis: one-sided sign test of contact "
-                f"sampling against each baseline at {STUDIO_CONFIRM_ALPHA:g} "
-                f"({fig['studio_confirm_captures']} captures, successes)",
-                ["baseline", "contact_successes", "baseline_successes", "contact_alone",
-                 "baseline_alone", "p", "significant"], rows)
+    _print_sign_tests("studio confirmatory batch, primary analysis", rows, STUDIO_CONFIRM_ALPHA,
+                      fig["studio_confirm_captures"])
     return fig
+
+
+def _print_sign_tests(title: str, rows: list[list[Any]], alpha: float, n: int) -> None:
+    """The table of one-sided sign tests of contact sampling against each baseline
+    (``rows`` of :func:`_method_summary`) at ``alpha``, over ``n`` captures."""
+    print_table(f"{title}: one-sided sign test of contact sampling against each baseline at "
+                f"{alpha:g} ({n} captures, successes)",
+                ["baseline", "contact_successes", "baseline_successes", "contact_alone",
+                 "baseline_alone", "p", "significant"], [r + [r[5] < alpha] for r in rows])
 
 
 def fewest_choice(table: dict[int, tuple[float, float]]) -> int:
@@ -492,19 +497,21 @@ def fewest_choice(table: dict[int, tuple[float, float]]) -> int:
     return FEWEST_REFERENCE_N
 
 
-def fewest_choose(model: HandModel, val: list[tuple[str, Any]]) -> dict[str, Any]:
+def fewest_choose(model: HandModel, val: list[tuple[str, Any]],
+                  known: dict[int, tuple[list[bool], list[float]]] | None = None
+                  ) -> dict[str, Any]:
     """Step 1 of the fewest-samples analysis: contact sampling at every candidate count and
     at the reference count (:data:`FEWEST_WIDTH`) on the validation captures ``val``
-    (``(family, SyntheticCapture)``), then :func:`fewest_choice`. Returns
-    ``fewest_n_samples``, ``fewest_chosen`` (False when no candidate qualified) and
-    ``fewest_validation`` (``{n: [success rate, object error mm]}``)."""
+    (``(family, SyntheticCapture)``), then :func:`fewest_choice`. ``known``: counts already
+    run on these captures at this width with the same code (the bench's validation sweep),
+    ``{n: (successes, object errors [mm])}`` per capture; they are not run again (the runs
+    are deterministic). Returns ``fewest_n_samples``, ``fewest_chosen`` (False when no
+    candidate qualified) and ``fewest_validation`` (``{n: [success rate, object error
+    mm]}``)."""
     table, rows = {}, []
     for n in (*sorted(FEWEST_CANDIDATES), FEWEST_REFERENCE_N):
-        ok, errs = [], []
-        for _, sc in val:
-            r = optimise_capture(sc.capture, _config(n, FEWEST_WIDTH, "contact"))
-            ok.append(r.success)
-            errs.append(_errors(model, sc.truth, r.hand_q, r.object_pose)[0])
+        ok, errs = known[n] if known and n in known else _contact_validation(model, val, n,
+                                                                             FEWEST_WIDTH)
         table[n] = (_rate(ok), float(np.mean(errs)))
         rows.append([n, max(2, n // 4), sum(ok), len(ok), table[n][1]])
     n_star = fewest_choice(table)
@@ -548,11 +555,7 @@ def _fewest_analysis(per: dict[str, list[dict[str, Any]]], prefix: str,
                 [p["success"] for p in v if p["family"] == fam])
     fig[f"{prefix}_p_random"], fig[f"{prefix}_p_pd_only"] = rows[0][5], rows[1][5]
     fig[f"{prefix}_p"] = max(rows[0][5], rows[1][5])
-    print_table(f"{title}: one-sided sign test of contact sampling against each baseline at "
-                f"{FEWEST_ALPHA:g} ({len(per['contact'])} captures, successes)",
-                ["baseline", "contact_successes", "baseline_successes", "contact_alone",
-                 "baseline_alone", "p", "significant"],
-                [r + [r[5] < FEWEST_ALPHA] for r in rows])
+    _print_sign_tests(title, rows, FEWEST_ALPHA, len(per["contact"]))
     return fig
 
 
@@ -628,9 +631,12 @@ _FEWEST_KEYS = ("fewest_n_samples", "fewest_chosen", "fewest_captures",
 
 
 def fewest_samples(model: HandModel | None = None, val: list[tuple[str, Any]] | None = None,
-                   *, skip: bool = False) -> dict[str, Any]:
+                   *, skip: bool = False,
+                   known: dict[int, tuple[list[bool], list[float]]] | None = None
+                   ) -> dict[str, Any]:
     """The pre-registered fewest-samples analysis (module docstring): :func:`fewest_choose`
-    on ``val`` (default: the bench's synthetic validation split), then, when a candidate
+    on ``val`` (default: the bench's synthetic validation split; ``known`` as there), then,
+    when a candidate
     qualified, :func:`fewest_test` and :func:`fewest_studio` at N*; none qualified: the
     test's figures null and ``fewest_clearly_better`` False. ``skip`` (``--quick`` /
     ``--smoke``): nothing runs, the figures null. Returns its JSON figures."""
@@ -642,7 +648,7 @@ def fewest_samples(model: HandModel | None = None, val: list[tuple[str, Any]] | 
     if val is None:
         val = [(fam, sc) for split, fam, sc in _captures(False, False) if split == "validation"]
     fig: dict[str, Any] = dict.fromkeys(_FEWEST_KEYS)
-    fig.update(fewest_choose(model, val))
+    fig.update(fewest_choose(model, val, known))
     if not fig["fewest_chosen"]:
         print(f"fewest-samples analysis: no candidate of {FEWEST_CANDIDATES} matched "
               f"{FEWEST_REFERENCE_N} samples on validation: N* = {FEWEST_REFERENCE_N}, the "
@@ -653,6 +659,19 @@ def fewest_samples(model: HandModel | None = None, val: list[tuple[str, Any]] | 
     fig.update(fewest_test(model, n))
     fig.update(fewest_studio(model, n))
     return fig
+
+
+def _contact_validation(model: HandModel, val: list[tuple[str, Any]], n: int, width: float
+                        ) -> tuple[list[bool], list[float]]:
+    """Contact sampling at ``n`` samples and finger half-width ``width`` [rad] on the
+    validation captures ``val`` (``(family, SyntheticCapture)``): per capture its success
+    and object error [mm]."""
+    ok, errs = [], []
+    for _, sc in val:
+        r = optimise_capture(sc.capture, _config(n, width, "contact"))
+        ok.append(bool(r.success))
+        errs.append(_errors(model, sc.truth, r.hand_q, r.object_pose)[0])
+    return ok, errs
 
 
 def _errors(model: HandModel, truth: Any, hand_q: np.ndarray, object_pose: np.ndarray
@@ -702,14 +721,11 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     candidates = [(8, 0.08)] if smoke else [(24, 0.04), (24, 0.08)] if quick else \
         [(16, 0.08), (32, 0.04), (32, 0.08), (32, 0.12), (64, 0.08)]
     val = [(fam, sc) for split, fam, sc in caps if split == "validation"]
-    v_rows, v_score = [], {}
+    v_rows, v_score, v_runs = [], {}, {}
     for n_c, w_c in candidates:
-        ok, errs, fam_ok = [], [], {"light": [], "heavy": []}
-        for fam, sc in val:
-            r = optimise_capture(sc.capture, _config(n_c, w_c, "contact"))
-            ok.append(r.success)
-            fam_ok[fam].append(r.success)
-            errs.append(_errors(model, sc.truth, r.hand_q, r.object_pose)[0])
+        ok, errs = v_runs[(n_c, w_c)] = _contact_validation(model, val, n_c, w_c)
+        fam_ok = {f: [o for (fam, _), o in zip(val, ok, strict=True) if fam == f]
+                  for f in ("light", "heavy")}
         v_score[(n_c, w_c)] = (-float(np.mean(ok)), float(np.mean(errs)))
         v_rows.append([n_c, w_c, float(np.mean(ok)), _rate(fam_ok["light"]),
                        _rate(fam_ok["heavy"]), float(np.mean(errs))])
@@ -781,7 +797,8 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     # the confirmatory studio batch: new render seeds, its pre-registered setting
     studio.update(studio_confirm(model, skip=quick or smoke))
     # the pre-registered fewest-samples analysis: validation chooses N*, a new split tests it
-    studio.update(fewest_samples(model, val, skip=quick or smoke))
+    studio.update(fewest_samples(model, val, skip=quick or smoke, known={
+        n_c: v for (n_c, w_c), v in v_runs.items() if w_c == FEWEST_WIDTH}))
 
     # sensitivity: the nearest width not chosen, contact and random sampling, test captures
     sens: dict[str, Any] = {}
