@@ -37,10 +37,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tracker", nargs="*", default=[],
                     help="MultiviewTrackerConfig overrides KEY=VALUE")
     a = ap.parse_args(argv)
-    from dataclasses import replace
-
-    import hand_capture.multiview.tracker as tracker
     from hand_capture.multiview.lo import LOConfig
+    from hand_capture.multiview.tracker import MultiviewTrackerConfig
 
     def kv(items: list[str]) -> dict:
         out = {}
@@ -51,9 +49,6 @@ def main(argv: list[str] | None = None) -> int:
         return out
 
     lo, over = kv(a.lo), kv(a.tracker)
-    if over:   # studio_capture builds the tracker with the default config
-        default = tracker.MultiviewTrackerConfig
-        tracker.MultiviewTrackerConfig = lambda: replace(default(), **over)
     # the bench's seeds: STUDIO_SEED0 + the index in _studio_truths (all 9 feasible)
     cases = {}
     for sc in _LIGHT_SCENARIOS:
@@ -72,7 +67,8 @@ def main(argv: list[str] | None = None) -> int:
             continue
         truth = scenario_capture(spec)
         sc = studio_capture(truth, seed=seed, images=False, cache_dir=a.cache_dir,
-                            lo_config=LOConfig(**lo))
+                            lo_config=LOConfig(**lo),
+                            tracker_config=MultiviewTrackerConfig(**over))
         tr = sc.synthetic.capture
         obj = np.linalg.norm(tr.object_pose[1:, :3] - truth.object_pose[1:, :3], axis=1) * 1e3
         jt = np.array([np.mean(np.linalg.norm(hand.forward(q).joint_positions -

@@ -99,23 +99,22 @@ class StudioCapture:
     cached: bool
 
 
-def _design_key(truth: Capture, rig: Any, seed: int, lo_config: Any) -> str:
+def _design_key(truth: Capture, rig: Any, seed: int, lo_config: Any,
+                tracker_config: Any) -> str:
     """What the tracked poses depend on: the truth, the cameras, the render seed, the local
-    optimiser's settings and the tracker's (default) lost / prediction settings."""
-    from hand_capture.multiview.tracker import MultiviewTrackerConfig
-
+    optimiser's settings and the tracker's lost / prediction settings."""
     h = hashlib.sha256()
     for a in (truth.times, truth.hand_q, truth.object_pose):
         h.update(np.ascontiguousarray(a, float).tobytes())
     cams = [(c.name, c.intrinsics.width, c.intrinsics.height) for c in rig.cameras]
     return json.dumps({"truth": h.hexdigest(), "obj": [truth.obj.kind, list(truth.obj.size)],
                        "rig": rig.name, "cameras": cams, "seed": seed,
-                       "lo": asdict(lo_config), "tracker": asdict(MultiviewTrackerConfig())},
+                       "lo": asdict(lo_config), "tracker": asdict(tracker_config)},
                       sort_keys=True, default=str)
 
 
 def studio_capture(truth: Capture, *, rig: Any = None, seed: int = 0, lo_config: Any = None,
-                   images: bool = True, image_config: Any = None,
+                   tracker_config: Any = None, images: bool = True, image_config: Any = None,
                    cache_dir: str | Path | None = None, verbose: bool = False
                    ) -> StudioCapture:
     """``truth`` filmed in the studio and tracked (module docstring).
@@ -125,6 +124,7 @@ def studio_capture(truth: Capture, *, rig: Any = None, seed: int = 0, lo_config:
         rig: the cameras (default :data:`STUDIO_RIG`); seed: the render's seed (the held-out
             surface's subject, colour and structural noise, detections).
         lo_config: the tracker's ``LOConfig`` (default: its defaults, 15 iterations, E+C+O+S).
+        tracker_config: the tracker's ``MultiviewTrackerConfig`` (default: its defaults).
         images: also build the eq. 3 cost (``CaptureImages``) of the rendered images; its
             first-frame hand masks are the tracker's model rendered at the first frame's true
             pose (the pose the tracker starts from).
@@ -138,13 +138,14 @@ def studio_capture(truth: Capture, *, rig: Any = None, seed: int = 0, lo_config:
     from hand_capture.multiview.lo import LOConfig
     from hand_capture.multiview.rig import load_rig
     from hand_capture.multiview.sequences import render_sequence
-    from hand_capture.multiview.tracker import MultiviewTracker
+    from hand_capture.multiview.tracker import MultiviewTracker, MultiviewTrackerConfig
 
     rig = load_rig(STUDIO_RIG) if rig is None else rig
     lo_config = LOConfig() if lo_config is None else lo_config
+    tracker_config = MultiviewTrackerConfig() if tracker_config is None else tracker_config
     seq = capture_sequence(truth)
     model = seq.model()
-    key = _design_key(truth, rig, seed, lo_config)
+    key = _design_key(truth, rig, seed, lo_config, tracker_config)
     path = None if cache_dir is None else Path(cache_dir) / f"{truth.name}_studio{seed}.npz"
     hand_q = obj_pose = None
     if path is not None and path.is_file():
@@ -154,7 +155,7 @@ def studio_capture(truth: Capture, *, rig: Any = None, seed: int = 0, lo_config:
     cached = hand_q is not None
     tracker = None
     if not cached:
-        tracker = MultiviewTracker(model, rig, lo_config)
+        tracker = MultiviewTracker(model, rig, lo_config, tracker_config)
         tracker.reset(seq.truth(model, 0))
         hand_q = np.zeros_like(truth.hand_q)
         obj_pose = np.zeros_like(truth.object_pose)
