@@ -116,21 +116,10 @@ class ArmClassifier:
             raise InputError(f"arm classifier offsets must be (F, 2, 2), got {off.shape}")
         if not np.all(np.isfinite(off)) or np.abs(off).max() > 1.0:
             raise InputError("arm classifier offsets must be finite and within 1 m")
-        f = self.forest
-        if f.value.ndim != 2 or f.value.shape[1] != 1:
-            raise InputError(f"arm classifier forest must have one output, got "
-                             f"{f.value.shape}")
-        if f.feature.size and int(f.feature.max()) >= len(off):
-            raise InputError(f"arm classifier forest reads feature {int(f.feature.max())} "
-                             f"of {len(off)}")
-        n = len(f.feature)
-        for name in ("left", "right"):
-            a = getattr(f, name)
-            split = f.feature >= 0
-            if len(a) != n or np.any((a[split] < 0) | (a[split] >= n)):
-                raise InputError(f"arm classifier forest has bad {name} children")
-        if np.any(f.leaf[f.feature < 0] >= len(f.value)) or len(f.roots) == 0:
-            raise InputError("arm classifier forest has bad leaves or no trees")
+        try:
+            self.forest.check(n_features=len(off), n_outputs=1)
+        except InputError as e:
+            raise InputError(f"arm classifier: {e}") from e
         self.offsets = off.astype(np.float32)
 
     # ------------------------------------------------------------------------- predict

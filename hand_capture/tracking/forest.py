@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hand_capture.errors import InputError
+
 __all__ = ["ForestGroup", "RegressionForest", "weighted_kmeans"]
 
 
@@ -205,9 +207,51 @@ class RegressionForest:
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str) -> RegressionForest:
+        """The forest saved by :meth:`to_arrays` under ``prefix``, structure checked
+        (:meth:`check`).
+
+        Raises:
+            KeyError: an array is missing.
+            InputError: the arrays do not form a forest.
+        """
         g = lambda k: np.asarray(arrays[prefix + k])
-        return cls(g("feature"), g("threshold"), g("left"), g("right"), g("leaf"),
-                   g("roots"), int(g("depth")), g("value"), g("modes"), g("mode_w"))
+        forest = cls(g("feature"), g("threshold"), g("left"), g("right"), g("leaf"),
+                     g("roots"), int(g("depth")), g("value"), g("modes"), g("mode_w"))
+        forest.check()
+        return forest
+
+    def check(self, n_features: int | None = None, n_outputs: int | None = None) -> None:
+        """Check that the flat arrays form a forest the traversal can walk: equal node
+        counts, split children and roots inside the node arrays, leaves inside the leaf
+        arrays, and (when given) at most ``n_features`` feature columns read and
+        ``n_outputs`` targets per leaf.
+
+        Raises:
+            InputError: naming the first problem found.
+        """
+        n = len(self.feature)
+        for name in ("threshold", "left", "right", "leaf"):
+            if len(getattr(self, name)) != n:
+                raise InputError(f"forest array {name} has {len(getattr(self, name))} "
+                                 f"nodes, feature has {n}")
+        if self.value.ndim != 2:
+            raise InputError(f"forest leaf values must be (L, D), got {self.value.shape}")
+        if n_outputs is not None and self.value.shape[1] != n_outputs:
+            raise InputError(f"forest must have {n_outputs} output(s), got "
+                             f"{self.value.shape[1]}")
+        if n_features is not None and n and int(self.feature.max()) >= n_features:
+            raise InputError(f"forest reads feature {int(self.feature.max())} of "
+                             f"{n_features}")
+        split = self.feature >= 0
+        for name in ("left", "right"):
+            a = getattr(self, name)[split]
+            if np.any((a < 0) | (a >= n)):
+                raise InputError(f"forest has {name} children outside its {n} nodes")
+        leaves = self.leaf[~split]
+        if np.any((leaves < 0) | (leaves >= len(self.value))):
+            raise InputError(f"forest has leaves outside its {len(self.value)} leaf values")
+        if len(self.roots) == 0 or np.any((self.roots < 0) | (self.roots >= n)):
+            raise InputError("forest has no trees or roots outside its nodes")
 
 
 def _best_split(X: np.ndarray, Y: np.ndarray, idx: np.ndarray, n_try: int, n_thr: int,
