@@ -251,14 +251,22 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     return HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
 
 
+#: a pixel this close to the image border [px] may continue beyond the image
+BORDER_PX = 2
+
+
+def on_border(u: np.ndarray, v: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Per pixel (columns ``u``, rows ``v``, any shape) whether it lies within
+    :data:`BORDER_PX` of the border of a ``width`` x ``height`` image."""
+    return ((u < BORDER_PX) | (u >= width - BORDER_PX) | (v < BORDER_PX)
+            | (v >= height - BORDER_PX))
+
+
 def _touches_border(mask_b: np.ndarray, r0: int, c0: int, shape: tuple[int, int]) -> bool:
-    """Whether a mask (its bounding-box crop at row ``r0``, column ``c0``) reaches within
-    2 px of the image border."""
-    H, W = shape
-    r1, c1 = r0 + mask_b.shape[0], c0 + mask_b.shape[1]
-    return bool((r0 <= 1 and mask_b[:2 - r0].any()) or (c0 <= 1 and mask_b[:, :2 - c0].any())
-                or (r1 >= H - 1 and mask_b[H - 2 - r0:].any())
-                or (c1 >= W - 1 and mask_b[:, W - 2 - c0:].any()))
+    """Whether a mask (its bounding-box crop at row ``r0``, column ``c0``) has a pixel
+    :func:`on_border`."""
+    vv, uu = np.nonzero(mask_b)
+    return bool(on_border(uu + c0, vv + r0, shape[1], shape[0]).any())
 
 
 def _grow_continuous(d: np.ndarray, valid: np.ndarray, mask: np.ndarray, z_max: float,
@@ -392,12 +400,13 @@ def principal_extent(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, fl
 
 
 def touches_border(obs: HandObservation) -> bool:
-    """Whether the hand's bounding box reaches within 2 px of the image border."""
+    """Whether the hand has a pixel :func:`on_border` (its bounding box's corners tell)."""
     if obs.box is None:
         return False
     r0, r1, c0, c1 = obs.box
     intr = obs.intrinsics
-    return r0 <= 1 or c0 <= 1 or r1 >= intr.height - 1 or c1 >= intr.width - 1
+    return bool(on_border(np.array([c0, c1 - 1]), np.array([r0, r1 - 1]), intr.width,
+                          intr.height).any())
 
 
 def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float,
@@ -410,8 +419,7 @@ def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float,
     if extent < cfg.forearm_border_m * hand_scale:
         return None
     px = obs.pixels
-    edge = ((px[:, 0] <= 1) | (px[:, 0] >= intr.width - 2) | (px[:, 1] <= 1)
-            | (px[:, 1] >= intr.height - 2))
+    edge = on_border(px[:, 0], px[:, 1], intr.width, intr.height)
     at_hi = bool(np.any(edge & (s > hi - 0.25 * extent)))
     at_lo = bool(np.any(edge & (s < lo + 0.25 * extent)))
     radius = _inscribed_radius(obs)
