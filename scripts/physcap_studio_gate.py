@@ -25,10 +25,9 @@ import numpy as np
 
 def main(argv: list[str] | None = None) -> int:
     from hand_capture.model.hand import HandModel
-    from hand_control.bench.physcap import _LIGHT_SCENARIOS, HEAVY_MASSES, STUDIO_SEED0, heavy_spec
+    from hand_control.bench.physcap import STUDIO_SEED0, studio_specs
     from hand_control.physcap.studio import studio_capture
     from hand_control.physcap.synth import scenario_capture
-    from hand_control.sim.scenario import load_scenario
 
     ap = argparse.ArgumentParser()
     ap.add_argument("cache_dir")
@@ -49,13 +48,8 @@ def main(argv: list[str] | None = None) -> int:
         return out
 
     lo, over = kv(a.lo), kv(a.tracker)
-    # the bench's seeds: STUDIO_SEED0 + the index in _studio_truths (all 9 feasible)
-    cases = {}
-    for sc in _LIGHT_SCENARIOS:
-        cases[sc] = (load_scenario(sc), STUDIO_SEED0 + len(cases))
-        for m in HEAVY_MASSES:
-            spec = heavy_spec(sc, m)
-            cases[spec.name] = (spec, STUDIO_SEED0 + len(cases))
+    # the bench's seeds: STUDIO_SEED0 + the index in the family (all 9 feasible)
+    cases = {spec.name: (spec, STUDIO_SEED0 + i) for i, (_, spec) in enumerate(studio_specs())}
     only = [n for n in a.only.split(",") if n] or ["lift_box", "lift_ball_1000g"]
     unknown = sorted(set(only) - set(cases))
     if unknown:
