@@ -285,9 +285,14 @@ def test_cross_validation_rejects_bad_input():
 
 def test_shipped_model_carries_its_cross_validated_ridges():
     from hand_capture.touch.encoding import CV_RIDGES
+    from hand_capture.touch.train import TRAIN, TRAIN_PARTS, shipped_ridges
 
     meta = TouchModel.load().meta
     assert meta["ridge"] == "cv"
     for name in ("linear", "quadratic", "cubic"):
         scores = json.loads(meta[f"cv_scores_{name}"])
         assert float(meta[f"ridge_{name}"]) == CV_RIDGES[int(np.argmin(scores))]
+    # the quick bench reuses them only for the training set they were chosen on
+    assert shipped_ridges(TRAIN_PARTS) == {n: float(meta[f"ridge_{n}"])
+                                           for n in ("linear", "quadratic", "cubic")}
+    assert shipped_ridges((TRAIN,)) is None

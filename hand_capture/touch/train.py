@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hand_capture.errors import ConfigError
 from hand_capture.touch.datagen import (
     GenConfig,
     TouchDataset,
@@ -76,24 +77,26 @@ def training_set(parts: tuple[GenConfig, ...] = TRAIN_PARTS) -> TouchDataset:
 
 
 def fit_encoders(u: np.ndarray, poses: np.ndarray, sequence: np.ndarray,
-                 ridge: float | None = None, degrees: tuple[str, ...] = tuple(DEGREES),
-                 frame: ContactFrame | None = None
+                 ridge: float | dict[str, float] | None = None,
+                 degrees: tuple[str, ...] = tuple(DEGREES), frame: ContactFrame | None = None
                  ) -> tuple[dict[str, PolynomialEncoder], dict[str, str]]:
     """Encoders for ``degrees`` fitted on (u (M, 15), poses (M, 27)).
 
-    ``ridge``: one weight for every degree (0 = plain least squares, the paper's fit), or None
-    to choose each degree's weight out of :data:`CV_RIDGES` by 5-fold cross-validation with
-    folds by ``sequence`` (M,) (the shipped fit).
+    ``ridge``: one weight for every degree (0 = plain least squares, the paper's fit), the
+    weight of each degree by name (e.g. :func:`shipped_ridges`), or None to choose each
+    degree's weight out of :data:`CV_RIDGES` by 5-fold cross-validation with folds by
+    ``sequence`` (M,) (the shipped fit).
 
     Returns:
-        the encoders by name, and meta entries: ``ridge`` ("cv" or the forced weight),
-        ``ridge_<name>`` (the weight used) and, with cross-validation, ``cv_scores_<name>``
-        (JSON list, one score per candidate of :data:`CV_RIDGES`).
+        the encoders by name, and meta entries: ``ridge`` ("cv", "given" or the forced
+        weight), ``ridge_<name>`` (the weight used) and, with cross-validation,
+        ``cv_scores_<name>`` (JSON list, one score per candidate of :data:`CV_RIDGES`).
     """
-    meta = {"ridge": "cv" if ridge is None else str(ridge)}
+    meta = {"ridge": "cv" if ridge is None else "given" if isinstance(ridge, dict)
+            else str(ridge)}
     encoders = {}
     for name in degrees:
-        r = ridge
+        r = ridge[name] if isinstance(ridge, dict) else ridge
         if r is None:
             r, scores = cross_validate_ridge(u, poses, DEGREES[name], CV_RIDGES, sequence)
             meta[f"cv_scores_{name}"] = json.dumps([float(x) for x in scores])
@@ -102,7 +105,26 @@ def fit_encoders(u: np.ndarray, poses: np.ndarray, sequence: np.ndarray,
     return encoders, meta
 
 
-def fit_model(ds: TouchDataset, ridge: float | None = None,
+def shipped_ridges(parts: tuple[GenConfig, ...] = TRAIN_PARTS) -> dict[str, float] | None:
+    """The cross-validated ridge weights of the shipped model file by encoding, when it was
+    fitted on ``parts`` and the current hand model (else None: cross-validate again)."""
+    try:
+        shipped = TouchModel.load()
+    except ConfigError:
+        return None
+    meta = shipped.meta
+    if (shipped.frame is None or meta.get("ridge") != "cv"
+            or meta.get("parts") != _parts_json(parts)
+            or meta.get("hand_model") != model_fingerprint(build_model(-1))):
+        return None
+    return {n: float(meta[f"ridge_{n}"]) for n in DEGREES}
+
+
+def _parts_json(parts: tuple[GenConfig, ...]) -> str:
+    return json.dumps([asdict(c) for c in parts])
+
+
+def fit_model(ds: TouchDataset, ridge: float | dict[str, float] | None = None,
               degrees: tuple[str, ...] = tuple(DEGREES), contact_frame: bool = True
               ) -> TouchModel:
     """Encoders for ``degrees`` fitted on ``ds`` (:func:`fit_encoders`: ``ridge`` None, the
@@ -138,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     ds = training_set(parts)
     t1 = time.perf_counter()
     model = fit_model(ds, a.ridge, contact_frame=not a.leftmost)
-    model.meta.update({"parts": json.dumps([asdict(c) for c in parts]),
+    model.meta.update({"parts": _parts_json(parts),
                        "seed": str(TRAIN.seed),
                        "hand_model": model_fingerprint(build_model(-1))})
     out = model.save(a.out or default_model_path(), max_reference=a.max_reference)
