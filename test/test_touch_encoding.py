@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -220,3 +221,78 @@ def test_contact_frame_pose_round_trip_and_file():
     assert phi_turned - phi_two == pytest.approx(frame.two_contact_share * np.radians(20.0))
     _, _, phi_one = frame.encode(pads, np.array([True, False, False, False, False]))
     assert phi_one == 0.0
+
+
+# --- the ridge weight chosen by cross-validation (issue #13) ------------------------------
+
+def _toy(rows: int, noise: float, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """u (rows, 15), a smooth quadratic target (rows, 27) plus noise, groups of 4 rows."""
+    coef = np.random.default_rng(seed).normal(size=(136, 27)) * 0.1  # the same per seed
+    rng = np.random.default_rng([seed, rows])
+    u = rng.normal(size=(rows, 15))
+    y = PolynomialFeatures(2)(u) @ coef + noise * rng.normal(size=(rows, 27))
+    return u, y, np.arange(rows) // 4
+
+
+def test_trainer_cross_validation_picks_a_ridge_where_plain_least_squares_overfits():
+    """Cubic (816 coefficients) on 1,200 noisy rows: plain least squares fits the noise (its
+    CV error is several times the best), so the trainer's CV picks a positive weight, and
+    that encoder predicts new data better."""
+    from hand_capture.touch.encoding import CV_RIDGES
+    from hand_capture.touch.train import fit_encoders
+
+    u, y, groups = _toy(1200, 0.5, 5)
+    encs, meta = fit_encoders(u, y, groups, degrees=("cubic",))
+    chosen = float(meta["ridge_cubic"])
+    scores = json.loads(meta["cv_scores_cubic"])
+    assert meta["ridge"] == "cv" and chosen > 0.0 and chosen in CV_RIDGES
+    assert len(scores) == len(CV_RIDGES) and scores[0] > 2 * min(scores)  # 0 overfits
+    assert chosen == CV_RIDGES[int(np.argmin(scores))]
+    u_new, y_new, _ = _toy(2000, 0.0, 5)  # the same function, no noise
+    plain = PolynomialEncoder.fit(u, y, 3)
+    err = [np.abs(e.predict(u_new) - y_new).mean() for e in (encs["cubic"], plain)]
+    assert err[0] < 0.7 * err[1]
+
+
+def test_trainer_cross_validation_keeps_plain_least_squares_where_it_does_not_overfit():
+    """An exact quadratic (no noise, 3,000 rows for 136 coefficients): any ridge only adds
+    bias, so CV keeps 0 and the encoder is the plain least-squares one."""
+    from hand_capture.touch.train import fit_encoders
+
+    u, y, groups = _toy(3000, 0.0, 6)
+    encs, meta = fit_encoders(u, y, groups, degrees=("linear", "quadratic"))
+    assert float(meta["ridge_quadratic"]) == 0.0
+    np.testing.assert_allclose(encs["quadratic"].coef, PolynomialEncoder.fit(u, y, 2).coef,
+                               atol=1e-9)
+    # a forced weight (hand-suite train touch --ridge R) skips the search
+    forced, meta = fit_encoders(u, y, groups, ridge=0.01, degrees=("quadratic",))
+    assert meta == {"ridge": "0.01", "ridge_quadratic": "0.01"}
+    np.testing.assert_allclose(forced["quadratic"].coef,
+                               PolynomialEncoder.fit(u, y, 2, ridge=0.01).coef)
+
+
+def test_cross_validation_rejects_bad_input():
+    from hand_capture.touch.encoding import cross_validate_ridge
+
+    u, y, groups = _toy(40, 0.1, 7)
+    with pytest.raises(InputError, match="do not match"):
+        cross_validate_ridge(u, y[:-1], 1, groups=groups)
+    with pytest.raises(InputError, match="folds"):
+        cross_validate_ridge(u, y, 1, groups=np.arange(40) % 3)
+    with pytest.raises(ConfigError):
+        cross_validate_ridge(u, y, 1, ridges=(-1.0, 0.0), groups=groups)
+
+
+def test_shipped_model_carries_its_cross_validated_ridges():
+    from hand_capture.touch.encoding import CV_RIDGES
+    from hand_capture.touch.train import TRAIN, TRAIN_PARTS, shipped_ridges
+
+    meta = TouchModel.load().meta
+    assert meta["ridge"] == "cv"
+    for name in ("linear", "quadratic", "cubic"):
+        scores = json.loads(meta[f"cv_scores_{name}"])
+        assert float(meta[f"ridge_{name}"]) == CV_RIDGES[int(np.argmin(scores))]
+    # the quick bench reuses them only for the training set they were chosen on
+    assert shipped_ridges(TRAIN_PARTS) == {n: float(meta[f"ridge_{n}"])
+                                           for n in ("linear", "quadratic", "cubic")}
+    assert shipped_ridges((TRAIN,)) is None

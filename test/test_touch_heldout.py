@@ -223,7 +223,7 @@ def test_bench_sections_compare_the_four_methods_on_heldout_frames(heldout, trai
     test = TouchDataset(ds.poses, reported, ds.contact, ds.sequence, ds.frame, ds.motion)
     _, rel = train_data.inputs()
     pk = PcaIk(build_model(-1), rel, PcaIkConfig(iterations=5))
-    results, ms = _methods_table("H1", model, pk, test, 6, 0)
+    results, ms = _methods_table("H1", model.encoders, pk, test, 6, 0)
     assert set(results) == {"linear", "quadratic", "pcaik"} and ms > 0
     assert all(np.isfinite(w).all() and np.isfinite(a).all() for w, a in results.values())
     labellers = {"quadratic": FingerLabeller(model.encoder("quadratic"), model.reference_poses,

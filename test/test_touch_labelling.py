@@ -32,7 +32,10 @@ def data(hand) -> TouchDataset:
 
 @pytest.fixture(scope="module")
 def model(data):
-    return fit_model(data, degrees=("linear", "quadratic"))
+    # the paper's plain least squares: the labelling tests search the training frames
+    # themselves, which it reproduces; on these ~540 frames the trainer's cross-validation
+    # picks a ridge of 1.0 (the quadratic's 136 coefficients overfit them), which does not
+    return fit_model(data, ridge=0.0, degrees=("linear", "quadratic"))
 
 
 # --- generated data ------------------------------------------------------------------------

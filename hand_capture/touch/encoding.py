@@ -16,6 +16,12 @@ The coefficients are found by least squares over a training set of (u, pose) pai
 uses MATLAB's lsqcurvefit; here a direct solve), optionally ridge-regularised on standardised
 monomials. Evaluation is one matrix product per batch.
 
+Departure (issue #13): the paper fits plain least squares. The shipped encoders
+(``hand-suite train touch``) take, per degree, the ridge weight out of :data:`CV_RIDGES` that
+:func:`cross_validate_ridge` scores best on the training set alone (5 folds by sequence; 0,
+plain least squares, is one of the candidates); ``--ridge R`` forces one weight for all
+degrees, ``--ridge 0`` the paper's fit.
+
 Frames. Touch positions are in the surface frame S of ``TouchFrame`` (origin at the top-left
 corner, x right, y down the screen towards the user, z into the surface). Pose vectors (the
 suite's 27 DoF, ``hand_capture.model.joints.JOINT_NAMES``) are in the *table frame*
@@ -406,20 +412,42 @@ class PolynomialEncoder:
             raise ConfigError(f"encoder arrays lack {e}") from e
 
 
+#: Candidate ridge weights of :func:`cross_validate_ridge` (0 = plain least squares).
+CV_RIDGES: tuple[float, ...] = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0)
+
+
 def cross_validate_ridge(u: np.ndarray, poses: np.ndarray, degree: int,
-                         ridges: tuple[float, ...], groups: np.ndarray, folds: int = 5,
+                         ridges: tuple[float, ...] = CV_RIDGES,
+                         groups: np.ndarray | None = None, folds: int = 5,
                          seed: int = 0) -> tuple[float, np.ndarray]:
     """Ridge weight of :meth:`PolynomialEncoder.fit` chosen by k-fold cross-validation.
 
-    Folds split ``groups`` (e.g. sequence ids: frames of one motion are not independent).
-    The score is the mean squared error of every DoF divided by its variance (unit-free).
+    Args:
+        u: (M, 15) inputs; poses: (M, 27) outputs, as for :meth:`PolynomialEncoder.fit`.
+        ridges: candidate weights (>= 0; 0 = plain least squares).
+        groups: (M,) group id of each row; folds split whole groups (e.g. sequence ids:
+            frames of one motion are not independent). None: every row its own group.
+
+    The score is the mean squared error of every DoF divided by its variance (unit-free),
+    averaged over the folds; ties go to the first candidate.
 
     Returns:
         (best ridge, (len(ridges),) scores).
+
+    Raises:
+        InputError: shapes that do not match, fewer groups than folds.
+        ConfigError: no candidates, a negative one, or fewer than 2 folds.
     """
     u = np.asarray(u, np.float64)
     y = np.asarray(poses, np.float64)
+    groups = np.arange(len(u)) if groups is None else np.asarray(groups)
+    if len(u) != len(y) or len(groups) != len(u):
+        raise InputError(f"u {u.shape}, poses {y.shape} and groups {groups.shape} do not match")
+    if not ridges or min(ridges) < 0 or folds < 2:
+        raise ConfigError(f"need candidate ridges >= 0 and folds >= 2; got {ridges}, {folds}")
     ids = np.unique(groups)
+    if len(ids) < folds:
+        raise InputError(f"{len(ids)} groups cannot make {folds} folds")
     fold_of = dict(zip(np.random.default_rng(seed).permutation(ids),
                        np.arange(len(ids)) % folds, strict=True))
     fold = np.array([fold_of[g] for g in groups])

@@ -10,11 +10,14 @@ deg and roll sd 8 deg instead of +-35 and 5) and eight more (``sample_shape(9..1
 29-36) over a wider wrist pitch (-12 +- 10 deg), roll (sd 10 deg) and finger curl (0-0.9).
 u and the poses are expressed in the contacts' frame
 (:class:`~hand_capture.touch.encoding.ContactFrame`; ``--leftmost`` for the paper's). The linear,
-quadratic and cubic encodings (eq. 1-3) are fitted by plain least squares, as in the paper,
-and saved with a subsample of the training poses and the layout prior for the labelling
-search, and with a fingerprint of the hand model's kinematics: a test fails when the model
-changes and the file is stale (run this command again then). Same inputs, same file: the
-generator and the subsample are seeded.
+quadratic and cubic encodings (eq. 1-3) are fitted by least squares, each with the ridge weight
+that 5-fold cross-validation on the training set picks for it
+(:func:`~hand_capture.touch.encoding.cross_validate_ridge`, folds by sequence; a departure
+from the paper's plain least squares, which ``--ridge 0`` fits; the chosen weights are in the
+file's meta ``ridge_<encoding>``), and saved with a subsample of the training poses and the
+layout prior for the labelling search, and with a fingerprint of the hand model's
+kinematics: a test fails when the model changes and the file is stale (run this command
+again then). Same inputs, same file: the generator, the folds and the subsample are seeded.
 
 Nothing here may come from :mod:`hand_capture.touch.heldout` (the evaluation family).
 """
@@ -28,6 +31,9 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
+
+from hand_capture.errors import ConfigError
 from hand_capture.touch.datagen import (
     GenConfig,
     TouchDataset,
@@ -35,7 +41,13 @@ from hand_capture.touch.datagen import (
     load_or_generate,
     model_fingerprint,
 )
-from hand_capture.touch.encoding import DEGREES, ContactFrame, PolynomialEncoder
+from hand_capture.touch.encoding import (
+    CV_RIDGES,
+    DEGREES,
+    ContactFrame,
+    PolynomialEncoder,
+    cross_validate_ridge,
+)
 from hand_capture.touch.labelling import LayoutPrior
 from hand_capture.touch.touch_model import MAX_REFERENCE, TouchModel, default_model_path
 
@@ -64,18 +76,66 @@ def training_set(parts: tuple[GenConfig, ...] = TRAIN_PARTS) -> TouchDataset:
     return TouchDataset.concatenate(sets)
 
 
-def fit_model(ds: TouchDataset, ridge: float = 0.0,
+def fit_encoders(u: np.ndarray, poses: np.ndarray, sequence: np.ndarray,
+                 ridge: float | dict[str, float] | None = None,
+                 degrees: tuple[str, ...] = tuple(DEGREES), frame: ContactFrame | None = None
+                 ) -> tuple[dict[str, PolynomialEncoder], dict[str, str]]:
+    """Encoders for ``degrees`` fitted on (u (M, 15), poses (M, 27)).
+
+    ``ridge``: one weight for every degree (0 = plain least squares, the paper's fit), the
+    weight of each degree by name (e.g. :func:`shipped_ridges`), or None to choose each
+    degree's weight out of :data:`CV_RIDGES` by 5-fold cross-validation with folds by
+    ``sequence`` (M,) (the shipped fit).
+
+    Returns:
+        the encoders by name, and meta entries: ``ridge`` ("cv", "given" or the forced
+        weight), ``ridge_<name>`` (the weight used) and, with cross-validation,
+        ``cv_scores_<name>`` (JSON list, one score per candidate of :data:`CV_RIDGES`).
+    """
+    meta = {"ridge": "cv" if ridge is None else "given" if isinstance(ridge, dict)
+            else str(ridge)}
+    encoders = {}
+    for name in degrees:
+        r = ridge[name] if isinstance(ridge, dict) else ridge
+        if r is None:
+            r, scores = cross_validate_ridge(u, poses, DEGREES[name], CV_RIDGES, sequence)
+            meta[f"cv_scores_{name}"] = json.dumps([float(x) for x in scores])
+        encoders[name] = PolynomialEncoder.fit(u, poses, DEGREES[name], ridge=r, frame=frame)
+        meta[f"ridge_{name}"] = str(r)
+    return encoders, meta
+
+
+def shipped_ridges(parts: tuple[GenConfig, ...] = TRAIN_PARTS) -> dict[str, float] | None:
+    """The cross-validated ridge weights of the shipped model file by encoding, when it was
+    fitted on ``parts`` and the current hand model (else None: cross-validate again)."""
+    try:
+        shipped = TouchModel.load()
+    except ConfigError:
+        return None
+    meta = shipped.meta
+    if (shipped.frame is None or meta.get("ridge") != "cv"
+            or meta.get("parts") != _parts_json(parts)
+            or meta.get("hand_model") != model_fingerprint(build_model(-1))):
+        return None
+    return {n: float(meta[f"ridge_{n}"]) for n in DEGREES}
+
+
+def _parts_json(parts: tuple[GenConfig, ...]) -> str:
+    return json.dumps([asdict(c) for c in parts])
+
+
+def fit_model(ds: TouchDataset, ridge: float | dict[str, float] | None = None,
               degrees: tuple[str, ...] = tuple(DEGREES), contact_frame: bool = True
               ) -> TouchModel:
-    """Encoders for ``degrees`` fitted on ``ds``; every training pose is kept as reference;
-    the labelling's layout prior from the same frames. ``contact_frame``: u and the poses in
-    the contacts' frame (:class:`~hand_capture.touch.encoding.ContactFrame`, fitted on ``ds``),
-    else relative to the leftmost contact (the paper)."""
+    """Encoders for ``degrees`` fitted on ``ds`` (:func:`fit_encoders`: ``ridge`` None, the
+    default, cross-validates each degree's weight on ``ds``); every training pose is kept as
+    reference; the labelling's layout prior from the same frames. ``contact_frame``: u and
+    the poses in the contacts' frame (:class:`~hand_capture.touch.encoding.ContactFrame`,
+    fitted on ``ds``), else relative to the leftmost contact (the paper)."""
     frame = ContactFrame.fit(ds.pads, ds.contact) if contact_frame else None
     u, poses = ds.inputs(frame)
-    encoders = {name: PolynomialEncoder.fit(u, poses, DEGREES[name], ridge=ridge)
-                for name in degrees}
-    return TouchModel(encoders, poses, {"frames": str(len(ds)), "ridge": str(ridge)},
+    encoders, meta = fit_encoders(u, poses, ds.sequence, ridge, degrees, frame)
+    return TouchModel(encoders, poses, {"frames": str(len(ds)), **meta},
                       LayoutPrior.fit(ds.pads, ds.contact), frame)
 
 
@@ -86,8 +146,10 @@ def main(argv: list[str] | None = None) -> int:
                     "data/touch/touch_model.npz)")
     ap.add_argument("--template-only", action="store_true",
                     help="train on the template hand's part alone (the first shipped set)")
-    ap.add_argument("--ridge", type=float, default=0.0,
-                    help="ridge weight (0 = plain least squares, as in the paper)")
+    ap.add_argument("--ridge", type=float, default=None,
+                    help="one ridge weight for every encoding (0 = plain least squares, as in "
+                    "the paper; default: each encoding's weight chosen by 5-fold "
+                    "cross-validation on the training set)")
     ap.add_argument("--max-reference", type=int, default=MAX_REFERENCE)
     ap.add_argument("--leftmost", action="store_true",
                     help="u relative to the leftmost contact, unturned (the paper) instead of "
@@ -98,12 +160,14 @@ def main(argv: list[str] | None = None) -> int:
     ds = training_set(parts)
     t1 = time.perf_counter()
     model = fit_model(ds, a.ridge, contact_frame=not a.leftmost)
-    model.meta.update({"parts": json.dumps([asdict(c) for c in parts]),
+    model.meta.update({"parts": _parts_json(parts),
                        "seed": str(TRAIN.seed),
                        "hand_model": model_fingerprint(build_model(-1))})
     out = model.save(a.out or default_model_path(), max_reference=a.max_reference)
     print(f"{len(ds)} training frames from {len(parts)} parts ({t1 - t0:.1f} s), fitted "
-          f"{sorted(model.encoders)} in {time.perf_counter() - t1:.1f} s -> {out} "
+          f"{sorted(model.encoders)} (ridges "
+          f"{ {n: float(model.meta[f'ridge_{n}']) for n in sorted(model.encoders)} }) "
+          f"in {time.perf_counter() - t1:.1f} s -> {out} "
           f"({out.stat().st_size / 1024:.0f} KiB)")
     return 0
 
