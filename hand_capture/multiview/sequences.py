@@ -22,7 +22,10 @@ with the studio's colour noise and seed 002's structural noise (``circles`` rand
 radius 10-30 px per image, half filled with random colours -- added structure -- and half with
 the colour under their centre -- removed structure) and synthetic salient detections: the
 visible nail centres projected with 1.5 px noise, each deleted with probability
-``salient_miss``, plus ``salient_fp`` false positives per true one near the hands.
+``salient_miss``, plus ``salient_fp`` false positives per true one near the hands. Each
+frame also carries, per camera, the mask of the pixels its circles changed
+(``SequenceFrame.noise_masks``): seed 002 sec. 5.1 left the optical flow features of those
+circles out, and a benchmark passes the masks to the tracker to do the same.
 """
 
 from __future__ import annotations
