@@ -39,7 +39,8 @@ JSON keys: ``lo_full_mean_mm`` (held-out surfaces, worst sequence in ``lo_full_m
 ``isa128_mean_mm``, ``object_err_mm``, ``object_err_deg``, ``s_per_frame`` (E+C+O+S, two
 hands + ball; ``cpu_s_per_frame`` its CPU time), ``isa128_s_per_frame``, ``render_ms``
 (one 640x480 model render, the cost ISA's particles pay), ``recover_frames``,
-``lost_flagged_share``.
+``lost_flagged_share``, ``flow_ignore_circles`` (whether the circles' flow features were left
+out).
 """
 
 from __future__ import annotations
