@@ -11,7 +11,9 @@ A correspondence is a triplet (k, c, p): vertex ``k`` should project to pixel ``
   lookup is O(1) per vertex (:class:`ImageFeatures`).
 * **optical flow** (:func:`flow_correspondences`): pyramidal Lucas-Kanade (OpenCV) carries the
   visible vertices' projections of the previous frame's estimate into the current image,
-  kept when the backward flow returns within a pixel.
+  kept when the backward flow returns within a pixel; optionally not where a mask of
+  untrusted pixels (the bench's structural-noise circles, seed 002 sec. 5.1) touches the LK
+  window at its start or end.
 * **salient points** (:func:`match_salient`): visible salient vertices (nail centres) and the
   detector's salient image points are associated by bipartite matching with outlier nodes,
   eq. (3), solved exactly as a linear assignment on the augmented square matrix.
@@ -25,8 +27,9 @@ import numpy as np
 
 from hand_capture.errors import InputError
 
-__all__ = ["ImageFeatures", "N_ORIENT", "edge_correspondences", "flow_correspondences",
-           "image_features", "match_salient", "model_edges"]
+__all__ = ["FLOW_WINDOW_PX", "ImageFeatures", "N_ORIENT", "edge_correspondences",
+           "flow_correspondences", "image_features", "match_salient", "model_edges",
+           "window_clear"]
 
 #: orientation bins of edge normals over [0, pi)
 N_ORIENT = 6
@@ -217,11 +220,43 @@ def edge_correspondences(uv: np.ndarray, pix_scaled: np.ndarray, edge_bins: np.n
     return on[ok], tgt[ok], nrm[ok]
 
 
+#: side of the Lucas-Kanade window at every pyramid level [px]
+FLOW_WINDOW_PX = 15
+
+
+def window_clear(mask: np.ndarray | None, uv: np.ndarray, half_px: int) -> np.ndarray:
+    """(N,) bool: no pixel of ``mask`` ((H, W) bool, None: nothing masked) lies in the
+    (2 ``half_px`` + 1)^2 square window around each point ``uv`` (N, 2) [px]; pixels of the
+    window outside the image count as clear."""
+    uv = np.nan_to_num(np.asarray(uv, dtype=float).reshape(-1, 2), nan=-1e6)
+    if mask is None or not len(uv):
+        return np.ones(len(uv), bool)
+    m = np.asarray(mask, dtype=bool)
+    h, w = m.shape
+    d = np.arange(-half_px, half_px + 1)
+    col = np.round(uv[:, 0]).astype(np.int64)[:, None, None] + d[None, None, :]
+    row = np.round(uv[:, 1]).astype(np.int64)[:, None, None] + d[None, :, None]
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    hit = m[np.clip(row, 0, h - 1), np.clip(col, 0, w - 1)] & inside
+    return ~hit.reshape(len(uv), -1).any(axis=1)
+
+
 def flow_correspondences(prev_grey: np.ndarray, grey: np.ndarray, uv_prev: np.ndarray,
-                         fb_px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                         fb_px: float = 1.0, ignore_prev: np.ndarray | None = None,
+                         ignore: np.ndarray | None = None,
+                         margin_px: int = FLOW_WINDOW_PX // 2
+                         ) -> tuple[np.ndarray, np.ndarray]:
     """Pyramidal Lucas-Kanade flow of points ``uv_prev`` (N, 2) [px] from the previous image
     to this one, kept where the backward flow returns within ``fb_px`` and the window has
     texture.
+
+    ``ignore_prev`` / ``ignore``: (H, W) bool masks of the previous / this image's pixels
+    whose flow is not to be trusted (seed 002 sec. 5.1: the optical flow features of the
+    structural-noise circles are not considered). A point is dropped when a masked pixel
+    lies within ``margin_px`` of its start in the previous image or of its tracked end in
+    this one (default the LK half-window, 7 px: the finest level's window, which sets the
+    final estimate, then sees no masked pixel; the coarser levels' larger footprints only
+    seed it and are not screened).
 
     Returns:
         (sel, targets): indices of the kept points and where they moved to (n, 2) [px].
@@ -231,12 +266,15 @@ def flow_correspondences(prev_grey: np.ndarray, grey: np.ndarray, uv_prev: np.nd
     if not len(uv_prev):
         return np.zeros(0, np.int64), np.zeros((0, 2))
     p0 = uv_prev.astype(np.float32).reshape(-1, 1, 2)
-    lk = {"winSize": (15, 15), "maxLevel": 3, "minEigThreshold": 5e-3,
+    lk = {"winSize": (FLOW_WINDOW_PX, FLOW_WINDOW_PX), "maxLevel": 3,
+          "minEigThreshold": 5e-3,
           "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03)}
     p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_grey, grey, p0, None, **lk)
     p0b, st2, _ = cv2.calcOpticalFlowPyrLK(grey, prev_grey, p1, None, **lk)
     fb = np.linalg.norm((p0b - p0).reshape(-1, 2), axis=1)
     ok = (st.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (fb < fb_px)
+    ok &= window_clear(ignore_prev, uv_prev, margin_px)
+    ok &= window_clear(ignore, p1.reshape(-1, 2), margin_px)
     sel = np.flatnonzero(ok)
     return sel, p1.reshape(-1, 2)[sel].astype(float)
 

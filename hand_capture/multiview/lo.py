@@ -31,6 +31,7 @@ from hand_capture.multiview.collision import (
     detect_collisions,
 )
 from hand_capture.multiview.correspondences import (
+    FLOW_WINDOW_PX,
     ImageFeatures,
     edge_correspondences,
     flow_correspondences,
@@ -173,6 +174,10 @@ class LocalOptimizer:
         self.collision_parts = [(a, b) for a in hands for b in parts if b > a]
         #: hand / background colours (seed 000 eq. 4), see :meth:`learn_colours`
         self.colour: object | None = None
+        #: distance [px] within which a flow-ignore mask pixel drops a flow feature (see
+        #: :meth:`prepare`): the LK half-window. Not an ``LOConfig`` field: it acts only
+        #: when a benchmark passes masks, and the config is part of cached designs' keys.
+        self.flow_ignore_margin_px = FLOW_WINDOW_PX // 2
 
     def learn_colours(self, images: Mapping[str, np.ndarray | None], params: np.ndarray
                       ) -> bool:
@@ -219,9 +224,21 @@ class LocalOptimizer:
     def prepare(self, images: Mapping[str, np.ndarray | None],
                 detections: Mapping[str, np.ndarray] | None = None,
                 prev: tuple[Mapping[str, np.ndarray | None], SceneState] | None = None,
-                parts: Sequence[int] | None = None) -> FrameData:
+                parts: Sequence[int] | None = None,
+                flow_ignore: Mapping[str, np.ndarray] | None = None,
+                prev_flow_ignore: Mapping[str, np.ndarray] | None = None) -> FrameData:
         """Image features of the present cameras, their salient detections, and the optical
-        flow correspondences from the previous frame (its images and final state)."""
+        flow correspondences from the previous frame (its images and final state).
+
+        ``flow_ignore`` / ``prev_flow_ignore``: camera -> (H, W) bool mask of this / the
+        previous frame's pixels whose optical flow is not considered (None: every pixel
+        counts, as for a real camera). Seed 002 sec. 5.1's protocol: the structural-noise
+        circles added to the synthetic images, and "the optical flow features
+        corresponding to those circles" left out; a benchmark that knows where it drew
+        them passes them here. A visible vertex is not a flow start when a previous-frame
+        mask pixel lies within ``flow_ignore_margin_px`` of its projection, and its flow is
+        dropped when one of this frame's does of its tracked end
+        (:func:`~hand_capture.multiview.correspondences.flow_correspondences`)."""
         feats: dict[int, ImageFeatures] = {}
         for c, cam in enumerate(self.rig.cameras):
             img = images.get(cam.name)
@@ -240,28 +257,36 @@ class LocalOptimizer:
         if prev is not None and self.cfg.use_flow and self.cfg.flow_per_view > 0:
             flow = self._flow(feats, prev[0], prev[1],
                               list(range(len(self.model.part_names))) if parts is None
-                              else list(parts))
+                              else list(parts), flow_ignore or {}, prev_flow_ignore or {})
         return FrameData(feats, dets, flow, masks)
 
     def _flow(self, feats: dict[int, ImageFeatures], prev_images: Mapping[str, object],
-              prev_state: SceneState, parts: list[int]) -> Correspondences:
-        from hand_capture.multiview.correspondences import to_grey
+              prev_state: SceneState, parts: list[int], ignore: Mapping[str, np.ndarray],
+              prev_ignore: Mapping[str, np.ndarray]) -> Correspondences:
+        from hand_capture.multiview.correspondences import to_grey, window_clear
 
         out = []
         s = self.cfg.render_scale
+        margin = self.flow_ignore_margin_px
         for c, f in feats.items():
             cam = self.rig.cameras[c]
             pimg = prev_images.get(cam.name)
             if pimg is None:
                 continue
             pg = to_grey(pimg)
+            pmask, cmask = prev_ignore.get(cam.name), ignore.get(cam.name)
             ren = self.model.render(cam, prev_state, s, parts=parts)
             for p in parts:
                 idx, uv = self.model.visible(cam, prev_state, ren, p)
+                if pmask is not None:
+                    # screened before the draw: the budget goes to starts that may be used
+                    ok = window_clear(pmask, uv, margin)
+                    idx, uv = idx[ok], uv[ok]
                 if len(idx) > self.cfg.flow_per_view:
                     pick = self._rng.choice(len(idx), self.cfg.flow_per_view, replace=False)
                     idx, uv = idx[pick], uv[pick]
-                sel, tgt = flow_correspondences(pg, f.grey, uv)
+                sel, tgt = flow_correspondences(pg, f.grey, uv, ignore=cmask,
+                                                margin_px=margin)
                 n = len(sel)
                 out.append(Correspondences(np.full(n, p), idx[sel], np.full(n, c), tgt,
                                            np.full(n, FLOW)))

@@ -22,14 +22,17 @@ with the studio's colour noise and seed 002's structural noise (``circles`` rand
 radius 10-30 px per image, half filled with random colours -- added structure -- and half with
 the colour under their centre -- removed structure) and synthetic salient detections: the
 visible nail centres projected with 1.5 px noise, each deleted with probability
-``salient_miss``, plus ``salient_fp`` false positives per true one near the hands.
+``salient_miss``, plus ``salient_fp`` false positives per true one near the hands. Each
+frame also carries, per camera, the mask of the pixels its circles changed
+(``SequenceFrame.noise_masks``): seed 002 sec. 5.1 left the optical flow features of those
+circles out, and a benchmark passes the masks to the tracker to do the same.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -75,10 +78,15 @@ class Sequence:
 
 @dataclass
 class SequenceFrame:
-    """One rendered group: camera -> RGB image, camera -> salient detections (k, 2) [px]."""
+    """One rendered group: camera -> RGB image, camera -> salient detections (k, 2) [px],
+    and camera -> (H, W) bool mask of the pixels the structural-noise circles changed (every
+    pixel a circle's anti-aliased disc touches, not grown; empty when ``circles`` = 0): the
+    protocol's knowledge of where the noise is, which seed 002 sec. 5.1 uses to leave the
+    optical flow features of those circles out (``MultiviewTracker.step(flow_ignore=...)``)."""
 
     images: dict[str, np.ndarray]
     detections: dict[str, np.ndarray]
+    noise_masks: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _rot(axis: int, a: float) -> np.ndarray:
@@ -221,11 +229,22 @@ def _object_qpos(poses: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
-def _structural_noise(img: np.ndarray, rng: np.random.Generator, n: int) -> np.ndarray:
+def _structural_noise(img: np.ndarray, rng: np.random.Generator, n: int
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Seed 002's structural noise: ``n`` discs of radius 10-30 px at random centres of the
+    (H, W, 3) uint8 image, even ones filled with a random colour (added structure), odd ones
+    with the colour under their centre (removed structure).
+
+    Returns:
+        (the noisy image (H, W, 3) uint8, (H, W) bool mask of every pixel a disc's
+        anti-aliased fill touches). The mask costs no random draws: the image is the same
+        as without it for the same ``rng`` state.
+    """
     import cv2
 
     out = img.copy()
     h, w = img.shape[:2]
+    mask = np.zeros((h, w), np.uint8)
     for i in range(n):
         c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
         rad = int(rng.integers(10, 31))
@@ -234,14 +253,16 @@ def _structural_noise(img: np.ndarray, rng: np.random.Generator, n: int) -> np.n
         else:
             col = tuple(int(v) for v in img[c[1], c[0]])
         cv2.circle(out, c, rad, col, -1, lineType=cv2.LINE_AA)
-    return out
+        cv2.circle(mask, c, rad, 255, -1, lineType=cv2.LINE_AA)
+    return out, mask > 0
 
 
 def render_sequence(seq: Sequence, rig: Rig, *, surface: str = "heldout",
                     noise: bool = True, circles: int = 100, salient_miss: float = 0.3,
                     salient_fp: float = 0.1, seed: int = 0,
                     frames: list[int] | None = None) -> Iterator[SequenceFrame]:
-    """Render ``seq`` from every camera of ``rig``; see the module docstring."""
+    """Render ``seq`` from every camera of ``rig``; see the module docstring. Each frame
+    carries the circles' pixel masks (``SequenceFrame.noise_masks``) beside its images."""
     from hand_capture.cameras.render import Mesh, ZBufferRenderer
     from hand_capture.evaldata.surface import sample_surface
     from hand_capture.multiview.studio import Studio, StudioNoise, studio_scene
@@ -266,7 +287,7 @@ def render_sequence(seq: Sequence, rig: Rig, *, surface: str = "heldout",
             studio.set_state(show[0], _object_qpos(seq.object_poses[t]) if seq.objects
                              else None, show[1] if two else None)
             state = model.pose(seq.truth(model, t))
-            images, dets = {}, {}
+            images, dets, masks = {}, {}, {}
             for ci, cam in enumerate(rig.cameras):
                 view = studio.render(ci, labels=False)
                 rgb = view.rgb.copy()
@@ -282,8 +303,11 @@ def render_sequence(seq: Sequence, rig: Rig, *, surface: str = "heldout",
                     depth = np.where(over, res.depth, depth)
                 dets[cam.name] = _detections(model, state, cam, depth, rng, salient_miss,
                                              salient_fp)
-                images[cam.name] = _structural_noise(rgb, rng, circles) if circles else rgb
-            yield SequenceFrame(images, dets)
+                if circles:
+                    images[cam.name], masks[cam.name] = _structural_noise(rgb, rng, circles)
+                else:
+                    images[cam.name] = rgb
+            yield SequenceFrame(images, dets, masks)
     finally:
         studio.close()
 

@@ -195,6 +195,8 @@ class MultiviewTracker:
         self._bad = np.zeros(n, dtype=np.int64)
         self._last_good: np.ndarray | None = None
         self._prev: tuple[Mapping[str, np.ndarray | None], SceneState] | None = None
+        #: the previous group's flow-ignore masks (see :meth:`step`)
+        self._prev_ignore: dict[str, np.ndarray] | None = None
         self._velocity: np.ndarray | None = None
         self.frames = 0
 
@@ -206,14 +208,22 @@ class MultiviewTracker:
         self.status = [TRACKED] * len(self.model.part_names)
         self._bad[:] = 0
         self._prev = None
+        self._prev_ignore = None
         self._velocity = None
 
     def _slice(self, p: int) -> slice:
         return self.model.slices[self.model.part_names[p]]
 
     def step(self, images: Mapping[str, np.ndarray | None],
-             detections: Mapping[str, np.ndarray] | None = None) -> TrackResult:
-        """Track one synchronised group (camera name -> RGB image, None = missing)."""
+             detections: Mapping[str, np.ndarray] | None = None,
+             flow_ignore: Mapping[str, np.ndarray] | None = None) -> TrackResult:
+        """Track one synchronised group (camera name -> RGB image, None = missing).
+
+        ``flow_ignore``: camera -> (H, W) bool mask of this group's pixels whose optical
+        flow is not to be considered, kept with the images for the next group's flow too
+        (:meth:`LocalOptimizer.prepare`). Only a benchmark knows such pixels: seed 002 sec.
+        5.1 left out the optical flow features of the structural-noise circles it drew.
+        None (the node, ``track-multiview``, a real camera): every pixel counts."""
         t0 = time.perf_counter()
         m = self.model
         present = [c.name for c in self.rig.cameras if images.get(c.name) is not None]
@@ -228,11 +238,13 @@ class MultiviewTracker:
         if detections is None and self.detector is not None:
             detections = {c: np.asarray(self.detector.detect(images[c])[0]) for c in present}
         active = [p for p, s in enumerate(self.status) if s != LOST]
-        frame = self.lo.prepare(images, detections, self._prev, active)
+        frame = self.lo.prepare(images, detections, self._prev, active, flow_ignore,
+                                self._prev_ignore)
         if self.lo.colour is None and self._hands_in_place(frame, active):
             # the hands' colours, learned where the estimate matches the images
             if self.lo.learn_colours(images, self.params):
-                frame = self.lo.prepare(images, detections, self._prev, active)
+                frame = self.lo.prepare(images, detections, self._prev, active, flow_ignore,
+                                        self._prev_ignore)
         res = None
         if active:
             start = self.params
@@ -276,6 +288,7 @@ class MultiviewTracker:
                                       float(support[p])))
         state = m.pose(self.params)
         self._prev = (dict(images), state)
+        self._prev_ignore = None if flow_ignore is None else dict(flow_ignore)
         self.frames += 1
         return TrackResult(self.params.copy(), parts, len(present), time.perf_counter() - t0,
                            res, state)
