@@ -15,9 +15,23 @@ first-frame initialiser's proposal when one is given; the best-supported candida
 by a short local optimisation and the part is TRACKED again when the support passes
 ``recover_support``.
 
+Objects' region score (:mod:`~hand_capture.multiview.region`, seed 000 eq. 4-5 per object):
+each object's colour model is learned on its first frame with a supported outline (the first
+frame's known pose); the share of its rendered silhouette in its colour then also flags it
+LOST (below ``lost_region``), an object is searched for in the very frame it is lost, its
+candidates include the placement of the visual hull of its colour blobs
+(:func:`~hand_capture.multiview.hull.place_object`) and are ranked by support x region, and a
+re-found object needs ``recover_region`` too. A tracked object whose score is below
+``check_region`` (a pose half off the object's image region still fits its outline's edges,
+e.g. a ball that flew off while the solve stopped beside the hand) is checked against its
+colour hull's placement: refined, the better by support x region is kept (RECOVERED).
+Edge support alone cannot tell a ball's pose on clutter circles or hand edges from its true
+one (the README's validation figures).
+
 Start of a frame: the previous estimate (seed 002), plus, for the objects no hand holds
 (none within ``held_m``), their last frame-to-frame motion (``predict_objects``: a thrown
-ball moves 4-6 cm a frame at 30 fps).
+ball moves 4-6 cm a frame at 30 fps); an object re-found in the frame after a tracked one
+keeps its motion since that frame.
 
 Confidence of a tracked part: its support times the share of the rig's cameras present in
 the group (a camera missing from a group lowers it; tracking continues on the others).
@@ -80,7 +94,7 @@ class MultiviewTrackerConfig:
     lost_region: float = param(0.35, "an object's region score (share of its rendered "
                                "silhouette in its own colour, seed 000 eq. 4-5) below which "
                                "a frame counts as bad (0: edge support alone)", lo=0.0, hi=1.0)
-    recover_region: float = param(0.6, "region score a re-found object must reach", lo=0.0,
+    recover_region: float = param(0.45, "region score a re-found object must reach", lo=0.0,
                                   hi=1.0)
     hull_box_m: float = param(0.2, "half size of the box around the estimate (or last good "
                               "pose) where an object's colour hull is carved [m]", lo=0.02,
