@@ -6,8 +6,9 @@ VALIDATION render seed (default 7; the bench uses 1 and 2), the tracker's own me
 002's circles, tracks it from the first frame's truth with the defaults (``--tracker``
 overrides ``MultiviewTrackerConfig``, e.g. ``object_colours=False`` for edge support alone,
 main's behaviour) and prints per frame: the ball's true motion, its position error, status,
-edge support and region score (the tracker's), and the region score and edge support at the
-TRUE configuration (the threshold's evidence). Last line: one JSON object.
+edge support and region score (the tracker's), the region score and edge support at the
+TRUE configuration (the thresholds' evidence) and the hands' mean keypoint error. Last line:
+one JSON object.
 
 ``--sequence box``: the same rows for the box the hand grasps, lifts and turns (a held
 object: a false LOST flag's check).
@@ -69,8 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{a.sequence}, render seed {a.seed}, {a.surface} mesh, {a.circles} circles, "
           f"tracker overrides {over or 'none'}")
     print(f"{'t':>2} {'moved mm':>8} {'err mm':>7} {'status':>10} {'support':>7} "
-          f"{'region':>6} | truth: {'support':>7} {'region':>6}  s")
-    errs, lost, secs = [], 0, []
+          f"{'region':>6} | truth: {'support':>7} {'region':>6}  s  hands mm")
+    errs, lost, secs, hand_errs = [], 0, [], []
     for t, fr in enumerate(frames):
         res = tr.step(fr.images, fr.detections)
         truth = seq.truth(model, t)
@@ -78,21 +79,26 @@ def main(argv: list[str] | None = None) -> int:
         moved = 0.0 if t == 0 else float(
             np.linalg.norm(truth[sl][:3] - seq.truth(model, t - 1)[sl][:3]) * 1e3)
         pe = res.parts[ball]
+        kt = model.pose(truth).keypoints
+        hand = float(np.mean([np.linalg.norm(res.state.keypoints[h] - kt[h], axis=1).mean()
+                              for h in hands]) * 1e3)
         # evidence at the truth: the hands at the truth too
         ts, _ = tr.lo.support(truth, tr.lo.prepare(fr.images), [ball, *hands])
         maps = tr.regions.maps(fr.images)
         tr_region = tr.regions.score(truth, maps, ball)[0] if ball in maps else float("nan")
         print(f"{t:2d} {moved:8.1f} {err:7.1f} {pe.status:>10} {pe.support:7.2f} "
               f"{pe.region:6.2f} | truth: {ts[ball]:7.2f} {tr_region:6.2f}  "
-              f"{res.seconds:.1f}")
+              f"{res.seconds:.1f}  {hand:.1f}")
         if t:
             errs.append(err)
+            hand_errs.append(hand)
             secs.append(res.seconds)
             lost += pe.status == "lost"
     out = {"script": "multiview_lost_ball", "sequence": a.sequence, "seed": a.seed,
            "circles": a.circles, "surface": a.surface, "overrides": over,
            "object_err_mm": [round(e, 1) for e in errs],
-           "object_mean_mm": float(np.mean(errs)), "frames_lost": lost,
+           "object_mean_mm": float(np.mean(errs)),
+           "hands_mean_mm": float(np.mean(hand_errs)), "frames_lost": lost,
            "s_per_frame": float(np.mean(secs))}
     print(json.dumps(out))
     return 0

@@ -44,7 +44,8 @@ with no usable view is rejected as a whole.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -310,9 +311,10 @@ class MultiviewTracker:
         # placement against the estimate
         for p in [p for p in active if p in maps and self.status[p] != LOST
                   and region[p] < self.cfg.check_region]:
-            if self._recover(p, images, frame, maps, current=(support[p], region[p])):
-                recovered.add(p)
-                support[p], region[p] = self._recovered
+            with self._draws_kept():
+                if self._recover(p, images, frame, maps, current=(support[p], region[p])):
+                    recovered.add(p)
+                    support[p], region[p] = self._recovered
         prior = getattr(self.initializer, "set_prior", None)
         # lost parts are searched for from the next frame on; an object with a colour model
         # at once (its colour hull proposes where it went)
@@ -320,9 +322,10 @@ class MultiviewTracker:
                   (p not in active or p in maps)]:
             if callable(prior):
                 prior(self.params)
-            if self._recover(p, images, frame, maps):
-                recovered.add(p)
-                support[p], region[p] = self._recovered
+            with self._draws_kept(p in maps):
+                if self._recover(p, images, frame, maps):
+                    recovered.add(p)
+                    support[p], region[p] = self._recovered
         if self._velocity is not None:
             for p in range(len(m.part_names)):
                 sl = self._slice(p)
@@ -343,6 +346,19 @@ class MultiviewTracker:
         self.frames += 1
         return TrackResult(self.params.copy(), parts, len(present), time.perf_counter() - t0,
                            res, state)
+
+    @contextmanager
+    def _draws_kept(self, keep: bool = True) -> Iterator[None]:
+        """The local optimiser's random subsampling draws as they were before the block
+        (``keep``): an object's colour checks and searches, which evaluate and refine
+        candidates, do not shift the draws of the frames after them, so where they change
+        nothing the tracking is the same as without them."""
+        state = self.lo._rng.bit_generator.state if keep else None
+        try:
+            yield
+        finally:
+            if state is not None:
+                self.lo._rng.bit_generator.state = state
 
     def _predict_gain(self, active: list[int]) -> np.ndarray:
         """(n_params,) share of the last frame-to-frame motion added to each parameter's
