@@ -104,6 +104,9 @@ class MultiviewTrackerConfig:
                                 "placement of its colour hull is tried against the estimate "
                                 "(the better by support x region, refined, is kept)",
                                 lo=0.0, hi=1.0)
+    check_agree_m: float = param(0.015, "a check keeps the estimate without evaluating the "
+                                 "colour hull's placement when it lies this near [m]",
+                                 lo=0.0, hi=1.0)
     object_colours: bool = param(True, "learn each object's colour model on its first "
                                  "well-supported frame: region score, the colour hull's "
                                  "recovery candidate and the candidates ranked by support x "
@@ -447,9 +450,13 @@ class MultiviewTracker:
                                       self.model.objects[p - self.model.n_hands].vertices,
                                       voxel_m=0.01, lo=near - cfg.hull_box_m,
                                       hi=near + cfg.hull_box_m)
-                cands.append(got)
             except InputError:
-                pass      # no consistent colour blob in enough views
+                got = None      # no consistent colour blob in enough views
+            if current is not None and (got is None or
+                                        np.linalg.norm(got[:3] - near) < cfg.check_agree_m):
+                return False    # the colour blobs put it where it is (or nowhere)
+            if got is not None:
+                cands.append(got)
         tracked = [q for q, s in enumerate(self.status) if s != LOST and q != p]
         best, best_key = None, -1.0 if current is None else current[0] * current[1]
         for c in cands:
