@@ -112,3 +112,14 @@ def test_a_jumped_ball_is_flagged_and_re_found_by_its_colours(jump, colours):
     else:
         assert r1.parts[ball].status != LOST and err > 0.08
         assert np.isnan(r1.parts[ball].region)
+
+
+def test_a_colour_model_that_separates_nothing_is_not_kept(jump):
+    """Black frames: the object's mixture cannot beat the rest's anywhere, so no model (and
+    no region score) rather than one that flags every pose."""
+    rig, seq, frames = jump
+    model = seq.model()
+    reg = ObjectRegions(model, rig)
+    black = {c: np.zeros_like(v) for c, v in frames[0].images.items()}
+    assert reg.learn(black, seq.truth(model, 0), [model.part_index("ball")]) == []
+    assert not reg.colours

@@ -75,7 +75,8 @@ class ObjectRegions:
         """Fit the colour model of each object part in ``parts`` (not learned yet) on
         ``images`` seen at the configuration ``params`` (its visible rendered silhouettes,
         hands drawn in front, ``margin_px`` of each outline left out); a view needs 50
-        silhouette pixels. Returns the parts learned now."""
+        silhouette pixels, and a model is kept only when it explains most of the object's
+        pixels and few of the others' on these images. Returns the parts learned now."""
         import cv2
 
         m = self.model
@@ -100,8 +101,17 @@ class ObjectRegions:
                 if mask.sum() > 50:
                     imgs.append(a)
                     masks.append(mask)
-            if imgs:
-                self.colours[p] = ColourModel.fit(imgs, masks, margin_px=self.margin_px)
+            if not imgs:
+                continue
+            col = ColourModel.fit(imgs, masks, margin_px=self.margin_px)
+            # kept only when it tells the object from the rest on the very frame it was
+            # learned on (a dark or washed-out frame teaches nothing)
+            hit = [col.explains(a) for a in imgs]
+            inside = np.mean(np.concatenate([h[mk] for h, mk in zip(hit, masks, strict=True)]))
+            outside = np.mean(np.concatenate([h[~mk] for h, mk in zip(hit, masks,
+                                                                       strict=True)]))
+            if inside > 0.5 and outside < 0.5:
+                self.colours[p] = col
                 done.append(p)
         return done
 
