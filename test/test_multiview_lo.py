@@ -153,10 +153,12 @@ def test_levenberg_marquardt_pushes_colliding_meshes_apart(scene):
 
 def _frame_starts(scene, p0: np.ndarray, step: np.ndarray, config=None) -> list:
     """The start of each of 3 frames' solves of a tracker whose every solve moves the
-    parameters by ``step`` (no images involved)."""
+    parameters by ``step`` (no images involved: black frames, so no object colour model)."""
     from hand_capture.multiview.lo import LOResult
+    from hand_capture.multiview.tracker import MultiviewTrackerConfig
 
     rig = load_rig("studio6")
+    config = config or MultiviewTrackerConfig(object_colours=False)
     tr = MultiviewTracker(scene, rig, LOConfig(iterations=1), config)
     starts = []
 
@@ -183,7 +185,8 @@ def test_objects_start_from_their_constant_velocity_prediction(scene):
     step[0] = 0.004            # the right hand's wrist
     step[54] = 0.03            # the ball
     starts = _frame_starts(scene, _params(scene), step,
-                           MultiviewTrackerConfig(predict_objects=1.0))
+                           MultiviewTrackerConfig(predict_objects=1.0,
+                                                  object_colours=False))
     r0, r1 = starts[0] + step, starts[1] + step      # the first two frames' estimates
     expect = r1.copy()
     expect[54:60] += r1[54:60] - r0[54:60]            # the ball's last motion, not the hand's

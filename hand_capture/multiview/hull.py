@@ -25,8 +25,8 @@ import numpy as np
 from hand_capture.errors import InputError
 from hand_capture.model.joints import N_DOF, root_angles_from_matrix
 
-__all__ = ["HullInitializer", "InitResult", "icp_rigid", "initialise", "register",
-           "visual_hull"]
+__all__ = ["HullInitializer", "InitResult", "icp_rigid", "initialise", "place_object",
+           "register", "visual_hull"]
 
 
 def visual_hull(masks: Mapping[str, np.ndarray], rig: object,
@@ -166,6 +166,29 @@ def register(model: np.ndarray, target: np.ndarray, iters: int = 30
     return best
 
 
+def place_object(masks: Mapping[str, np.ndarray], rig: object, vertices: np.ndarray, *,
+                 voxel_m: float = 0.006, lo: Sequence[float] = (-0.35, -0.35, 0.005),
+                 hi: Sequence[float] = (0.35, 0.35, 0.4), min_views: int = 3,
+                 name: str = "object") -> tuple[np.ndarray, float]:
+    """A rigid object's 6 parameters (position [m], XYZ angles [rad]) from its silhouettes:
+    the largest piece of their visual hull (:func:`visual_hull` in the box ``lo``..``hi``)
+    and the mesh ``vertices`` (V, 3) [m, object frame] registered onto it (:func:`register`).
+
+    Returns:
+        (params (6,), the ICP's trimmed RMS [m]).
+
+    Raises:
+        InputError: a hull of fewer than 10 points.
+    """
+    oh = visual_hull({k: v for k, v in masks.items() if k in rig.names}, rig, lo=lo, hi=hi,
+                     voxel_m=voxel_m, min_views=min_views, keep_components=1)
+    if len(oh) < 10:
+        raise InputError(f"the visual hull of {name!r} has {len(oh)} points")
+    verts = np.asarray(vertices, float)
+    R, t, r = register(verts[:: max(1, len(verts) // 600)], oh)
+    return np.concatenate([t, root_angles_from_matrix(R)]), r
+
+
 @dataclass
 class InitResult:
     """What :func:`initialise` found.
@@ -275,14 +298,8 @@ def initialise(group: Mapping[str, object], scene: object, rig: object, *,
         j = scene.part_index(name) - scene.n_hands
         if j < 0:
             raise InputError(f"object_masks: {name!r} is a hand, not an object")
-        oh = visual_hull({k: v for k, v in om.items() if k in rig.names}, rig, voxel_m=voxel_m,
-                         keep_components=1)
-        if len(oh) < 10:
-            raise InputError(f"the visual hull of object {name!r} has {len(oh)} points")
-        verts = scene.objects[j].vertices
-        R, t, r = register(verts[:: max(1, len(verts) // 600)], oh)
-        p[scene.slices[name]] = np.concatenate([t, root_angles_from_matrix(R)])
-        rms[scene.n_hands + j] = r
+        p[scene.slices[name]], rms[scene.n_hands + j] = place_object(
+            om, rig, scene.objects[j].vertices, voxel_m=voxel_m, name=name)
     p = scene.clip(p)
     refined = False
     if refine_particles > 0:

@@ -189,13 +189,18 @@ class ColourModel:
         return cls(SGMM.fit(np.concatenate(fg), components, seed=seed),
                    SGMM.fit(np.concatenate(bg), components, seed=seed + 1))
 
+    def explains(self, rgb: np.ndarray) -> np.ndarray:
+        """(..., ) bool per pixel of ``rgb`` (..., 3) uint8: the first mixture's density beats
+        the second's (eq. 4 against the background mixture), no spatial filtering."""
+        q = (np.asarray(rgb) >> 3).astype(np.intp)  # 256 / 32 levels
+        return self.lut[q[..., 0], q[..., 1], q[..., 2]]
+
     def silhouette(self, rgb: np.ndarray) -> np.ndarray:
         """Observed hand silhouette ``S_o`` (H, W) bool of a colour image (eq. 4, thresholded
         against the background mixture, then opened with a 5 px disc)."""
         import cv2
 
-        q = (np.asarray(rgb) >> 3).astype(np.intp)  # 256 / 32 levels
-        m = self.lut[q[..., 0], q[..., 1], q[..., 2]].astype(np.uint8)
+        m = self.explains(rgb).astype(np.uint8)
         # an opening drops the thin mixed-colour lines along other objects' edges and speckle
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
         return cv2.morphologyEx(m, cv2.MORPH_OPEN, k) > 0

@@ -15,9 +15,23 @@ first-frame initialiser's proposal when one is given; the best-supported candida
 by a short local optimisation and the part is TRACKED again when the support passes
 ``recover_support``.
 
+Objects' region score (:mod:`~hand_capture.multiview.region`, seed 000 eq. 4-5 per object):
+each object's colour model is learned on its first frame with a supported outline (the first
+frame's known pose); the share of its rendered silhouette in its colour then also flags it
+LOST (below ``lost_region``), an object is searched for in the very frame it is lost, its
+candidates include the placement of the visual hull of its colour blobs
+(:func:`~hand_capture.multiview.hull.place_object`) and are ranked by support x region, and a
+re-found object needs ``recover_region`` too. A tracked object whose score is below
+``check_region`` (a pose half off the object's image region still fits its outline's edges,
+e.g. a ball that flew off while the solve stopped beside the hand) is checked against its
+colour hull's placement: refined, the better by support x region is kept (RECOVERED).
+Edge support alone cannot tell a ball's pose on clutter circles or hand edges from its true
+one (the README's validation figures).
+
 Start of a frame: the previous estimate (seed 002), plus, for the objects no hand holds
 (none within ``held_m``), their last frame-to-frame motion (``predict_objects``: a thrown
-ball moves 4-6 cm a frame at 30 fps).
+ball moves 4-6 cm a frame at 30 fps); an object re-found in the frame after a tracked one
+keeps its motion since that frame.
 
 Confidence of a tracked part: its support times the share of the rig's cameras present in
 the group (a camera missing from a group lowers it; tracking continues on the others).
@@ -30,7 +44,8 @@ with no usable view is rejected as a whole.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,6 +53,7 @@ import numpy as np
 from hand_capture.config import param, validate
 from hand_capture.errors import InputError
 from hand_capture.multiview.lo import LocalOptimizer, LOConfig, LOResult
+from hand_capture.multiview.region import ObjectRegions
 from hand_capture.multiview.rig import Rig
 from hand_capture.multiview.scene_model import SceneModel, SceneState
 
@@ -76,6 +92,25 @@ class MultiviewTrackerConfig:
                                    "theirs)", lo=0.0, hi=1.0)
     held_m: float = param(0.01, "an object with a vertex this near a hand's is held: not "
                           "predicted [m]", lo=0.0, hi=0.2)
+    lost_region: float = param(0.35, "an object's region score (share of its rendered "
+                               "silhouette in its own colour, seed 000 eq. 4-5) below which "
+                               "a frame counts as bad (0: edge support alone)", lo=0.0, hi=1.0)
+    recover_region: float = param(0.45, "region score a re-found object must reach", lo=0.0,
+                                  hi=1.0)
+    hull_box_m: float = param(0.2, "half size of the box around the estimate (or last good "
+                              "pose) where an object's colour hull is carved [m]", lo=0.02,
+                              hi=1.0)
+    check_region: float = param(0.75, "a tracked object's region score below which the "
+                                "placement of its colour hull is tried against the estimate "
+                                "(the better by support x region, refined, is kept)",
+                                lo=0.0, hi=1.0)
+    check_agree_m: float = param(0.015, "a check keeps the estimate without evaluating the "
+                                 "colour hull's placement when it lies this near [m]",
+                                 lo=0.0, hi=1.0)
+    object_colours: bool = param(True, "learn each object's colour model on its first "
+                                 "well-supported frame: region score, the colour hull's "
+                                 "recovery candidate and the candidates ranked by support x "
+                                 "region (False: edge support alone)")
 
     def __post_init__(self) -> None:
         validate(self)
@@ -91,6 +126,9 @@ class PartEstimate:
         confidence: 0..1 (0 when lost).
         params: the part's parameters (hand: 27-DoF world pose; object: 6 values).
         support: share of its model edges supported by image edges.
+        region: an object's region score (share of its rendered silhouette in its own
+            colour, :mod:`~hand_capture.multiview.region`); NaN for hands and objects
+            without a colour model or out of view.
     """
 
     name: str
@@ -98,6 +136,7 @@ class PartEstimate:
     confidence: float
     params: np.ndarray
     support: float
+    region: float = float("nan")
 
     @property
     def tracked(self) -> bool:
@@ -189,6 +228,8 @@ class MultiviewTracker:
         self.cfg = config or MultiviewTrackerConfig()
         self.detector = detector
         self.initializer = initializer
+        #: the objects' colour models and region scores (seed 000 eq. 4-5)
+        self.regions = ObjectRegions(model, rig)
         n = len(model.part_names)
         self.params: np.ndarray | None = None
         self.status = [TRACKED] * n
@@ -198,6 +239,7 @@ class MultiviewTracker:
         #: the previous group's flow-ignore masks (see :meth:`step`)
         self._prev_ignore: dict[str, np.ndarray] | None = None
         self._velocity: np.ndarray | None = None
+        self._recovered = (0.0, float("nan"))   # support and region of the last recovery
         self.frames = 0
 
     def reset(self, params: np.ndarray) -> None:
@@ -238,6 +280,7 @@ class MultiviewTracker:
         if detections is None and self.detector is not None:
             detections = {c: np.asarray(self.detector.detect(images[c])[0]) for c in present}
         active = [p for p, s in enumerate(self.status) if s != LOST]
+        before = self.params.copy()
         frame = self.lo.prepare(images, detections, self._prev, active, flow_ignore,
                                 self._prev_ignore)
         if self.lo.colour is None and self._hands_in_place(frame, active):
@@ -245,6 +288,7 @@ class MultiviewTracker:
             if self.lo.learn_colours(images, self.params):
                 frame = self.lo.prepare(images, detections, self._prev, active, flow_ignore,
                                         self._prev_ignore)
+        maps = self.regions.maps(images) if self.cfg.object_colours else {}
         res = None
         if active:
             start = self.params
@@ -255,12 +299,16 @@ class MultiviewTracker:
             self._velocity = res.params - self.params
             self.params = res.params
         support = np.zeros(len(m.part_names))
+        region = np.full(len(m.part_names), np.nan)
         recovered: set[int] = set()
         for p in active:
             sl = self._slice(p)
             s, n_edge = float(res.support[p]), float(res.model_edges[p])
             support[p] = s
-            if n_edge < self.cfg.min_edges or s < self.cfg.lost_support:
+            if p in maps:
+                region[p] = self.regions.score(self.params, maps, p, active)[0]
+            if n_edge < self.cfg.min_edges or s < self.cfg.lost_support or \
+                    region[p] < self.cfg.lost_region:     # NaN (no score) compares False
                 self._bad[p] += 1
                 if self._bad[p] >= self.cfg.lost_frames:
                     self.status[p] = LOST
@@ -268,30 +316,65 @@ class MultiviewTracker:
             else:
                 self._bad[p] = 0
                 self._last_good[sl] = self.params[sl]
+        if self.cfg.object_colours:
+            # each object's colours, learned on its first frame with a supported outline
+            good = [p for p in active if p >= m.n_hands and self.status[p] != LOST
+                    and p not in self.regions.colours]
+            if good and self.regions.learn(images, self.params, good):
+                maps = self.regions.maps(images)
+        # a doubtful object (little of its silhouette in its colour): its colour hull's
+        # placement against the estimate
+        for p in [p for p in active if p in maps and self.status[p] != LOST
+                  and region[p] < self.cfg.check_region]:
+            with self._draws_kept():
+                if self._recover(p, images, frame, maps, current=(support[p], region[p])):
+                    recovered.add(p)
+                    support[p], region[p] = self._recovered
         prior = getattr(self.initializer, "set_prior", None)
-        for p in [p for p, s in enumerate(self.status) if s == LOST and p not in active]:
+        # lost parts are searched for from the next frame on; an object with a colour model
+        # at once (its colour hull proposes where it went)
+        for p in [p for p, s in enumerate(self.status) if s == LOST and
+                  (p not in active or p in maps)]:
             if callable(prior):
                 prior(self.params)
-            if self._recover(p, images, frame):
-                recovered.add(p)
-                support[p] = self._recovered_support
-        if self._velocity is not None:    # no motion carried by a lost or re-found part
+            with self._draws_kept(p in maps):
+                if self._recover(p, images, frame, maps):
+                    recovered.add(p)
+                    support[p], region[p] = self._recovered
+        if self._velocity is not None:
             for p in range(len(m.part_names)):
-                if self.status[p] == LOST or p in recovered:
-                    self._velocity[self._slice(p)] = 0.0
+                sl = self._slice(p)
+                if p in recovered and p in active:
+                    # re-found in the frame after a tracked one: its motion since then
+                    self._velocity[sl] = self.params[sl] - before[sl]
+                elif self.status[p] == LOST or p in recovered:
+                    self._velocity[sl] = 0.0   # no motion carried by a lost or re-found part
         share = len(present) / len(self.rig.cameras)
         parts = []
         for p, name in enumerate(m.part_names):
             st = RECOVERED if p in recovered else self.status[p]
             conf = 0.0 if st == LOST else float(np.clip(support[p] * share, 0.0, 1.0))
             parts.append(PartEstimate(name, st, conf, self.params[self._slice(p)].copy(),
-                                      float(support[p])))
+                                      float(support[p]), float(region[p])))
         state = m.pose(self.params)
         self._prev = (dict(images), state)
         self._prev_ignore = None if flow_ignore is None else dict(flow_ignore)
         self.frames += 1
         return TrackResult(self.params.copy(), parts, len(present), time.perf_counter() - t0,
                            res, state)
+
+    @contextmanager
+    def _draws_kept(self, keep: bool = True) -> Iterator[None]:
+        """The local optimiser's random subsampling draws as they were before the block
+        (``keep``): an object's colour checks and searches, which evaluate and refine
+        candidates, do not shift the draws of the frames after them, so where they change
+        nothing the tracking is the same as without them."""
+        state = self.lo._rng.bit_generator.state if keep else None
+        try:
+            yield
+        finally:
+            if state is not None:
+                self.lo._rng.bit_generator.state = state
 
     def _predict_gain(self, active: list[int]) -> np.ndarray:
         """(n_params,) share of the last frame-to-frame motion added to each parameter's
@@ -344,40 +427,75 @@ class MultiviewTracker:
             p[self._slice(k)] = got
         self.reset(p)
 
-    def _recover(self, p: int, images: Mapping[str, np.ndarray | None], frame: object) -> bool:
-        """Search for lost part ``p`` around its last good pose (and the initialiser's
-        proposal); True when it is found again."""
+    def _recover(self, p: int, images: Mapping[str, np.ndarray | None], frame: object,
+                 maps: Mapping[int, Mapping[int, np.ndarray]],
+                 current: tuple[float, float] | None = None) -> bool:
+        """Search for lost part ``p`` around its last good pose, at the initialiser's
+        proposal and, for an object with a colour model, where the visual hull of its
+        colour blobs places it; candidates are ranked by edge support times region score
+        (support alone without a score). True when it is found again (support and region
+        score after a short local optimisation high enough); then ``_recovered`` holds
+        both. ``current``: the support and region score of a tracked part's estimate; only
+        the colour hull's placement is tried, and it must beat them after refinement."""
+        from hand_capture.multiview.hull import place_object
+
         cfg = self.cfg
         sl = self._slice(p)
-        base = self._last_good[sl].copy()
-        cands = [base]
-        for ax in range(3):
-            for sgn in (-1.0, 1.0):
-                c = base.copy()
-                c[ax] += sgn * cfg.search_m
-                cands.append(c)
-        if self.initializer is not None:
-            got = self.initializer(images, self.model, p)
+        cands = []
+        if current is None:
+            base = self._last_good[sl].copy()
+            cands.append(base)
+            for ax in range(3):
+                for sgn in (-1.0, 1.0):
+                    c = base.copy()
+                    c[ax] += sgn * cfg.search_m
+                    cands.append(c)
+            if self.initializer is not None:
+                got = self.initializer(images, self.model, p)
+                if got is not None:
+                    cands.append(np.asarray(got, dtype=float))
+        if p in maps:
+            # the hull is carved in a box around the estimate (the last good pose when
+            # lost): the whole table at 1 cm costs 0.7 s, this box 0.3 s
+            near = (self.params if current is not None else self._last_good)[sl][:3]
+            try:
+                got, _ = place_object(self.regions.blob_masks(maps, p), self.rig,
+                                      self.model.objects[p - self.model.n_hands].vertices,
+                                      voxel_m=0.01, lo=near - cfg.hull_box_m,
+                                      hi=near + cfg.hull_box_m)
+            except InputError:
+                got = None      # no consistent colour blob in enough views
+            if current is not None and (got is None or
+                                        np.linalg.norm(got[:3] - near) < cfg.check_agree_m):
+                return False    # the colour blobs put it where it is (or nowhere)
             if got is not None:
-                cands.append(np.asarray(got, dtype=float))
-        tracked = [q for q, s in enumerate(self.status) if s != LOST]
-        best, best_s = None, -1.0
+                cands.append(got)
+        tracked = [q for q, s in enumerate(self.status) if s != LOST and q != p]
+        best, best_key = None, -1.0 if current is None else current[0] * current[1]
         for c in cands:
             x = self.params.copy()
             x[sl] = c
             s, n_edge = self.lo.support(x, frame, [*tracked, p])
-            if n_edge[p] >= cfg.min_edges and s[p] > best_s:
-                best, best_s = x, float(s[p])
-        if best is None or best_s < 0.5 * cfg.recover_support:
+            if n_edge[p] < cfg.min_edges or s[p] < 0.5 * cfg.recover_support:
+                continue
+            r = self.regions.score(x, maps, p, tracked)[0] if p in maps else np.nan
+            key = float(s[p]) * (float(r) if np.isfinite(r) else 1.0)
+            if key > best_key:
+                best, best_key = x, key
+        if best is None:
             return False
         res = self.lo.solve(best, frame, [p], iterations=cfg.recover_iterations)
-        if res.model_edges[p] < cfg.min_edges or res.support[p] < cfg.recover_support:
+        r = self.regions.score(res.params, maps, p, tracked)[0] if p in maps else np.nan
+        if res.model_edges[p] < cfg.min_edges or res.support[p] < cfg.recover_support or \
+                r < cfg.recover_region:
+            return False
+        if current is not None and res.support[p] * r <= current[0] * current[1]:
             return False
         self.params[sl] = res.params[sl]
         self._last_good[sl] = res.params[sl]
         self.status[p] = TRACKED
         self._bad[p] = 0
-        self._recovered_support = float(res.support[p])
+        self._recovered = (float(res.support[p]), float(r))
         return True
 
 
