@@ -4,8 +4,8 @@ Every node runs as its console script with ``--ros-args`` (name, parameter files
 remappings). Output lines are prefixed with the node name. The runner stops the whole graph
 and exits
 
-* 0 after SIGINT/SIGTERM (forwarded to every node as SIGINT; SIGTERM after 3 s, SIGKILL
-  after 4.5 s, so the graph is down within 5 s), or when a ``required`` node exits with 0;
+* 0 after SIGINT/SIGTERM (forwarded to every node as SIGINT; SIGTERM after 6 s, SIGKILL
+  after 8 s, so the graph is down within 9 s), or when a ``required`` node exits with 0;
 * non-zero when any node exits with an error; its traceback (printed by the node's main)
   appears under its name, followed by a line naming the node and its exit code. A node that
   does not stop cleanly when the graph stops (killed, or a failing shutdown hook: e.g. a
@@ -37,7 +37,10 @@ from hand_capture.dds import dds_environment
 from hand_capture.errors import GraphError
 from hand_control.graph import GraphSpec, NodeSpec, ros_args
 
-_STOP_GRACE = (3.0, 1.5)  # seconds after SIGINT before SIGTERM, then before SIGKILL
+#: seconds after SIGINT before SIGTERM, then before SIGKILL: a node's shutdown (its hook,
+#: destroying its DDS participant, a MuJoCo world) took over 4.5 s once on a 2-core CI-like
+#: host running the test suite (the teleop graph's sim node was killed; 3 s + 1.5 s before)
+_STOP_GRACE = (6.0, 2.0)
 _PR_SET_PDEATHSIG = 1
 
 
@@ -242,7 +245,7 @@ def _supervise_once(children: list[_Child], stop: threading.Event,
 
 
 def _stop_all(children: list[_Child]) -> None:
-    """SIGINT every running node, then SIGTERM, then SIGKILL (within 5 s in all)."""
+    """SIGINT every running node, then SIGTERM, then SIGKILL (within 9 s in all)."""
     alive = [c for c in children if c.proc.poll() is None]
     for sig, grace in ((signal.SIGINT, _STOP_GRACE[0]), (signal.SIGTERM, _STOP_GRACE[1]),
                        (signal.SIGKILL, 0.5)):
