@@ -99,7 +99,7 @@ def _track(seq: Any, model: Any, rig: Any, frames: list, lo_cfg: Any,
     for t, fr in enumerate(frames):
         c0 = time.process_time()
         res = tr.step(fr.images, fr.detections,
-                      fr.noise_masks if flow_ignore and fr.noise_masks else None)
+                      fr.noise_masks if flow_ignore else None)
         cpu.append(time.process_time() - c0)
         secs.append(res.seconds)
         if t == 0:
@@ -141,7 +141,7 @@ def _leave(rig: Any, lo_cfg: Any, flow_ignore: bool = True) -> dict[str, float]:
     lost, rec = 0, None
     for t, fr in enumerate(render_sequence(seq, rig, seed=5)):
         res = tr.step(fr.images, fr.detections,
-                      fr.noise_masks if flow_ignore and fr.noise_masks else None)
+                      fr.noise_masks if flow_ignore else None)
         st = res.parts[0].status
         if t in away and st == LOST:
             lost += 1

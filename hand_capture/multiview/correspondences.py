@@ -27,9 +27,9 @@ import numpy as np
 
 from hand_capture.errors import InputError
 
-__all__ = ["FLOW_WINDOW_PX", "ImageFeatures", "N_ORIENT", "edge_correspondences",
-           "flow_correspondences", "image_features", "match_salient", "model_edges",
-           "window_clear"]
+__all__ = ["FLOW_IGNORE_MARGIN_PX", "FLOW_WINDOW_PX", "ImageFeatures", "N_ORIENT",
+           "edge_correspondences", "flow_correspondences", "image_features", "match_salient",
+           "model_edges", "window_clear"]
 
 #: orientation bins of edge normals over [0, pi)
 N_ORIENT = 6
@@ -222,6 +222,9 @@ def edge_correspondences(uv: np.ndarray, pix_scaled: np.ndarray, edge_bins: np.n
 
 #: side of the Lucas-Kanade window at every pyramid level [px]
 FLOW_WINDOW_PX = 15
+#: distance [px] within which a flow-ignore mask pixel drops a flow feature: the LK
+#: half-window (the finest level's window, which sets the final estimate, then sees none)
+FLOW_IGNORE_MARGIN_PX = FLOW_WINDOW_PX // 2
 
 
 def window_clear(mask: np.ndarray | None, uv: np.ndarray, half_px: int) -> np.ndarray:
@@ -244,7 +247,7 @@ def window_clear(mask: np.ndarray | None, uv: np.ndarray, half_px: int) -> np.nd
 def flow_correspondences(prev_grey: np.ndarray, grey: np.ndarray, uv_prev: np.ndarray,
                          fb_px: float = 1.0, ignore_prev: np.ndarray | None = None,
                          ignore: np.ndarray | None = None,
-                         margin_px: int = FLOW_WINDOW_PX // 2
+                         margin_px: int = FLOW_IGNORE_MARGIN_PX
                          ) -> tuple[np.ndarray, np.ndarray]:
     """Pyramidal Lucas-Kanade flow of points ``uv_prev`` (N, 2) [px] from the previous image
     to this one, kept where the backward flow returns within ``fb_px`` and the window has

@@ -31,7 +31,7 @@ from hand_capture.multiview.collision import (
     detect_collisions,
 )
 from hand_capture.multiview.correspondences import (
-    FLOW_WINDOW_PX,
+    FLOW_IGNORE_MARGIN_PX,
     ImageFeatures,
     edge_correspondences,
     flow_correspondences,
@@ -174,10 +174,6 @@ class LocalOptimizer:
         self.collision_parts = [(a, b) for a in hands for b in parts if b > a]
         #: hand / background colours (seed 000 eq. 4), see :meth:`learn_colours`
         self.colour: object | None = None
-        #: distance [px] within which a flow-ignore mask pixel drops a flow feature (see
-        #: :meth:`prepare`): the LK half-window. Not an ``LOConfig`` field: it acts only
-        #: when a benchmark passes masks, and the config is part of cached designs' keys.
-        self.flow_ignore_margin_px = FLOW_WINDOW_PX // 2
 
     def learn_colours(self, images: Mapping[str, np.ndarray | None], params: np.ndarray
                       ) -> bool:
@@ -236,8 +232,8 @@ class LocalOptimizer:
         circles added to the synthetic images, and "the optical flow features
         corresponding to those circles" left out; a benchmark that knows where it drew
         them passes them here. A visible vertex is not a flow start when a previous-frame
-        mask pixel lies within ``flow_ignore_margin_px`` of its projection, and its flow is
-        dropped when one of this frame's does of its tracked end
+        mask pixel lies within ``FLOW_IGNORE_MARGIN_PX`` (the LK half-window) of its
+        projection, and its flow is dropped when one of this frame's does of its tracked end
         (:func:`~hand_capture.multiview.correspondences.flow_correspondences`)."""
         feats: dict[int, ImageFeatures] = {}
         for c, cam in enumerate(self.rig.cameras):
@@ -267,7 +263,6 @@ class LocalOptimizer:
 
         out = []
         s = self.cfg.render_scale
-        margin = self.flow_ignore_margin_px
         for c, f in feats.items():
             cam = self.rig.cameras[c]
             pimg = prev_images.get(cam.name)
@@ -280,13 +275,12 @@ class LocalOptimizer:
                 idx, uv = self.model.visible(cam, prev_state, ren, p)
                 if pmask is not None:
                     # screened before the draw: the budget goes to starts that may be used
-                    ok = window_clear(pmask, uv, margin)
+                    ok = window_clear(pmask, uv, FLOW_IGNORE_MARGIN_PX)
                     idx, uv = idx[ok], uv[ok]
                 if len(idx) > self.cfg.flow_per_view:
                     pick = self._rng.choice(len(idx), self.cfg.flow_per_view, replace=False)
                     idx, uv = idx[pick], uv[pick]
-                sel, tgt = flow_correspondences(pg, f.grey, uv, ignore=cmask,
-                                                margin_px=margin)
+                sel, tgt = flow_correspondences(pg, f.grey, uv, ignore=cmask)
                 n = len(sel)
                 out.append(Correspondences(np.full(n, p), idx[sel], np.full(n, c), tgt,
                                            np.full(n, FLOW)))

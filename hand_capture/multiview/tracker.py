@@ -239,7 +239,6 @@ class MultiviewTracker:
         #: the previous group's flow-ignore masks (see :meth:`step`)
         self._prev_ignore: dict[str, np.ndarray] | None = None
         self._velocity: np.ndarray | None = None
-        self._recovered = (0.0, float("nan"))   # support and region of the last recovery
         self.frames = 0
 
     def reset(self, params: np.ndarray) -> None:
@@ -327,9 +326,10 @@ class MultiviewTracker:
         for p in [p for p in active if p in maps and self.status[p] != LOST
                   and region[p] < self.cfg.check_region]:
             with self._draws_kept():
-                if self._recover(p, images, frame, maps, current=(support[p], region[p])):
-                    recovered.add(p)
-                    support[p], region[p] = self._recovered
+                got = self._recover(p, images, frame, maps, current=(support[p], region[p]))
+            if got is not None:
+                recovered.add(p)
+                support[p], region[p] = got
         prior = getattr(self.initializer, "set_prior", None)
         # lost parts are searched for from the next frame on; an object with a colour model
         # at once (its colour hull proposes where it went)
@@ -338,9 +338,10 @@ class MultiviewTracker:
             if callable(prior):
                 prior(self.params)
             with self._draws_kept(p in maps):
-                if self._recover(p, images, frame, maps):
-                    recovered.add(p)
-                    support[p], region[p] = self._recovered
+                got = self._recover(p, images, frame, maps)
+            if got is not None:
+                recovered.add(p)
+                support[p], region[p] = got
         if self._velocity is not None:
             for p in range(len(m.part_names)):
                 sl = self._slice(p)
@@ -429,13 +430,13 @@ class MultiviewTracker:
 
     def _recover(self, p: int, images: Mapping[str, np.ndarray | None], frame: object,
                  maps: Mapping[int, Mapping[int, np.ndarray]],
-                 current: tuple[float, float] | None = None) -> bool:
+                 current: tuple[float, float] | None = None) -> tuple[float, float] | None:
         """Search for lost part ``p`` around its last good pose, at the initialiser's
         proposal and, for an object with a colour model, where the visual hull of its
         colour blobs places it; candidates are ranked by edge support times region score
-        (support alone without a score). True when it is found again (support and region
-        score after a short local optimisation high enough); then ``_recovered`` holds
-        both. ``current``: the support and region score of a tracked part's estimate; only
+        (support alone without a score). Returns its support and region score when it is
+        found again (both high enough after a short local optimisation), else None.
+        ``current``: the support and region score of a tracked part's estimate; only
         the colour hull's placement is tried, and it must beat them after refinement."""
         from hand_capture.multiview.hull import place_object
 
@@ -467,7 +468,7 @@ class MultiviewTracker:
                 got = None      # no consistent colour blob in enough views
             if current is not None and (got is None or
                                         np.linalg.norm(got[:3] - near) < cfg.check_agree_m):
-                return False    # the colour blobs put it where it is (or nowhere)
+                return None     # the colour blobs put it where it is (or nowhere)
             if got is not None:
                 cands.append(got)
         tracked = [q for q, s in enumerate(self.status) if s != LOST and q != p]
@@ -478,25 +479,24 @@ class MultiviewTracker:
             s, n_edge = self.lo.support(x, frame, [*tracked, p])
             if n_edge[p] < cfg.min_edges or s[p] < 0.5 * cfg.recover_support:
                 continue
-            r = self.regions.score(x, maps, p, tracked)[0] if p in maps else np.nan
+            r = self.regions.score(x, maps, p, tracked)[0]   # NaN without a colour model
             key = float(s[p]) * (float(r) if np.isfinite(r) else 1.0)
             if key > best_key:
                 best, best_key = x, key
         if best is None:
-            return False
+            return None
         res = self.lo.solve(best, frame, [p], iterations=cfg.recover_iterations)
-        r = self.regions.score(res.params, maps, p, tracked)[0] if p in maps else np.nan
+        r = self.regions.score(res.params, maps, p, tracked)[0]
         if res.model_edges[p] < cfg.min_edges or res.support[p] < cfg.recover_support or \
                 r < cfg.recover_region:
-            return False
+            return None
         if current is not None and res.support[p] * r <= current[0] * current[1]:
-            return False
+            return None
         self.params[sl] = res.params[sl]
         self._last_good[sl] = res.params[sl]
         self.status[p] = TRACKED
         self._bad[p] = 0
-        self._recovered = (float(res.support[p]), float(r))
-        return True
+        return float(res.support[p]), float(r)
 
 
 #: rejection reasons counted by :class:`GroupRunner` (a camera's view, or a whole group)
