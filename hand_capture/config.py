@@ -139,6 +139,29 @@ def from_mapping(cls: type[T], values: Mapping[str, Any]) -> T:
         raise ConfigError(f"cannot build {cls.__name__}: {e}") from e
 
 
+def from_overrides(cls: type[T], items: Sequence[str]) -> T:
+    """Build a config dataclass from ``KEY=VALUE`` strings (command-line overrides).
+
+    Each value is read as YAML (``true``, ``0.5``, ``[1, 2]``); unset keys keep their defaults.
+
+    Raises:
+        ConfigError: an item without ``=``, an unknown key (the message lists the valid
+            keys) or a bad value.
+    """
+    import yaml
+
+    values: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"bad override {item!r}; expected KEY=VALUE")
+        try:
+            values[key] = yaml.safe_load(text)
+        except yaml.YAMLError as e:
+            raise ConfigError(f"override {item!r}: {text!r} is not a value: {e}") from e
+    return from_mapping(cls, values)
+
+
 def load_yaml(path: str | Path) -> Any:
     """Read a YAML file; a missing or malformed file raises :class:`ConfigError`."""
     import yaml

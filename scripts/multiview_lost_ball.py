@@ -23,20 +23,13 @@ import argparse
 import json
 import os
 import sys
-from dataclasses import fields
 
 import numpy as np
 
 
-def _value(kind: type | str, text: str) -> object:
-    t = kind if isinstance(kind, str) else kind.__name__
-    if t == "bool":
-        return text.lower() in ("1", "true", "yes")
-    return int(text) if t == "int" else float(text)
-
-
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "osmesa")    # the studio renders off-screen
+    from hand_capture.config import from_overrides
     from hand_capture.multiview.lo import LOConfig
     from hand_capture.multiview.rig import load_rig
     from hand_capture.multiview.sequences import make_sequence, render_sequence
@@ -51,24 +44,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lo-seed", type=int, default=0)
     ap.add_argument("--tracker", nargs="*", default=[], help="overrides KEY=VALUE")
     a = ap.parse_args(argv)
-    kinds = {f.name: f.type for f in fields(MultiviewTrackerConfig)}
-    over = {}
-    for kv in a.tracker:
-        k, v = kv.split("=", 1)
-        over[k] = _value(kinds[k], v)
+    config = from_overrides(MultiviewTrackerConfig, a.tracker)
     rig = load_rig("studio6")
     seq = make_sequence(a.sequence, a.frames)
     model = seq.model()
     frames = list(render_sequence(seq, rig, surface=a.surface, circles=a.circles,
                                   seed=a.seed))
     tr = MultiviewTracker(model, rig, LOConfig(seed=a.lo_seed),
-                          MultiviewTrackerConfig(**over))
+                          config)
     tr.reset(seq.truth(model, 0))
     ball = model.n_hands          # the sequence's object
     sl = model.slices[model.part_names[ball]]
     hands = list(range(model.n_hands))
     print(f"{a.sequence}, render seed {a.seed}, {a.surface} mesh, {a.circles} circles, "
-          f"tracker overrides {over or 'none'}")
+          f"tracker overrides {a.tracker or 'none'}")
     print(f"{'t':>2} {'moved mm':>8} {'err mm':>7} {'status':>10} {'support':>7} "
           f"{'region':>6} | truth: {'support':>7} {'region':>6}  s  hands mm")
     errs, lost, secs, hand_errs = [], 0, [], []
@@ -95,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
             secs.append(res.seconds)
             lost += pe.status == "lost"
     out = {"script": "multiview_lost_ball", "sequence": a.sequence, "seed": a.seed,
-           "circles": a.circles, "surface": a.surface, "overrides": over,
+           "circles": a.circles, "surface": a.surface, "overrides": a.tracker,
            "object_err_mm": [round(e, 1) for e in errs],
            "object_mean_mm": float(np.mean(errs)),
            "hands_mean_mm": float(np.mean(hand_errs)), "frames_lost": lost,

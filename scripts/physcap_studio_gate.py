@@ -36,18 +36,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tracker", nargs="*", default=[],
                     help="MultiviewTrackerConfig overrides KEY=VALUE")
     a = ap.parse_args(argv)
+    from hand_capture.config import from_overrides
     from hand_capture.multiview.lo import LOConfig
     from hand_capture.multiview.tracker import MultiviewTrackerConfig
 
-    def kv(items: list[str]) -> dict:
-        out = {}
-        for item in items:
-            k, v = item.split("=")
-            out[k] = v == "True" if v in ("True", "False") else \
-                float(v) if "." in v else int(v)
-        return out
-
-    lo, over = kv(a.lo), kv(a.tracker)
+    lo = from_overrides(LOConfig, a.lo)
+    over = from_overrides(MultiviewTrackerConfig, a.tracker)
     # the bench's seeds: STUDIO_SEED0 + the index in the family (all 9 feasible)
     cases = {spec.name: (spec, STUDIO_SEED0 + i) for i, (_, spec) in enumerate(studio_specs())}
     only = [n for n in a.only.split(",") if n] or ["lift_box", "lift_ball_1000g"]
@@ -61,8 +55,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         truth = scenario_capture(spec)
         sc = studio_capture(truth, seed=seed, images=False, cache_dir=a.cache_dir,
-                            lo_config=LOConfig(**lo),
-                            tracker_config=MultiviewTrackerConfig(**over))
+                            lo_config=lo, tracker_config=over)
         tr = sc.synthetic.capture
         obj = np.linalg.norm(tr.object_pose[1:, :3] - truth.object_pose[1:, :3], axis=1) * 1e3
         jt = np.array([np.mean(np.linalg.norm(hand.forward(q).joint_positions -

@@ -6,7 +6,13 @@ from dataclasses import dataclass
 
 import pytest
 
-from hand_capture.config import from_mapping, load_node_params, param, validate
+from hand_capture.config import (
+    from_mapping,
+    from_overrides,
+    load_node_params,
+    param,
+    validate,
+)
 from hand_capture.errors import ConfigError
 
 
@@ -47,6 +53,17 @@ def test_invalid_values_name_field_and_range(kwargs: dict, fragment: str) -> Non
 def test_unknown_key_lists_valid_keys() -> None:
     with pytest.raises(ConfigError, match="valid keys: \\['gain', 'mode', 'count', 'weights'\\]"):
         from_mapping(Cfg, {"gian": 1.0})
+
+
+def test_from_overrides_reads_values_and_refuses_bad_items() -> None:
+    c = from_overrides(Cfg, ["gain=2.5", "mode=b", "weights=[0.5, 1]"])
+    assert (c.gain, c.mode, c.count, c.weights) == (2.5, "b", 3, (0.5, 1.0))
+    with pytest.raises(ConfigError, match="expected KEY=VALUE"):
+        from_overrides(Cfg, ["gain"])
+    with pytest.raises(ConfigError, match="valid keys"):
+        from_overrides(Cfg, ["gian=1"])
+    with pytest.raises(ConfigError, match="out of range"):
+        from_overrides(Cfg, ["gain=11"])
 
 
 def test_load_node_params_merges_wildcard_and_node(tmp_path) -> None:
