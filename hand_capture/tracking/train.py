@@ -40,7 +40,8 @@ from hand_capture.tracking.regressor import (
     palm_init_pca,
 )
 
-__all__ = ["ARM_FRAMES", "ARM_LABEL", "HAND_LABEL", "TrainingSample", "default_intrinsics",
+__all__ = ["ARM_FRAMES", "ARM_LABEL", "HAND_LABEL", "TOWARDS_PROB", "TRAIN_SAMPLES",
+           "TrainingSample", "default_intrinsics",
            "finger_pitch_deg", "forearm_mesh", "random_pose", "render_samples",
            "train_tracker"]
 
@@ -49,6 +50,10 @@ __all__ = ["ARM_FRAMES", "ARM_LABEL", "HAND_LABEL", "TrainingSample", "default_i
 HAND_LABEL, ARM_LABEL = 1, 2
 #: rendered frames of the shipped arm classifier (``hand-suite train tracker``)
 ARM_FRAMES = 2000
+#: rendered frames of the shipped regressor and its share of poses with the fingers pitched
+#: towards the camera (:func:`random_pose`): chosen on the validation shapes 21-24
+#: (``scripts/regressor_validation.py``; 3000 / 0 before, README issue 13)
+TRAIN_SAMPLES, TOWARDS_PROB = 10000, 0.15
 
 
 def default_intrinsics() -> Intrinsics:
@@ -264,13 +269,15 @@ def _batched(models: list[HandModel], samples: list[TrainingSample], Q: np.ndarr
     return out  # type: ignore[return-value]
 
 
-def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2500, *,
+def train_tracker(out_path: str | Path | None, seed: int = 0,
+                  n_samples: int = TRAIN_SAMPLES, *,
                   n_shapes: int = 40, palm_stages: int = 3, finger_stages: int = 2,
                   n_trees: int = 6, max_depth: int = 12, min_leaf: int = 5,
                   n_features: int = 300, leaf_modes: int = 2, augment: int = 2,
                   intrinsics: Intrinsics | None = None, log: Callable[[str], None] | None = None,
                   forearm_prob: float = 0.5, surface_mm: tuple[float, float] = (-1.0, 2.5),
-                  max_tilt_deg: float = 60.0, towards_prob: float = 0.0) -> HandRegressor:
+                  max_tilt_deg: float = 60.0, towards_prob: float = TOWARDS_PROB
+                  ) -> HandRegressor:
     """Train the cascaded regressor from scratch, reproducibly from ``seed``.
 
     Args:
@@ -411,8 +418,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m hand_capture.tracking.train [--out PATH] [--seed N] [--samples N]
-    [--arm-out PATH] [--arm-frames N] [--arm-only]``: the regressor, then the per-pixel
-    arm classifier (:func:`~hand_capture.tracking.armseg.train_arm_classifier`)."""
+    [--towards P] [--arm-out PATH] [--arm-frames N] [--arm-only]``: the regressor, then the
+    per-pixel arm classifier (:func:`~hand_capture.tracking.armseg.train_arm_classifier`)."""
     import argparse
 
     from hand_capture.cameras.threads import limit_blas_threads
@@ -423,7 +430,9 @@ def main(argv: list[str] | None = None) -> int:
                                  "hand/arm pixel classifier")
     ap.add_argument("--out", default=str(tracker_dir / "regressor.npz"))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--samples", type=int, default=3000)
+    ap.add_argument("--samples", type=int, default=TRAIN_SAMPLES)
+    ap.add_argument("--towards", type=float, default=TOWARDS_PROB,
+                    help="share of training poses with the fingers towards the camera")
     ap.add_argument("--arm-out", default=str(tracker_dir / "arm.npz"))
     ap.add_argument("--arm-frames", type=int, default=ARM_FRAMES)
     ap.add_argument("--arm-only", action="store_true",
@@ -431,7 +440,8 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     limit_blas_threads(1)
     if not a.arm_only:
-        train_tracker(a.out, seed=a.seed, n_samples=a.samples, log=print)
+        train_tracker(a.out, seed=a.seed, n_samples=a.samples, towards_prob=a.towards,
+                      log=print)
     train_arm_classifier(a.arm_out, seed=a.seed, n_frames=a.arm_frames, log=print)
     return 0
 
