@@ -436,14 +436,17 @@ def surface_variants(config) -> dict[str, tuple[str, object]]:
                                                 finger_swap=False))}
 
 
-def surface_validation_section(reg, config, quick: bool) -> dict:
+def surface_validation_section(reg, config, quick: bool,
+                               variants: dict[str, tuple[str, object]] | None = None) -> dict:
     """Surface tolerance on the validation family (:class:`SurfaceVariant` on the suite's
     own mesh, renderer and noise, shapes :data:`ARM_VAL_SEEDS`): where the optional wrist
     stub (``wrist_optional``, ``wrist_optional_m``) and the finger-wise selection
     (``finger_swap``) were chosen. The variants of :func:`surface_variants` (tracking and
     calibration), each calibrated per sequence from the same surface: keypoint error,
     success@20, calibrated bone-length error and the drift from the true pose
-    (:func:`truth_drift_mm`)."""
+    (:func:`truth_drift_mm`), and the tracker's CPU time per frame [ms]. ``variants``
+    (default :func:`surface_variants`) replaces the compared settings (the regressor
+    validation, ``scripts/regressor_validation.py``, scores the product alone)."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
     from hand_capture.tracking.calibration import calibrate
@@ -454,8 +457,9 @@ def surface_validation_section(reg, config, quick: bool) -> dict:
                                                         "pinch", "fist")
     n, step = (8, 4) if quick else (20, 3)
     base = HandModel()
-    variants = surface_variants(config)
-    res: dict[str, dict[str, list]] = {k: {"e": [], "b": [], "d": []} for k in variants}
+    variants = surface_variants(config) if variants is None else variants
+    res: dict[str, dict[str, list]] = {k: {"e": [], "b": [], "d": [], "c": []}
+                                       for k in variants}
     for seed in seeds:
         for clip in clips:
             v = SurfaceVariant.sample(np.random.default_rng(seed * 10 + len(clip)))
@@ -464,7 +468,9 @@ def surface_validation_section(reg, config, quick: bool) -> dict:
                 cal = calibrate(calf, model=base, config=cfg)
                 tr = HybridTracker(base, cfg, reg)
                 tr.set_calibration(cal)
-                res[name]["e"].append(_score(tr, frames, kps)["errs"])
+                sc = _score(tr, frames, kps)
+                res[name]["e"].append(sc["errs"])
+                res[name]["c"].append(sc["cpu"])
                 res[name]["b"].append(_bone_err_pct(tr.model, true))
                 res[name]["d"].append(truth_drift_mm(true, cfg, reg, frames, poses, kps,
                                                      every=4))
@@ -478,7 +484,9 @@ def surface_validation_section(reg, config, quick: bool) -> dict:
         out.update({f"val_surface{key}_mean_mm": sm["mean"],
                     f"val_surface{key}_success_20mm": sm["s20"],
                     f"val_surface{key}_bone_err_pct": float(np.mean(b)),
-                    f"val_surface{key}_truth_drift_mm": d})
+                    f"val_surface{key}_truth_drift_mm": d,
+                    f"val_surface{key}_cpu_ms": float(np.concatenate(res[name]["c"]).mean())
+                    * 1e3})
     print_table(f"surface validation family (the suite's mesh: palm -1..+3 mm, fingers -1..+1.5 "
                 f"mm, wrist stub cut 0-20 mm past the wrist; shapes {seeds}): surface-tolerance "
                 "settings", ["settings", "mean mm", "median mm", "succ@20", "bone err %",
@@ -527,7 +535,8 @@ def _track_both_paths(reg, base, cal, cfg, frames, kps, labels) -> tuple[object,
                      for path, fn in (("sequence", _score), ("first frame", _score_first))}
 
 
-def forearm_validation_section(reg, config, quick: bool) -> dict:
+def forearm_validation_section(reg, config, quick: bool, product_only: bool = False
+                               ) -> dict:
     """The tracker with a forearm in view on the suite's own generator (validation shapes
     :data:`ARM_VAL_SEEDS`; :func:`suite_forearm_sequence`), calibrated per shape: where
     forearm handling is tuned, beside the held-out figure it is reported on. Two paths:
@@ -535,7 +544,9 @@ def forearm_validation_section(reg, config, quick: bool) -> dict:
     ``first frame`` (every frame from a reset tracker: the hard case, no previous wrist),
     each with the product's forearm handling and, as the baseline in the same run, the
     geometric cut alone (``arm_classifier`` off). ``cloud cut``: the share of frames cut
-    without a previous wrist. Also the arm classifier's pixel accuracy on these frames."""
+    without a previous wrist. Also the arm classifier's pixel accuracy on these frames.
+    ``product_only``: the product alone, without the cut-alone baseline and the hard set
+    (:func:`_hard_forearm_validation`; the regressor validation's use)."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
 
@@ -544,8 +555,9 @@ def forearm_validation_section(reg, config, quick: bool) -> dict:
                                                         "pinch", "fist")
     n, step = (8, 4) if quick else (20, 3)
     base = HandModel()
-    variants = {"product": config,
-                "cut only": dataclasses.replace(config, arm_classifier=False)}
+    variants = {"product": config}
+    if not product_only:
+        variants["cut only"] = dataclasses.replace(config, arm_classifier=False)
     res: dict[tuple[str, str], list] = {}
     acc = [0, 0]
     arm = None
@@ -581,7 +593,8 @@ def forearm_validation_section(reg, config, quick: bool) -> dict:
                 "the held-out family; first frame = every frame from a reset tracker",
                 ["forearm handling", "path", "frames", "mean mm", "median mm", "succ@20",
                  "seg arm %", "hand kept %", "cloud cut"], rows)
-    out.update(_hard_forearm_validation(reg, config, seeds, quick))
+    if not product_only:
+        out.update(_hard_forearm_validation(reg, config, seeds, quick))
     if arm is not None:
         out["val_arm_pixel_acc"] = acc[0] / max(acc[1], 1)
         print(f"arm classifier pixel accuracy on these frames: {out['val_arm_pixel_acc']:.3f} "

@@ -24,6 +24,7 @@ from hand_capture.cameras.motion import FIST, GRASP, OPEN, PINCH, R_PALM_TO_CAME
 from hand_capture.cameras.noise import DepthNoiseConfig, DepthNoiseModel
 from hand_capture.cameras.render import Mesh, make_renderer
 from hand_capture.cameras.transforms import rotvec_to_matrix
+from hand_capture.errors import InputError
 from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel, default_shape, sample_shape
 from hand_capture.model.joints import pose_from_dict, root_angles_from_matrix
 from hand_capture.tracking.config import TrackerConfig
@@ -39,14 +40,20 @@ from hand_capture.tracking.regressor import (
     palm_init_pca,
 )
 
-__all__ = ["ARM_FRAMES", "ARM_LABEL", "HAND_LABEL", "TrainingSample", "default_intrinsics",
-           "forearm_mesh", "random_pose", "render_samples", "train_tracker"]
+__all__ = ["ARM_FRAMES", "ARM_LABEL", "HAND_LABEL", "TOWARDS_PROB", "TRAIN_SAMPLES",
+           "TrainingSample", "default_intrinsics",
+           "finger_pitch_deg", "forearm_mesh", "random_pose", "render_samples",
+           "train_tracker"]
 
 
 #: renderer labels of the training renders: the hand mesh and the forearm
 HAND_LABEL, ARM_LABEL = 1, 2
 #: rendered frames of the shipped arm classifier (``hand-suite train tracker``)
 ARM_FRAMES = 2000
+#: rendered frames of the shipped regressor and its share of poses with the fingers pitched
+#: towards the camera (:func:`random_pose`): chosen on the validation shapes 21-24
+#: (``scripts/regressor_validation.py``; 3000 / 0 before, README issue 13)
+TRAIN_SAMPLES, TOWARDS_PROB = 10000, 0.15
 
 
 def default_intrinsics() -> Intrinsics:
@@ -76,9 +83,34 @@ def _library() -> list[np.ndarray]:
 _LIB = _library()
 
 
+def finger_pitch_deg(model: HandModel, q: np.ndarray) -> float:
+    """How far the hand's fingers point towards the camera [deg]: the angle of the wrist ->
+    middle-MCP direction of pose ``q`` (27,) above the image plane (positive: towards the
+    camera, i.e. its camera-frame z decreasing; negative: away)."""
+    kp = model.joint_positions(q)
+    d = kp[9] - kp[0]
+    return math.degrees(math.asin(float(np.clip(-d[2] / np.linalg.norm(d), -1.0, 1.0))))
+
+
 def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: float = 60.0,
-                max_roll_deg: float = 45.0) -> np.ndarray:
-    """A random training pose in the camera frame (see the module docstring)."""
+                max_roll_deg: float = 45.0, towards_prob: float = 0.0,
+                towards_deg: tuple[float, float] = (20.0, 60.0)) -> np.ndarray:
+    """A random training pose in the camera frame (see the module docstring).
+
+    Args:
+        rng: the random source.
+        model: the hand (its middle MCP is put at the sampled position).
+        max_tilt_deg: the palm turned about a random axis by up to this from "palm towards
+            the camera" [deg] (angle uniform in [0, max_tilt_deg]).
+        max_roll_deg: roll about the optical axis, uniform in +-max_roll_deg [deg].
+        towards_prob: share of poses then pitched with the fingers towards the camera
+            (about the axis across the distal direction and the optical axis) by an angle
+            uniform in ``towards_deg`` [deg] (the held-out diagnosis' failing views: fingers
+            40-45 deg towards the camera). 0 draws nothing extra, so the poses of a seed
+            are those of the plain generator.
+    """
+    if not 0.0 <= towards_prob <= 1.0:
+        raise InputError(f"towards_prob must be in [0, 1], got {towards_prob}")
     if rng.random() < 0.75:
         q = _LIB[rng.integers(len(_LIB))].copy()
         q[6:] += rng.normal(0.0, 0.18, N_DOF - 6)
@@ -93,6 +125,13 @@ def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: flo
     roll = rotvec_to_matrix(np.array([0.0, 0.0, 1.0]) * math.radians(max_roll_deg)
                             * rng.uniform(-1, 1))
     R = roll @ R_PALM_TO_CAMERA @ tilt
+    if towards_prob > 0.0 and rng.random() < towards_prob:
+        kp = model.joint_positions(np.zeros(N_DOF))
+        d = R @ (kp[9] - kp[0])
+        axis = np.cross(d, np.array([0.0, 0.0, -1.0]))   # turns d towards -z (the camera)
+        if np.linalg.norm(axis) > 1e-6:
+            pitch = math.radians(rng.uniform(*towards_deg))
+            R = rotvec_to_matrix(axis / np.linalg.norm(axis) * pitch) @ R
     centre = np.array([rng.uniform(-0.06, 0.06), rng.uniform(-0.05, 0.05),
                        rng.uniform(0.30, 0.55)])
     mcp = model.joint_positions(np.zeros(N_DOF))[9]
@@ -156,7 +195,8 @@ class TrainingSample:
 def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
                    intr: Intrinsics, noise: DepthNoiseConfig | None = None,
                    cfg: TrackerConfig | None = None, *, forearm_prob: float = 0.0,
-                   surface_mm: tuple[float, float] = (0.0, 0.0), cut_arm: bool = True
+                   surface_mm: tuple[float, float] = (0.0, 0.0), cut_arm: bool = True,
+                   max_tilt_deg: float = 60.0, towards_prob: float = 0.0
                    ) -> list[TrainingSample]:
     """Render ``n`` noisy, segmented samples (shapes cycled through ``models``).
 
@@ -168,7 +208,8 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
     much again on the palm, so the forests see hands thicker and thinner than the model's.
     Each sample keeps the renderer's labels of its crop (``label``: :data:`HAND_LABEL`,
     :data:`ARM_LABEL`); ``cut_arm`` False keeps the forearm in the segment (training data of
-    the per-pixel arm classifier, :mod:`~hand_capture.tracking.armseg`).
+    the per-pixel arm classifier, :mod:`~hand_capture.tracking.armseg`). ``max_tilt_deg``
+    and ``towards_prob`` set the viewpoints (:func:`random_pose`).
     """
     from hand_capture.tracking.preprocess import cut_forearm
 
@@ -179,7 +220,7 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
     while len(out) < n:
         k = len(out) % len(models)
         m = models[k]
-        q = random_pose(rng, m)
+        q = random_pose(rng, m, max_tilt_deg=max_tilt_deg, towards_prob=towards_prob)
         V = m.vertices(q)
         if surface_mm != (0.0, 0.0):
             off = rng.uniform(*surface_mm) * 1e-3
@@ -228,12 +269,14 @@ def _batched(models: list[HandModel], samples: list[TrainingSample], Q: np.ndarr
     return out  # type: ignore[return-value]
 
 
-def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2500, *,
+def train_tracker(out_path: str | Path | None, seed: int = 0,
+                  n_samples: int = TRAIN_SAMPLES, *,
                   n_shapes: int = 40, palm_stages: int = 3, finger_stages: int = 2,
                   n_trees: int = 6, max_depth: int = 12, min_leaf: int = 5,
                   n_features: int = 300, leaf_modes: int = 2, augment: int = 2,
                   intrinsics: Intrinsics | None = None, log: Callable[[str], None] | None = None,
-                  forearm_prob: float = 0.5, surface_mm: tuple[float, float] = (-1.0, 2.5)
+                  forearm_prob: float = 0.5, surface_mm: tuple[float, float] = (-1.0, 2.5),
+                  max_tilt_deg: float = 60.0, towards_prob: float = TOWARDS_PROB
                   ) -> HandRegressor:
     """Train the cascaded regressor from scratch, reproducibly from ``seed``.
 
@@ -251,6 +294,7 @@ def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2
         log: progress callback (e.g. print).
         forearm_prob: share of samples rendered with a forearm (:func:`render_samples`).
         surface_mm: range of the per-sample surface offset [mm] (:func:`render_samples`).
+        max_tilt_deg, towards_prob: the viewpoints of the training poses (:func:`random_pose`).
 
     Returns:
         The trained :class:`HandRegressor`.
@@ -264,7 +308,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2
     models = [base.with_shape(s) for s in shapes]
     frames = [ModelFrames(m) for m in models]
     samples = render_samples(n_samples, rng, models, intr, forearm_prob=forearm_prob,
-                             surface_mm=surface_mm)
+                             surface_mm=surface_mm, max_tilt_deg=max_tilt_deg,
+                             towards_prob=towards_prob)
     say(f"rendered {len(samples)} samples in {time.perf_counter() - t_start:.1f} s")
     lookups = [DepthLookup(s.crop, s.u0, s.v0, intr) for s in samples]
     rest = ModelFrames(base).rest_vertices
@@ -363,6 +408,7 @@ def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2
                          "n_shapes": str(n_shapes), "n_trees": str(n_trees),
                          "max_depth": str(max_depth), "forearm_prob": str(forearm_prob),
                          "surface_mm": f"{surface_mm[0]},{surface_mm[1]}",
+                         "max_tilt_deg": str(max_tilt_deg), "towards_prob": str(towards_prob),
                          "train_s": f"{time.perf_counter() - t_start:.0f}"})
     if out_path is not None:
         reg.save(out_path)
@@ -372,8 +418,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0, n_samples: int = 2
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m hand_capture.tracking.train [--out PATH] [--seed N] [--samples N]
-    [--arm-out PATH] [--arm-frames N] [--arm-only]``: the regressor, then the per-pixel
-    arm classifier (:func:`~hand_capture.tracking.armseg.train_arm_classifier`)."""
+    [--towards P] [--arm-out PATH] [--arm-frames N] [--arm-only]``: the regressor, then the
+    per-pixel arm classifier (:func:`~hand_capture.tracking.armseg.train_arm_classifier`)."""
     import argparse
 
     from hand_capture.cameras.threads import limit_blas_threads
@@ -384,7 +430,9 @@ def main(argv: list[str] | None = None) -> int:
                                  "hand/arm pixel classifier")
     ap.add_argument("--out", default=str(tracker_dir / "regressor.npz"))
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--samples", type=int, default=3000)
+    ap.add_argument("--samples", type=int, default=TRAIN_SAMPLES)
+    ap.add_argument("--towards", type=float, default=TOWARDS_PROB,
+                    help="share of training poses with the fingers towards the camera")
     ap.add_argument("--arm-out", default=str(tracker_dir / "arm.npz"))
     ap.add_argument("--arm-frames", type=int, default=ARM_FRAMES)
     ap.add_argument("--arm-only", action="store_true",
@@ -392,7 +440,8 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     limit_blas_threads(1)
     if not a.arm_only:
-        train_tracker(a.out, seed=a.seed, n_samples=a.samples, log=print)
+        train_tracker(a.out, seed=a.seed, n_samples=a.samples, towards_prob=a.towards,
+                      log=print)
     train_arm_classifier(a.arm_out, seed=a.seed, n_frames=a.arm_frames, log=print)
     return 0
 
