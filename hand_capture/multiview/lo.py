@@ -65,6 +65,11 @@ class LOConfig:
                                lo=1.0, hi=200.0)
     edges_per_view: int = param(120, "edge correspondences kept per part and camera",
                                 lo=5, hi=5000)
+    final_edges_per_view: int = param(0, "edge correspondences kept per part and camera in "
+                                      "one more outer iteration after the last, at the "
+                                      "narrowest gate (0: none; a departure from Algorithm "
+                                      "1, whose every iteration subsamples alike)", lo=0,
+                                      hi=100000)
     flow_per_view: int = param(60, "flow correspondences tried per part and camera", lo=0,
                                hi=5000)
     salient_lambda_px: float = param(20.0, "outlier cost lambda of eq. (3) [px]: seed 002's 60 "
@@ -159,6 +164,12 @@ class LOResult:
     counts: dict[str, int] = field(default_factory=dict)
     collisions: int = 0
     seconds: float = 0.0
+    #: (iterations, n_params): the estimate after each outer iteration (diagnostics: does the
+    #: solve still move at its last iteration?)
+    trace: np.ndarray | None = None
+    #: (iterations,): eq. (2)'s cost after each outer iteration's LM steps (each over that
+    #: iteration's own correspondences, so not comparable across iterations in general)
+    costs: np.ndarray | None = None
 
 
 class LocalOptimizer:
@@ -288,13 +299,16 @@ class LocalOptimizer:
 
     # ----------------------------------------------------------------------- per iteration
     def correspondences(self, state: SceneState, frame: FrameData, parts: Sequence[int],
-                        gate_px: float | None = None, support: bool = True
+                        gate_px: float | None = None, support: bool = True,
+                        per_view: int | None = None
                         ) -> tuple[Correspondences, np.ndarray, np.ndarray]:
         """Edge and salient correspondences at ``state`` (Algorithm 1's loop body), edges
-        matched within ``gate_px`` (default ``edge_max_px``), and per part the model edge
-        vertices seen and how many an image edge supports."""
+        matched within ``gate_px`` (default ``edge_max_px``), at most ``per_view`` (default
+        ``edges_per_view``) per part and camera, and per part the model edge vertices seen
+        and how many an image edge supports."""
         cfg, m = self.cfg, self.model
         gate_px = cfg.edge_max_px if gate_px is None else gate_px
+        per_view = cfg.edges_per_view if per_view is None else per_view
         out = []
         n_edge = np.zeros(len(m.part_names))
         n_sup = np.zeros(len(m.part_names))
@@ -335,8 +349,8 @@ class LocalOptimizer:
                                       hm.shape[0] - 1)
                         ok = hm[row, col]
                         sel, tgt, nrm = sel[ok], tgt[ok], nrm[ok]
-                    if len(sel) > cfg.edges_per_view:
-                        pick = self._rng.choice(len(sel), cfg.edges_per_view, replace=False)
+                    if len(sel) > per_view:
+                        pick = self._rng.choice(len(sel), per_view, replace=False)
                         sel, tgt, nrm = sel[pick], tgt[pick], nrm[pick]
                     n = len(sel)
                     out.append(Correspondences(np.full(n, p), idx[sel], np.full(n, c), tgt,
@@ -577,11 +591,16 @@ class LocalOptimizer:
         mu = 1e-3
         cost = 0.0
         n_iter = cfg.iterations if iterations is None else iterations
-        for it in range(n_iter):
+        # optionally one more iteration with more of the edges (``final_edges_per_view``)
+        n_all = n_iter + (1 if n_iter and cfg.final_edges_per_view > 0 else 0)
+        trace, costs = [], []
+        for it in range(n_all):
             state = m.pose(x)
             # the edge gate narrows over the iterations, from edge_max_px to a third of it
-            gate = cfg.edge_max_px * (1.0 - (2.0 / 3.0) * it / max(n_iter - 1, 1))
-            corr, _, _ = self.correspondences(state, frame, parts, gate, support=False)
+            gate = cfg.edge_max_px * (1.0 - (2.0 / 3.0) * min(it / max(n_iter - 1, 1), 1.0))
+            corr, _, _ = self.correspondences(
+                state, frame, parts, gate, support=False,
+                per_view=cfg.final_edges_per_view if it >= n_iter else None)
             flow = frame.flow.subset(np.isin(frame.flow.part, parts))
             corr = Correspondences.concat([corr, flow])
             corr = self._reject_outliers(corr, state)
@@ -592,13 +611,16 @@ class LocalOptimizer:
             if not len(corr) and not len(coll) or not len(cols):
                 break
             x, cost, mu = self._lm_steps(x, corr, coll, cols, cfg.inner_steps, mu)
+            trace.append(x.copy())
+            costs.append(cost)
         for k, name in enumerate(KIND_NAMES):
             counts[name] = int(np.sum(corr.kind == k)) if n_iter and len(cols) else 0
         state = m.pose(x)
         _, n_edge, n_sup = self.correspondences(state, frame, parts)
         support = np.where(n_edge > 0, n_sup / np.maximum(n_edge, 1), 0.0)
         return LOResult(x, cost, support, n_edge, counts, len(coll),
-                        time.perf_counter() - t0)
+                        time.perf_counter() - t0,
+                        np.array(trace) if trace else np.zeros((0, len(x))), np.array(costs))
 
     def support(self, params: np.ndarray, frame: FrameData, parts: Sequence[int]
                 ) -> tuple[np.ndarray, np.ndarray]:
