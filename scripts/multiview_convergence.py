@@ -25,20 +25,13 @@ import json
 import os
 import pickle
 import sys
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 #: keypoints 0..20 of a hand: the wrist and the fingertips (thumb .. little)
 WRIST, TIPS = 0, (4, 8, 12, 16, 20)
-
-
-def _value(kind: type | str, text: str) -> object:
-    t = kind if isinstance(kind, str) else kind.__name__
-    if t == "bool":
-        return text.lower() in ("1", "true", "yes")
-    return int(text) if t == "int" else float(text)
 
 
 def _frames(name: str, n: int, rig: object, seed: int, circles: int, cache: Path) -> list:
@@ -59,6 +52,8 @@ def _frames(name: str, n: int, rig: object, seed: int, circles: int, cache: Path
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "osmesa")
+    from multiview_lost_ball import overrides  # scripts/ is on the path of a script
+
     from hand_capture.bench.multiview import RIG, _track
     from hand_capture.multiview.lo import LOConfig
     from hand_capture.multiview.rig import load_rig
@@ -77,11 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", default="out/mv_convergence")
     ap.add_argument("--lo", nargs="*", default=[], help="LOConfig overrides KEY=VALUE")
     a = ap.parse_args(argv)
-    kinds = {f.name: f.type for f in fields(LOConfig)}
-    over = {}
-    for kv in a.lo:
-        k, v = kv.split("=", 1)
-        over[k] = _value(kinds[k], v)
+    over = overrides(LOConfig, a.lo)
     rig = load_rig(RIG)
     rows, secs = [], []
     for name in a.sequences:

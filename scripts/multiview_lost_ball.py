@@ -35,6 +35,16 @@ def _value(kind: type | str, text: str) -> object:
     return int(text) if t == "int" else float(text)
 
 
+def overrides(cls: type, items: list[str]) -> dict[str, object]:
+    """``["KEY=VALUE", ...]`` -> the dataclass ``cls``'s fields, typed as its fields are."""
+    kinds = {f.name: f.type for f in fields(cls)}
+    out = {}
+    for kv in items:
+        k, v = kv.split("=", 1)
+        out[k] = _value(kinds[k], v)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "osmesa")    # the studio renders off-screen
     from hand_capture.multiview.lo import LOConfig
@@ -51,11 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lo-seed", type=int, default=0)
     ap.add_argument("--tracker", nargs="*", default=[], help="overrides KEY=VALUE")
     a = ap.parse_args(argv)
-    kinds = {f.name: f.type for f in fields(MultiviewTrackerConfig)}
-    over = {}
-    for kv in a.tracker:
-        k, v = kv.split("=", 1)
-        over[k] = _value(kinds[k], v)
+    over = overrides(MultiviewTrackerConfig, a.tracker)
     rig = load_rig("studio6")
     seq = make_sequence(a.sequence, a.frames)
     model = seq.model()
