@@ -151,6 +151,46 @@ def test_levenberg_marquardt_pushes_colliding_meshes_apart(scene):
     assert np.linalg.norm(moved) > 0.005
 
 
+def test_solve_traces_every_outer_iteration(scene):
+    """``LOResult.trace`` / ``costs``: the estimate and eq. (2)'s cost after each outer
+    iteration (the diagnostics of whether a solve still moves at its last one); the last row
+    is the result, and the ball sunk into the palm moves out along the trace."""
+    p0 = _params(scene)
+    palm = scene.pose(p0).keypoints[0][[0, 5, 9, 13, 17]].mean(axis=0)
+    p = _params(scene, ball_at=palm - np.array([0.0, 0.0, 0.03]))
+    lo = LocalOptimizer(scene, load_rig("studio6"), LOConfig(iterations=5))
+    res = lo.solve(p, FrameData({}, {}, _empty_flow()), parts=[0, 2])
+    assert res.trace.shape == (5, scene.n_params) and res.costs.shape == (5,)
+    assert np.array_equal(res.trace[-1], res.params) and res.costs[-1] == res.cost
+    moved = np.linalg.norm(res.trace[:, 54:57] - p[54:57], axis=1)
+    assert moved[-1] >= moved[0] > 0.0
+
+
+@pytest.mark.parametrize("share", [1.0, 0.5])
+def test_edge_gate_narrows_to_a_third_after_its_share_of_the_iterations(scene, share):
+    """``gate_narrow_share``: the edge gate starts at ``edge_max_px``, narrows linearly to a
+    third of it after that share of the outer iterations and stays there."""
+    p0 = _params(scene)
+    palm = scene.pose(p0).keypoints[0][[0, 5, 9, 13, 17]].mean(axis=0)
+    p = _params(scene, ball_at=palm - np.array([0.0, 0.0, 0.03]))   # collisions: 9 iterations
+    lo = LocalOptimizer(scene, load_rig("studio6"),
+                        LOConfig(iterations=9, edge_max_px=30.0, gate_narrow_share=share))
+    gates: list[float] = []
+    inner = lo.correspondences
+
+    def spy(state, frame, parts, gate_px=None, support=True):
+        if not support:
+            gates.append(gate_px)
+        return inner(state, frame, parts, gate_px, support)
+
+    lo.correspondences = spy
+    lo.solve(p, FrameData({}, {}, _empty_flow()), parts=[0, 2])
+    reach = 8 if share == 1.0 else 4
+    assert len(gates) == 9 and gates[0] == pytest.approx(30.0)
+    assert np.all(np.diff(gates[:reach + 1]) < 0)
+    assert np.allclose(gates[reach:], 10.0)
+
+
 def _frame_starts(scene, p0: np.ndarray, step: np.ndarray, config=None) -> list:
     """The start of each of 3 frames' solves of a tracker whose every solve moves the
     parameters by ``step`` (no images involved: black frames, so no object colour model)."""

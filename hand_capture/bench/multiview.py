@@ -86,29 +86,60 @@ def _errors(model: Any, est: np.ndarray, truth: np.ndarray) -> dict[str, np.ndar
 
 
 def _track(seq: Any, model: Any, rig: Any, frames: list, lo_cfg: Any,
-           flow_ignore: bool = True) -> dict[str, Any]:
+           flow_ignore: bool = True, diag: bool = False,
+           start_truth: bool = False, flow_truth: bool = False) -> dict[str, Any]:
     """Track ``frames`` from the first frame's truth; errors of frames 1.. (see
     :func:`_errors`), seconds and CPU seconds a frame. ``flow_ignore``: pass each frame's
-    circle masks (seed 002 sec. 5.1's protocol, module docstring)."""
+    circle masks (seed 002 sec. 5.1's protocol, module docstring).
+
+    ``diag`` adds per frame 1..: ``frame_mm`` (mean joint error after the solve), ``start_mm``
+    (the estimate it started from, the previous frame's, against this frame's truth),
+    ``iter_mm`` (n_frames, iterations: after each outer iteration of the local optimiser),
+    ``iter_cost`` (eq. 2's cost after each) and ``joint_frames`` (n_frames, 21 x hands
+    keypoint errors [mm]). ``start_truth``: every frame's solve starts at its own truth (the
+    previous frame's estimate is still the flow's reference), which separates the optimum's
+    bias from the tracking's under-convergence. ``flow_truth`` (an oracle): the next frame's
+    optical flow starts from this frame's TRUE configuration instead of its estimate, which
+    shows how much of the error the flow carries over from frame to frame."""
     from hand_capture.multiview.tracker import MultiviewTracker
 
     tr = MultiviewTracker(model, rig, lo_cfg)
     tr.reset(seq.truth(model, 0))
     errs: dict[str, list] = {"joint": [], "bone": [], "obj_mm": [], "obj_deg": []}
+    per: dict[str, list] = {"frame_mm": [], "start_mm": [], "iter_mm": [], "iter_cost": [],
+                            "joint_frames": []}
     secs, cpu = [], []
     for t, fr in enumerate(frames):
+        truth = seq.truth(model, t)
+        if start_truth and t > 0:
+            tr.params, tr._velocity = truth.copy(), None
+        start = tr.params.copy()
         c0 = time.process_time()
         res = tr.step(fr.images, fr.detections,
                       fr.noise_masks if flow_ignore else None)
         cpu.append(time.process_time() - c0)
         secs.append(res.seconds)
+        if flow_truth:
+            tr._prev = (tr._prev[0], model.pose(truth))
         if t == 0:
             continue   # started from the truth
-        for k, v in _errors(model, res.params, seq.truth(model, t)).items():
+        e = _errors(model, res.params, truth)
+        for k, v in e.items():
             errs[k].append(v)
+        if diag:
+            per["frame_mm"].append(float(np.mean(e["joint"])))
+            per["start_mm"].append(float(np.mean(_errors(model, start, truth)["joint"])))
+            per["joint_frames"].append(e["joint"])
+            lo = res.lo
+            per["iter_mm"].append([float(np.mean(_errors(model, x, truth)["joint"]))
+                                   for x in lo.trace] if lo is not None else [])
+            per["iter_cost"].append(list(lo.costs) if lo is not None else [])
     out = {k: np.concatenate(v) if v else np.zeros(0) for k, v in errs.items()}
     out["s"] = float(np.mean(secs[1:])) if len(secs) > 1 else float(secs[0])
     out["cpu_s"] = float(np.mean(cpu[1:])) if len(cpu) > 1 else float(cpu[0])
+    if diag:
+        # iter_*: lists (a frame without a solve has none)
+        out.update({k: v if k.startswith("iter") else np.array(v) for k, v in per.items()})
     return out
 
 
