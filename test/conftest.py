@@ -55,6 +55,37 @@ def pytest_report_header(config: pytest.Config) -> str | None:
     return None if load is None else f"{_LOAD_ENV}: {load.n} CPU burner(s) running"
 
 
+def _dds_participants() -> int:
+    """Fast DDS participants alive in this process (one ``dds.ev.N`` event thread each;
+    0 where /proc is not available)."""
+    try:
+        tasks = os.listdir("/proc/self/task")
+    except OSError:
+        return 0
+    n = 0
+    for t in tasks:
+        try:
+            with open(f"/proc/self/task/{t}/comm") as fh:
+                n += fh.read().startswith("dds.ev")
+        except OSError:
+            pass
+    return n
+
+
+@pytest.fixture(autouse=True)
+def _finalise_ros_handles():
+    """After a test that left a DDS participant alive, collect the garbage now: a destroyed
+    node's or shut-down context's handles held in reference cycles are otherwise finalised by
+    a garbage collection in the middle of a later test. Once, such a finalisation hung for
+    good in Fast DDS (``destroy_participant`` -> ``set_listener`` waiting on a discovery
+    callback stuck on a mutex), inside a test with no ROS in it."""
+    yield
+    if _dds_participants():
+        import gc
+
+        gc.collect()
+
+
 @pytest.fixture
 def rclpy_up():
     """rclpy initialised for the test, shut down after it (nodes are the test's own)."""
