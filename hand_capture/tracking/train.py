@@ -125,17 +125,16 @@ def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: flo
     roll = rotvec_to_matrix(np.array([0.0, 0.0, 1.0]) * math.radians(max_roll_deg)
                             * rng.uniform(-1, 1))
     R = roll @ R_PALM_TO_CAMERA @ tilt
+    rest = model.joint_positions(np.zeros(N_DOF))   # (21, 3) keypoints of the zero pose
     if towards_prob > 0.0 and rng.random() < towards_prob:
-        kp = model.joint_positions(np.zeros(N_DOF))
-        d = R @ (kp[9] - kp[0])
+        d = R @ (rest[9] - rest[0])
         axis = np.cross(d, np.array([0.0, 0.0, -1.0]))   # turns d towards -z (the camera)
         if np.linalg.norm(axis) > 1e-6:
             pitch = math.radians(rng.uniform(*towards_deg))
             R = rotvec_to_matrix(axis / np.linalg.norm(axis) * pitch) @ R
     centre = np.array([rng.uniform(-0.06, 0.06), rng.uniform(-0.05, 0.05),
                        rng.uniform(0.30, 0.55)])
-    mcp = model.joint_positions(np.zeros(N_DOF))[9]
-    q[0:3] = centre - R @ mcp
+    q[0:3] = centre - R @ rest[9]
     q[3:6] = root_angles_from_matrix(R)
     return q
 
