@@ -14,7 +14,8 @@ worst over subjects, per family; the signed bias per bone (fit - true) / true [%
 over the subjects, for the palm, the thumb's three bones and the fingers' proximal / middle /
 distal bones (the distal bone runs to the tip; the shape model's bone scales move a digit's
 three bones together, so the levels agree), per digit and per family (own surface /
-variants); and the time per calibration.
+variants); the mean distance of the 21 rest-pose keypoints from the truth's [mm] (the
+bench's ``kp err fit``, wrist at the origin for both); and the time per calibration.
 
     PYTHONPATH=. .venv/bin/python scripts/calibration_validation.py [-n 36] \\
         [--set rounds=20] [--config robust_mm=6]
@@ -38,7 +39,7 @@ import yaml
 from hand_capture.bench._tracking_heldout import SurfaceVariant, _bone_err_pct
 from hand_capture.config import from_overrides
 from hand_capture.errors import ConfigError
-from hand_capture.model import HandModel, sample_shape
+from hand_capture.model import N_DOF, HandModel, sample_shape
 from hand_capture.model.joints import FINGERS
 from hand_capture.model.skeleton import LEVELS
 from hand_capture.tracking.calibration import calibrate, render_calibration_frames
@@ -89,7 +90,7 @@ def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True) -> dict:
     base = HandModel()
     intr = default_intrinsics()
     errs: dict[str, list[float]] = {"own": [], "variant": []}
-    bias, times, is_var = [], [], []
+    bias, times, is_var, kp_err = [], [], [], []
     for i in range(n):
         true, variant, rng = subject(i)
         mesh_fn = variant.mesh_fn(true) if variant is not None else None
@@ -103,6 +104,9 @@ def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True) -> dict:
         rel = (np.asarray(fit.bone_lengths) / np.asarray(true.bone_lengths) - 1.0) * 100.0
         bias.append(rel)
         is_var.append(variant is not None)
+        q0 = np.zeros(N_DOF)
+        kp_err.append(float(np.linalg.norm(fit.joint_positions(q0) - true.joint_positions(q0),
+                                           axis=1).mean()) * 1e3)
         if verbose:
             surf = (f"palm {variant.palm_mm:+.1f} fing {variant.finger_mm:+.1f} stub "
                     f"{variant.stub_m * 1e3:4.1f}" if variant else "own surface")
@@ -117,6 +121,7 @@ def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True) -> dict:
            "mean_own": float(np.mean(errs["own"])) if errs["own"] else float("nan"),
            "mean_variant": float(np.mean(errs["variant"])) if errs["variant"] else float("nan"),
            "worst_variant": float(np.max(errs["variant"])) if errs["variant"] else float("nan"),
+           "kp_rest_mm": float(np.mean(kp_err)), "kp_rest_mm_worst": float(np.max(kp_err)),
            "time_s": float(np.mean(times))}
     for g, bones in GROUPS.items():
         out[f"bias_{g.replace(' ', '_')}"] = float(bias_a[:, bones].mean())
@@ -132,7 +137,8 @@ def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True) -> dict:
     if verbose:
         print(f"\nbone-length error [%]: mean {out['mean']:.2f} worst {out['worst']:.2f}  "
               f"(own surface {out['mean_own']:.2f}, variants {out['mean_variant']:.2f} / worst "
-              f"{out['worst_variant']:.2f}); {out['time_s']:.2f} s a calibration")
+              f"{out['worst_variant']:.2f}); rest-pose keypoints {out['kp_rest_mm']:.2f} mm "
+              f"(worst {out['kp_rest_mm_worst']:.2f}); {out['time_s']:.2f} s a calibration")
         print("signed bias (fit - true) / true [%], mean over subjects (mean |.| in brackets):")
         for g in GROUPS:
             k = g.replace(" ", "_")
