@@ -73,13 +73,13 @@ def parse_sets(items: list[str]) -> dict:
     Raises:
         ConfigError: an item without ``=`` or a key that ``calibrate`` does not take.
     """
-    params = inspect.signature(calibrate).parameters
+    keys = sorted(set(inspect.signature(calibrate).parameters)
+                  - {"frames", "finger_poses", "model", "config"})
     out = {}
     for item in items:
         key, sep, text = item.partition("=")
-        if not sep or key not in params or key in ("frames", "finger_poses", "model",
-                                                    "config"):
-            raise ConfigError(f"bad --set {item!r}; keys: {sorted(params)[4:]}")
+        if not sep or key not in keys:
+            raise ConfigError(f"bad --set {item!r}; keys: {keys}")
         v = yaml.safe_load(text)
         out[key] = tuple(v) if isinstance(v, list) else v
     return out
