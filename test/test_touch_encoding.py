@@ -285,7 +285,7 @@ def test_cross_validation_rejects_bad_input():
 
 def test_shipped_model_carries_its_cross_validated_ridges():
     from hand_capture.touch.encoding import CV_RIDGES
-    from hand_capture.touch.train import ENCODER_PARTS, TRAIN, TRAIN_PARTS, shipped_ridges
+    from hand_capture.touch.train import TRAIN, TRAIN_PARTS, shipped_ridges
 
     meta = TouchModel.load().meta
     assert meta["ridge"] == "cv"
@@ -296,7 +296,3 @@ def test_shipped_model_carries_its_cross_validated_ridges():
     assert shipped_ridges(TRAIN_PARTS) == {n: float(meta[f"ridge_{n}"])
                                            for n in ("linear", "quadratic", "cubic")}
     assert shipped_ridges((TRAIN,)) is None
-    # issue #13: the encodings were fitted on the wider subjects too, and CV-ed there
-    assert shipped_ridges(TRAIN_PARTS, TRAIN_PARTS) is None
-    assert shipped_ridges(TRAIN_PARTS, ENCODER_PARTS) is not None
-    assert int(meta["encoder_frames"]) > int(meta["frames"])

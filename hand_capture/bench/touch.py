@@ -1,10 +1,7 @@
 """``hand-suite bench touch``: multi-touch -> hand pose (Chung et al., Tables 1 and 2).
 
-Training data: the trainer's sets, cached: :data:`~hand_capture.touch.train.TRAIN_PARTS`
-(template right hand and sixteen sampled subjects: the contacts' frame, the labelling's
-reference poses and layout prior) and :data:`~hand_capture.touch.train.ENCODER_PARTS` (those
-and sixteen subjects over wider postures: the encodings, linear, quadratic, cubic, and the
-PCA-IK basis).
+Training data: the trainer's set (:data:`~hand_capture.touch.train.TRAIN_PARTS`: template
+right hand and eight sampled subjects, cached).
 In-distribution test data: sequences from the training generator with other seeds (1 and 2;
 fewer with ``--quick``) and another hand shape (``sample_shape(101)``: 5 % smaller overall,
 9 % broader palm), in the role of the paper's second-day capture.
@@ -26,9 +23,6 @@ an iPad-sized surface, panel offset, jitter and quantisation); 1,200 frames (480
   as in the paper: the before/after comparison of that departure. The rows "..., plain least
   squares (paper)" (keys ``<name>_lsq_*``) are the encodings in the contacts' frame fitted
   without a ridge, as in the paper: the before/after comparison of the cross-validated ridge.
-  The row "Quadratic, without the wider subjects (before)" (keys ``quadratic_narrow_*``) is
-  the quadratic fitted on ``TRAIN_PARTS`` alone (its ridge cross-validated there), as shipped
-  before :data:`~hand_capture.touch.train.WIDER_PARTS`: the before/after of that change.
 * Table 2: finger labelling accuracy by number of contacts: every test frame's contacts are
   shuffled and labelled from scratch (all labellings searched, nearest training neighbour);
   a frame counts as correct when every contact gets its finger. The row "Quadratic + layout"
@@ -62,7 +56,6 @@ from hand_capture.touch.labelling import FingerLabeller, LabellerConfig
 from hand_capture.touch.pcaik import PcaIk
 from hand_capture.touch.touch_model import MAX_REFERENCE
 from hand_capture.touch.train import (
-    ENCODER_PARTS,
     TRAIN,
     fit_encoders,
     fit_model,
@@ -147,7 +140,7 @@ def _time_labelling(labeller: FingerLabeller, test: TouchDataset, n: int = 200,
 
 #: Table 1's rows in order (the encoders of the run, then PCA-IK, then the comparisons).
 TABLE1_ROWS = ("linear", "quadratic", "cubic", "pcaik", "leftmost", "linear_lsq",
-               "quadratic_lsq", "cubic_lsq", "quadratic_narrow")
+               "quadratic_lsq", "cubic_lsq")
 
 
 def _methods_table(title: str, encoders: dict[str, PolynomialEncoder], pk: PcaIk,
@@ -185,9 +178,7 @@ def _label(name: str) -> str:
         return f"{name[:-4].capitalize()}, plain least squares (paper)"
     return {"pcaik": "PCA IK", "layout": "Quadratic + layout",
             "layout_nn025": "Quadratic + layout, nn_scale 0.25 (before)",
-            "leftmost": "Quadratic, paper's frame",
-            "quadratic_narrow": "Quadratic, without the wider subjects (before)"
-            }.get(name, name.capitalize())
+            "leftmost": "Quadratic, paper's frame"}.get(name, name.capitalize())
 
 
 def _labelling_table(title: str, labellers: dict[str, FingerLabeller], test: TouchDataset,
@@ -228,36 +219,27 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     # quick runs take the shipped file's cross-validated weights when it was fitted on the
     # same training set (the same fit, without the minute of cross-validation)
     given = shipped_ridges() if quick else None
-    enc_train = training_set(ENCODER_PARTS)  # TRAIN_PARTS' frames first, then the wider ones
-    model = fit_model(train, ridge=given, encoder_data=enc_train)
+    model = fit_model(train, ridge=given)
     ref_rows = np.sort(np.random.default_rng(0).choice(
         len(model.reference_poses), min(MAX_REFERENCE, len(model.reference_poses)), False))
     reference = model.reference_poses[ref_rows]  # what the shipped file keeps
     u_test, _ = test.inputs(model.frame)
-    u_train, rel_train = enc_train.inputs(model.frame)  # the encoders' frame and set
-    _, rel_leftmost = enc_train.inputs()  # root relative to the leftmost contact (PCA-IK)
-    figures: dict[str, Any] = {"train_frames": len(train), "encoder_frames": len(enc_train),
-                               "test_frames": len(test), "heldout_frames": len(heldout)}
+    u_train, rel_train = train.inputs(model.frame)  # the encoders' frame
+    _, rel_leftmost = train.inputs()  # root relative to the leftmost contact (PCA-IK)
+    figures: dict[str, Any] = {"train_frames": len(train), "test_frames": len(test),
+                               "heldout_frames": len(heldout)}
 
     # --- Table 1 ---------------------------------------------------------------------------
     pk = PcaIk(build_model(-1), rel_leftmost)
     compared = dict(model.encoders)
     # the paper's frame (relative to the leftmost contact, unturned), fitted as the product is:
     # the before/after baseline of the contacts' frame
-    compared["leftmost"] = fit_encoders(*enc_train.inputs(), enc_train.sequence,
+    compared["leftmost"] = fit_encoders(*train.inputs(), train.sequence,
                                         degrees=("quadratic",))[0]["quadratic"]
     # the paper's plain least squares in the product's frame: before/after of the CV ridge
     for name, degree in DEGREES.items():
         compared[f"{name}_lsq"] = PolynomialEncoder.fit(u_train, rel_train, degree,
                                                         frame=model.frame)
-    # the quadratic without the wider subjects, its ridge cross-validated on TRAIN_PARTS (in
-    # quick runs the ridge of the shipped encodings): before/after of WIDER_PARTS
-    u_base, rel_base = train.inputs(model.frame)
-    narrow = fit_encoders(u_base, rel_base, train.sequence,
-                          ridge=None if given is None else given["quadratic"],
-                          degrees=("quadratic",), frame=model.frame)
-    compared["quadratic_narrow"] = narrow[0]["quadratic"]
-    figures["quadratic_narrow_ridge"] = float(narrow[1]["ridge_quadratic"])
     for name in DEGREES:
         figures[f"{name}_cv_ridge"] = float(model.meta[f"ridge_{name}"])
         if given is None:
@@ -284,7 +266,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
     # --- Table 2 ---------------------------------------------------------------------------
     labellers = {name: FingerLabeller(enc, reference, LabellerConfig(criterion="nearest"))
                  for name, enc in model.encoders.items()}
-    labellers["pcaik"] = FingerLabeller(model.encoders["linear"], u_base, mode="input")
+    labellers["pcaik"] = FingerLabeller(model.encoders["linear"], u_train, mode="input")
     labellers["layout"] = FingerLabeller(model.encoders["quadratic"], reference,
                                          layout=model.layout)
     # the nearest-neighbour weight shipped before (0.25 rad; issue #13): same-run comparison

@@ -32,7 +32,7 @@ from __future__ import annotations
 import hashlib
 import json
 import zipfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -404,8 +404,15 @@ def model_fingerprint(model: object) -> str:
 
 #: GenConfig fields added after the cache key was fixed, with their defaults: a default value
 #: stays out of the key, so the cached sets made before them keep their files.
-_LATER_FIELDS = {"spread": (-0.3, 1.0), "thumb_abd_deg": (0.0, 40.0),
-                 "thumb_flex_deg": (-10.0, 35.0)}
+_LATER_FIELDS = {f.name: f.default for f in fields(GenConfig)
+                 if f.name in ("spread", "thumb_abd_deg", "thumb_flex_deg")}
+
+
+def config_params(cfg: GenConfig) -> dict:
+    """The fields of ``cfg`` as a dict, without the later fields that hold their defaults
+    (what the cache key and a model file's ``parts`` record: unchanged for older configs)."""
+    return {k: v for k, v in asdict(cfg).items()
+            if k not in _LATER_FIELDS or v != _LATER_FIELDS[k]}
 
 
 def cache_dir() -> Path:
@@ -434,9 +441,7 @@ def load_or_generate(cfg: GenConfig, model: object | None = None,
     if not cache:
         return generate(model, cfg)
     folder = cache_dir() if cache is True else Path(cache)
-    params = {k: v for k, v in asdict(cfg).items()
-              if k not in _LATER_FIELDS or v != _LATER_FIELDS[k]}  # older keys stay valid
-    key = hashlib.sha1(json.dumps({**params, "model": model_fingerprint(model),
+    key = hashlib.sha1(json.dumps({**config_params(cfg), "model": model_fingerprint(model),
                                    "version": 2}, sort_keys=True).encode()).hexdigest()[:16]
     path = folder / f"touch_{cfg.seed}_{cfg.shape_seed}_{key}.npz"
     if path.exists():

@@ -1,6 +1,6 @@
 """Fit the touch encoders on generated training data and write ``data/touch/touch_model.npz``.
 
-    hand-suite train touch [--out PATH] [--max-reference N] [--ridge R] [--no-wider]
+    hand-suite train touch [--out PATH] [--max-reference N] [--ridge R]
 
 The training set (:data:`TRAIN_PARTS`) is generated with the hand model and cached
 (``data/touch/cache/``): the template right hand (seed 0, about 6,800 valid frames like the
@@ -8,11 +8,6 @@ paper's 7,083) and, so that the encoder does not learn one hand size, eight samp
 (``sample_shape(1..8)``, scales 0.90-1.12; 700 sequences each, seeds 11-18, wrist yaw +-45
 deg and roll sd 8 deg instead of +-35 and 5) and eight more (``sample_shape(9..16)``, seeds
 29-36) over a wider wrist pitch (-12 +- 10 deg), roll (sd 10 deg) and finger curl (0-0.9).
-The encodings are fitted on these and on sixteen more subjects (:data:`WIDER_PARTS`,
-``sample_shape(23..38)``, seeds 60-75) over a wider wrist pitch / roll, finger curl, spread
-and thumb range still, so that they generalise to postures unlike the generator's usual ones
-(issue #13; ``--no-wider`` leaves them out); the contacts' frame, the labelling's reference
-poses and its layout prior come from :data:`TRAIN_PARTS` alone, as before.
 u and the poses are expressed in the contacts' frame
 (:class:`~hand_capture.touch.encoding.ContactFrame`; ``--leftmost`` for the paper's). The linear,
 quadratic and cubic encodings (eq. 1-3) are fitted by least squares, each with the ridge weight
@@ -33,7 +28,6 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +37,7 @@ from hand_capture.touch.datagen import (
     GenConfig,
     TouchDataset,
     build_model,
+    config_params,
     load_or_generate,
     model_fingerprint,
 )
@@ -68,20 +63,6 @@ TRAIN_PARTS: tuple[GenConfig, ...] = (TRAIN,) + tuple(
     GenConfig(sequences=700, frames=8, seed=20 + k, shape_seed=k, yaw_deg=45.0,
               roll_sd_deg=10.0, pitch_deg=(-12.0, 10.0), curl=(0.0, 0.9), curl_sd=0.12)
     for k in range(9, 17))
-#: Issue #13 (the encodings on hands and postures unlike the training's): sixteen more subjects
-#: (``sample_shape(23..38)``, seeds 60-75) over a wider wrist pitch (-15 +- 13 deg) and roll
-#: (sd 14 deg), finger curl (0-0.9, sd 0.14), spread (-0.5..1.2) and thumb range (TM
-#: abduction -5..50, flexion -20..45 deg) than any part of :data:`TRAIN_PARTS`. Only the
-#: encodings are fitted on them (:data:`ENCODER_PARTS`); chosen on validation frames of the
-#: training generator (scripts/touch_encoding_validation.py), not on the held-out family.
-WIDER_PARTS: tuple[GenConfig, ...] = tuple(
-    GenConfig(sequences=700, frames=8, seed=60 + i, shape_seed=23 + i, yaw_deg=45.0,
-              roll_sd_deg=14.0, pitch_deg=(-15.0, 13.0), curl=(0.0, 0.9), curl_sd=0.14,
-              spread=(-0.5, 1.2), thumb_abd_deg=(-5.0, 50.0), thumb_flex_deg=(-20.0, 45.0))
-    for i in range(16))
-#: The encodings' training set: :data:`TRAIN_PARTS` (first, so its rows lead) and the wider
-#: subjects.
-ENCODER_PARTS: tuple[GenConfig, ...] = TRAIN_PARTS + WIDER_PARTS
 
 
 def training_set(parts: tuple[GenConfig, ...] = TRAIN_PARTS) -> TouchDataset:
@@ -124,12 +105,9 @@ def fit_encoders(u: np.ndarray, poses: np.ndarray, sequence: np.ndarray,
     return encoders, meta
 
 
-def shipped_ridges(parts: tuple[GenConfig, ...] = TRAIN_PARTS,
-                   encoder_parts: tuple[GenConfig, ...] = ENCODER_PARTS
-                   ) -> dict[str, float] | None:
+def shipped_ridges(parts: tuple[GenConfig, ...] = TRAIN_PARTS) -> dict[str, float] | None:
     """The cross-validated ridge weights of the shipped model file by encoding, when it was
-    made from ``parts`` (frame, reference, layout prior) and ``encoder_parts`` (the
-    encodings) with the current hand model (else None: cross-validate again)."""
+    fitted on ``parts`` and the current hand model (else None: cross-validate again)."""
     try:
         shipped = TouchModel.load()
     except ConfigError:
@@ -137,32 +115,27 @@ def shipped_ridges(parts: tuple[GenConfig, ...] = TRAIN_PARTS,
     meta = shipped.meta
     if (shipped.frame is None or meta.get("ridge") != "cv"
             or meta.get("parts") != _parts_json(parts)
-            or meta.get("encoder_parts", meta.get("parts")) != _parts_json(encoder_parts)
             or meta.get("hand_model") != model_fingerprint(build_model(-1))):
         return None
     return {n: float(meta[f"ridge_{n}"]) for n in DEGREES}
 
 
 def _parts_json(parts: tuple[GenConfig, ...]) -> str:
-    return json.dumps([asdict(c) for c in parts])
+    return json.dumps([config_params(c) for c in parts])
 
 
 def fit_model(ds: TouchDataset, ridge: float | dict[str, float] | None = None,
-              degrees: tuple[str, ...] = tuple(DEGREES), contact_frame: bool = True,
-              encoder_data: TouchDataset | None = None) -> TouchModel:
-    """Encoders for ``degrees`` fitted on ``encoder_data`` (default ``ds``;
-    :func:`fit_encoders`: ``ridge`` None, the default, cross-validates each degree's weight on
-    the same frames); every pose of ``ds`` is kept as reference; the labelling's layout prior
-    from ``ds`` too. ``contact_frame``: u and the poses in the contacts' frame
-    (:class:`~hand_capture.touch.encoding.ContactFrame`, fitted on ``ds``), else relative to
-    the leftmost contact (the paper)."""
+              degrees: tuple[str, ...] = tuple(DEGREES), contact_frame: bool = True
+              ) -> TouchModel:
+    """Encoders for ``degrees`` fitted on ``ds`` (:func:`fit_encoders`: ``ridge`` None, the
+    default, cross-validates each degree's weight on ``ds``); every training pose is kept as
+    reference; the labelling's layout prior from the same frames. ``contact_frame``: u and
+    the poses in the contacts' frame (:class:`~hand_capture.touch.encoding.ContactFrame`,
+    fitted on ``ds``), else relative to the leftmost contact (the paper)."""
     frame = ContactFrame.fit(ds.pads, ds.contact) if contact_frame else None
     u, poses = ds.inputs(frame)
-    enc_ds = ds if encoder_data is None else encoder_data
-    u_enc, poses_enc = (u, poses) if encoder_data is None else enc_ds.inputs(frame)
-    encoders, meta = fit_encoders(u_enc, poses_enc, enc_ds.sequence, ridge, degrees, frame)
-    return TouchModel(encoders, poses, {"frames": str(len(ds)),
-                                        "encoder_frames": str(len(enc_ds)), **meta},
+    encoders, meta = fit_encoders(u, poses, ds.sequence, ridge, degrees, frame)
+    return TouchModel(encoders, poses, {"frames": str(len(ds)), **meta},
                       LayoutPrior.fit(ds.pads, ds.contact), frame)
 
 
@@ -181,24 +154,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--leftmost", action="store_true",
                     help="u relative to the leftmost contact, unturned (the paper) instead of "
                     "the contacts' frame")
-    ap.add_argument("--no-wider", action="store_true",
-                    help="fit the encodings on the frame / reference parts alone, without "
-                    "the wider subjects (WIDER_PARTS; the model before issue #13's change)")
     a = ap.parse_args(argv)
     parts = (TRAIN,) if a.template_only else TRAIN_PARTS
-    encoder_parts = parts if (a.template_only or a.no_wider) else ENCODER_PARTS
     t0 = time.perf_counter()
     ds = training_set(parts)
-    enc_ds = None if encoder_parts == parts else training_set(encoder_parts)
     t1 = time.perf_counter()
-    model = fit_model(ds, a.ridge, contact_frame=not a.leftmost, encoder_data=enc_ds)
+    model = fit_model(ds, a.ridge, contact_frame=not a.leftmost)
     model.meta.update({"parts": _parts_json(parts),
-                       "encoder_parts": _parts_json(encoder_parts),
                        "seed": str(TRAIN.seed),
                        "hand_model": model_fingerprint(build_model(-1))})
     out = model.save(a.out or default_model_path(), max_reference=a.max_reference)
-    print(f"{len(ds)} training frames from {len(parts)} parts, encodings on "
-          f"{model.meta['encoder_frames']} from {len(encoder_parts)} ({t1 - t0:.1f} s), fitted "
+    print(f"{len(ds)} training frames from {len(parts)} parts ({t1 - t0:.1f} s), fitted "
           f"{sorted(model.encoders)} (ridges "
           f"{ {n: float(model.meta[f'ridge_{n}']) for n in sorted(model.encoders)} }) "
           f"in {time.perf_counter() - t1:.1f} s -> {out} "

@@ -1,5 +1,5 @@
-"""The touch trainer's sets (issue #13: the encodings on wider subjects) and the generator's
-posture ranges."""
+"""The touch generator's posture ranges and the validation study of the encodings' training
+subjects (scripts/touch_encoding_validation.py, issue #13; not shipped)."""
 
 from __future__ import annotations
 
@@ -17,19 +17,11 @@ from hand_capture.model.joints import JOINT_INDEX
 from hand_capture.touch.datagen import (
     GenConfig,
     build_model,
-    generate,
     load_or_generate,
     model_fingerprint,
     sample_natural,
 )
-from hand_capture.touch.encoding import ContactFrame, PolynomialEncoder
-from hand_capture.touch.labelling import LayoutPrior
-from hand_capture.touch.train import (
-    ENCODER_PARTS,
-    TRAIN_PARTS,
-    WIDER_PARTS,
-    fit_model,
-)
+from hand_capture.touch.train import TRAIN_PARTS
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
@@ -82,52 +74,31 @@ def test_cache_key_of_a_config_with_default_ranges_is_the_key_before_them(tmp_pa
     assert len(list(tmp_path.glob("*.npz"))) == 2  # another posture range: another file
 
 
-def test_wider_parts_are_new_subjects_seeds_and_wider_postures():
+def test_candidate_subjects_are_new_subjects_seeds_and_wider_postures():
     from hand_capture.bench.touch import TEST_SEEDS, TEST_SHAPE_SEED
     from hand_capture.touch.heldout import SEED_BASE
 
-    assert ENCODER_PARTS[:len(TRAIN_PARTS)] == TRAIN_PARTS
-    assert ENCODER_PARTS[len(TRAIN_PARTS):] == WIDER_PARTS
+    study = _script("touch_encoding_validation")
+    wider_parts = study.WIDER_PARTS
+    assert study.CANDIDATES["wider16"] == TRAIN_PARTS + wider_parts
+    assert study.CANDIDATES["shipped"] == TRAIN_PARTS
     validation = _script("touch_label_ceiling").VALIDATION
-    wider_val = _script("touch_encoding_validation").WIDER_VALIDATION
+    wider_val = study.WIDER_VALIDATION
     seen_seeds = {c.seed for c in TRAIN_PARTS + validation + wider_val} | set(TEST_SEEDS)
     seen_hands = {c.shape_seed for c in TRAIN_PARTS + validation + wider_val} | {
         TEST_SHAPE_SEED}
-    seeds = [c.seed for c in WIDER_PARTS]
-    hands = [c.shape_seed for c in WIDER_PARTS]
-    assert len(set(seeds)) == len(set(hands)) == len(WIDER_PARTS) == 16
+    seeds = [c.seed for c in wider_parts]
+    hands = [c.shape_seed for c in wider_parts]
+    assert len(set(seeds)) == len(set(hands)) == len(wider_parts) == 16
     assert not (set(seeds) & seen_seeds) and not (set(hands) & seen_hands)
     assert max(seeds) < SEED_BASE
     # the validation subjects are not the training's either
     val_hands = {c.shape_seed for c in validation + wider_val}
     assert not val_hands & {c.shape_seed for c in TRAIN_PARTS} and min(val_hands) >= 0
-    for w in WIDER_PARTS:  # wider than every part of TRAIN_PARTS
+    for w in wider_parts:  # wider than every part of TRAIN_PARTS
         for t in TRAIN_PARTS:
             assert w.pitch_deg[1] > t.pitch_deg[1] and w.roll_sd_deg > t.roll_sd_deg
             assert w.curl[0] <= t.curl[0] and w.curl[1] >= t.curl[1]
             for name in ("spread", "thumb_abd_deg", "thumb_flex_deg"):
                 lo, hi = getattr(w, name)
                 assert lo < getattr(t, name)[0] and hi > getattr(t, name)[1]
-
-
-def test_fit_model_takes_the_encodings_from_the_encoder_data_and_the_rest_from_its_own():
-    hand = build_model(-1)
-    ds = generate(hand, GenConfig(sequences=80, frames=4, seed=3))
-    other = generate(build_model(23), GenConfig(sequences=80, frames=4, seed=4,
-                                                spread=(-0.5, 1.2)))
-    plain = fit_model(ds, ridge=1e-3, degrees=("quadratic",))
-    both = fit_model(ds, ridge=1e-3, degrees=("quadratic",), encoder_data=other)
-    frame = ContactFrame.fit(ds.pads, ds.contact)
-    np.testing.assert_array_equal(both.frame.layouts, frame.layouts)
-    np.testing.assert_array_equal(both.reference_poses, ds.inputs(frame)[1])
-    np.testing.assert_array_equal(both.layout.to_arrays()["layout_mean"],
-                                  LayoutPrior.fit(ds.pads, ds.contact).to_arrays()["layout_mean"])
-    u, y = other.inputs(frame)
-    expected = PolynomialEncoder.fit(u, y, 2, ridge=1e-3)
-    np.testing.assert_allclose(both.encoder("quadratic").coef, expected.coef, atol=1e-10)
-    assert both.meta["frames"] == str(len(ds)) and both.meta["encoder_frames"] == str(len(other))
-    # without encoder data, the encodings come from the same frames as before
-    u, y = ds.inputs(frame)
-    np.testing.assert_allclose(plain.encoder("quadratic").coef,
-                               PolynomialEncoder.fit(u, y, 2, ridge=1e-3).coef, atol=1e-10)
-    assert not np.allclose(plain.encoder("quadratic").coef, both.encoder("quadratic").coef)
