@@ -32,7 +32,7 @@ from __future__ import annotations
 import hashlib
 import json
 import zipfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +74,9 @@ class GenConfig:
     roll_sd_deg: float = 5.0      # wrist roll sd
     curl: tuple[float, float] = (0.1, 0.6)  # shared finger curl, uniform range (0..1)
     curl_sd: float = 0.08         # per-finger curl deviation from the shared level
+    spread: tuple[float, float] = (-0.3, 1.0)  # shared finger spread, uniform range
+    thumb_abd_deg: tuple[float, float] = (0.0, 40.0)   # thumb TM abduction, uniform [deg]
+    thumb_flex_deg: tuple[float, float] = (-10.0, 35.0)  # thumb TM flexion, uniform [deg]
 
     def __post_init__(self) -> None:
         if self.sequences < 1 or self.frames < 1:
@@ -82,6 +85,10 @@ class GenConfig:
                 and len(self.pitch_deg) == 2 and 0.0 <= self.pitch_deg[1] <= 45.0):
             raise InputError("wrist ranges: yaw_deg in [0, 90], roll_sd_deg in [0, 45], "
                              "pitch_deg = (mean, sd) with sd in [0, 45]")
+        for name in ("curl", "spread", "thumb_abd_deg", "thumb_flex_deg"):
+            lo_hi = getattr(self, name)
+            if len(lo_hi) != 2 or lo_hi[0] > lo_hi[1]:
+                raise InputError(f"{name} must be a range (lo, hi) with lo <= hi, got {lo_hi}")
 
 
 @dataclass
@@ -143,19 +150,23 @@ _FIELDS = ("poses", "pads", "contact", "sequence", "frame", "motion")
 
 def sample_natural(rng: np.random.Generator, n: int, yaw_deg: float = 35.0,
                    pitch_deg: tuple[float, float] = (-8.0, 5.0), roll_sd_deg: float = 5.0,
-                   curl: tuple[float, float] = (0.1, 0.6), curl_sd: float = 0.08
-                   ) -> np.ndarray:
+                   curl: tuple[float, float] = (0.1, 0.6), curl_sd: float = 0.08,
+                   spread: tuple[float, float] = (-0.3, 1.0),
+                   thumb_abd_deg: tuple[float, float] = (0.0, 40.0),
+                   thumb_flex_deg: tuple[float, float] = (-10.0, 35.0)) -> np.ndarray:
     """Natural relaxed postures (n, 27) of a right hand held palm-down over a table.
 
     Finger curl is correlated across fingers (one shared level plus a per-finger deviation)
-    with DIP flexion about 2/3 of PIP flexion; the spread is shared; the thumb is abducted
-    towards opposition. The wrist is yawed uniformly within +-``yaw_deg``, pitched by
+    with DIP flexion about 2/3 of PIP flexion; the spread is shared (a level uniform in
+    ``spread``; MCP abduction 12 deg x level x +1 index .. -1.2 little); the thumb is abducted
+    towards opposition (trapeziometacarpal abduction and flexion uniform in ``thumb_abd_deg``,
+    ``thumb_flex_deg`` [deg]). The wrist is yawed uniformly within +-``yaw_deg``, pitched by
     N(``pitch_deg``) and rolled by N(0, ``roll_sd_deg``) [deg]; its position is left at the
     origin.
     """
     q = np.zeros((n, N_DOF))
     shared = rng.uniform(curl[0], curl[1], n)
-    spread = rng.uniform(-0.3, 1.0, n)
+    level = rng.uniform(spread[0], spread[1], n)  # shared spread
     spread_dir = {"index": 1.0, "middle": 0.1, "ring": -0.6, "little": -1.2}
     for f in FINGERS[1:]:
         c = np.clip(shared + rng.normal(0.0, curl_sd, n), 0.0, 0.9)
@@ -163,11 +174,11 @@ def sample_natural(rng: np.random.Generator, n: int, yaw_deg: float = 35.0,
         q[:, j["mcp_flex"]] = np.radians(-5.0 + 70.0 * c + rng.normal(0.0, 5.0, n))
         q[:, j["pip_flex"]] = np.radians(90.0 * c + rng.normal(0.0, 6.0, n))
         q[:, j["dip_flex"]] = q[:, j["pip_flex"]] * 2.0 / 3.0 + np.radians(rng.normal(0.0, 4.0, n))
-        q[:, j["mcp_abd"]] = np.radians(12.0 * spread * spread_dir[f] + rng.normal(0.0, 3.0, n))
+        q[:, j["mcp_abd"]] = np.radians(12.0 * level * spread_dir[f] + rng.normal(0.0, 3.0, n))
     t = {k: JOINT_INDEX[f"thumb_{k}"] for k in ("tm_abd", "tm_flex", "mcp_abd", "mcp_flex",
                                                 "ip_flex")}
-    q[:, t["tm_abd"]] = np.radians(rng.uniform(0.0, 40.0, n))
-    q[:, t["tm_flex"]] = np.radians(rng.uniform(-10.0, 35.0, n))
+    q[:, t["tm_abd"]] = np.radians(rng.uniform(thumb_abd_deg[0], thumb_abd_deg[1], n))
+    q[:, t["tm_flex"]] = np.radians(rng.uniform(thumb_flex_deg[0], thumb_flex_deg[1], n))
     q[:, t["mcp_abd"]] = np.radians(rng.normal(0.0, 4.0, n))
     q[:, t["mcp_flex"]] = np.radians(rng.uniform(0.0, 35.0, n))
     q[:, t["ip_flex"]] = np.radians(rng.uniform(0.0, 40.0, n))
@@ -343,7 +354,8 @@ def generate(model: object, cfg: GenConfig) -> TouchDataset:
     motion = rng.integers(0, len(MOTIONS), b)
     mask = np.stack([_choose_fingers(rng, MOTIONS[m]) for m in motion])
     natural = {"yaw_deg": cfg.yaw_deg, "pitch_deg": cfg.pitch_deg, "roll_sd_deg": cfg.roll_sd_deg,
-             "curl": cfg.curl, "curl_sd": cfg.curl_sd}
+               "curl": cfg.curl, "curl_sd": cfg.curl_sd, "spread": cfg.spread,
+               "thumb_abd_deg": cfg.thumb_abd_deg, "thumb_flex_deg": cfg.thumb_flex_deg}
     prior_a = sample_natural(rng, b, **natural)
     prior_b = sample_natural(rng, b, **natural)
     prior_b[:, 3:6] = prior_a[:, 3:6] + np.radians(rng.normal(0.0, 4.0, (b, 3)))
@@ -390,6 +402,19 @@ def model_fingerprint(model: object) -> str:
     return hashlib.sha1(pads.tobytes()).hexdigest()[:12]
 
 
+#: GenConfig fields added after the cache key was fixed, with their defaults: a default value
+#: stays out of the key, so the cached sets made before them keep their files.
+_LATER_FIELDS = {f.name: f.default for f in fields(GenConfig)
+                 if f.name in ("spread", "thumb_abd_deg", "thumb_flex_deg")}
+
+
+def config_params(cfg: GenConfig) -> dict:
+    """The fields of ``cfg`` as a dict, without the later fields that hold their defaults
+    (what the cache key and a model file's ``parts`` record: unchanged for older configs)."""
+    return {k: v for k, v in asdict(cfg).items()
+            if k not in _LATER_FIELDS or v != _LATER_FIELDS[k]}
+
+
 def cache_dir() -> Path:
     from hand_capture.paths import share_dir
 
@@ -416,7 +441,7 @@ def load_or_generate(cfg: GenConfig, model: object | None = None,
     if not cache:
         return generate(model, cfg)
     folder = cache_dir() if cache is True else Path(cache)
-    key = hashlib.sha1(json.dumps({**asdict(cfg), "model": model_fingerprint(model),
+    key = hashlib.sha1(json.dumps({**config_params(cfg), "model": model_fingerprint(model),
                                    "version": 2}, sort_keys=True).encode()).hexdigest()[:16]
     path = folder / f"touch_{cfg.seed}_{cfg.shape_seed}_{key}.npz"
     if path.exists():

@@ -28,7 +28,6 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +37,7 @@ from hand_capture.touch.datagen import (
     GenConfig,
     TouchDataset,
     build_model,
+    config_params,
     load_or_generate,
     model_fingerprint,
 )
@@ -121,7 +121,7 @@ def shipped_ridges(parts: tuple[GenConfig, ...] = TRAIN_PARTS) -> dict[str, floa
 
 
 def _parts_json(parts: tuple[GenConfig, ...]) -> str:
-    return json.dumps([asdict(c) for c in parts])
+    return json.dumps([config_params(c) for c in parts])
 
 
 def fit_model(ds: TouchDataset, ridge: float | dict[str, float] | None = None,
