@@ -29,6 +29,7 @@ frames per set, contacts shuffled, searched from scratch).
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import json
 import sys
@@ -62,13 +63,15 @@ CANDIDATES = {"shipped": TRAIN_PARTS, "wider8": TRAIN_PARTS + WIDER_PARTS[:8],
               "wider16": TRAIN_PARTS + WIDER_PARTS}
 
 
-def _label_validation() -> tuple[GenConfig, ...]:
-    """``VALIDATION`` of scripts/touch_label_ceiling.py (one copy of those settings)."""
+@functools.cache
+def _ceiling() -> object:
+    """scripts/touch_label_ceiling.py as a module: its ``VALIDATION`` settings and
+    ``label_accuracy`` (one copy of each)."""
     path = Path(__file__).resolve().parent / "touch_label_ceiling.py"
     spec = importlib.util.spec_from_file_location("touch_label_ceiling", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    return mod.VALIDATION
+    return mod
 
 
 def validation_sets() -> dict[str, TouchDataset]:
@@ -78,20 +81,13 @@ def validation_sets() -> dict[str, TouchDataset]:
                                          for c in parts])
     test = tuple(GenConfig(sequences=210, frames=8, seed=s, shape_seed=TEST_SHAPE_SEED)
                  for s in TEST_SEEDS)
-    return {"validation": load(_label_validation()), "wider": load(WIDER_VALIDATION),
+    return {"validation": load(_ceiling().VALIDATION), "wider": load(WIDER_VALIDATION),
             "test": load(test)}
 
 
 def label_accuracy(labeller: FingerLabeller, ds: TouchDataset, frames: int) -> list[float]:
     """Accuracy [%] for 2..5 contacts on ``frames`` rows of ``ds`` (contacts shuffled)."""
-    rows = np.sort(np.random.default_rng(1).choice(len(ds), min(frames, len(ds)), False))
-    rng = np.random.default_rng(5)
-    hits: dict[int, list[bool]] = {n: [] for n in range(2, 6)}
-    for i in rows:
-        fingers = np.flatnonzero(ds.contact[i])[rng.permutation(ds.n_contacts[i])]
-        res = labeller.search(ds.pads[i, fingers])
-        hits[len(fingers)].append(bool(np.array_equal(res.labels, fingers)))
-    return [100.0 * float(np.mean(hits[n])) for n in range(2, 6)]
+    return _ceiling().label_accuracy(labeller, ds, frames)[0]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -112,6 +112,21 @@ VALIDATION = tuple(GenConfig(sequences=500, frames=8, seed=s, shape_seed=h, yaw_
 NN_SCALES = (0.25, 0.5, 1.0, 2.0, 4.0, 100.0)
 
 
+def label_accuracy(labeller: object, ds: TouchDataset, frames: int
+                   ) -> tuple[list[float], list[int]]:
+    """Accuracy [%] of ``labeller`` for 2..5 contacts and the frames of each count, on
+    ``frames`` rows of ``ds`` (contacts shuffled, searched from scratch)."""
+    rows = np.sort(np.random.default_rng(1).choice(len(ds), min(frames, len(ds)), False))
+    rng = np.random.default_rng(5)
+    hits: dict[int, list[bool]] = {n: [] for n in range(2, 6)}
+    for i in rows:
+        fingers = np.flatnonzero(ds.contact[i])[rng.permutation(ds.n_contacts[i])]
+        res = labeller.search(ds.pads[i, fingers])
+        hits[len(fingers)].append(bool(np.array_equal(res.labels, fingers)))
+    return ([100.0 * float(np.mean(hits[n])) for n in range(2, 6)],
+            [len(hits[n]) for n in range(2, 6)])
+
+
 def validation(frames: int = 2000) -> dict[str, list[float]]:
     """Accuracy [%] by contacts (2..5) of the shipped labeller per ``nn_scale`` on
     :data:`VALIDATION` (``frames`` of them, contacts shuffled, searched from scratch)."""
@@ -121,21 +136,14 @@ def validation(frames: int = 2000) -> dict[str, list[float]]:
     model = TouchModel.load()
     val = TouchDataset.concatenate([load_or_generate(c, model=build_model(c.shape_seed))
                                     for c in VALIDATION])
-    rows = np.sort(np.random.default_rng(1).choice(len(val), min(frames, len(val)), False))
     out: dict[str, list[float]] = {}
     for scale in NN_SCALES:
         lab = FingerLabeller(model.encoder("quadratic"), model.reference_poses,
                              LabellerConfig(nn_scale=scale), layout=model.layout)
-        rng = np.random.default_rng(5)
-        hits: dict[int, list[bool]] = {n: [] for n in range(2, 6)}
-        for i in rows:
-            fingers = np.flatnonzero(val.contact[i])[rng.permutation(val.n_contacts[i])]
-            res = lab.search(val.pads[i, fingers])
-            hits[len(fingers)].append(bool(np.array_equal(res.labels, fingers)))
-        out[str(scale)] = [100.0 * float(np.mean(hits[n])) for n in range(2, 6)]
+        out[str(scale)], counts = label_accuracy(lab, val, frames)
         print(f"nn_scale {scale:7g}: " + " / ".join(f"{a:.1f}" for a in out[str(scale)])
               + f"  (mean of 2-4: {np.mean(out[str(scale)][:3]):.2f}; frames "
-              + " / ".join(str(len(hits[n])) for n in range(2, 6)) + ")", flush=True)
+              + " / ".join(map(str, counts)) + ")", flush=True)
     return out
 
 
