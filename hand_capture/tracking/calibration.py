@@ -146,26 +146,24 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
             issue 13). The bench's calibration section, measured after the
             choice (same run, same machine): worst 5.20 -> 4.45 %, held-out mean 3.56 ->
             2.71 %, suite's hands 1.67 -> 1.06 %; 1.06 -> 1.13 s a calibration.
-        recut_margin_m: where the data is cut at the fitted wrists (after the scale grid's
-            first fits and half-way through the rounds), beyond the wrist keypoint along
-            the forearm [m, at template size; negative: towards the fingers]; the model's
-            surface beyond that plane pairs with no data either (``wrist_optional_m`` of
-            the fit lowered to it, at least -0.04). The tracker's cut (``forearm_margin_m``
-            36 mm, where the template's mesh ends) let the fit slide down a forearm in
-            view: the cut follows the fitted wrist, the palm's base takes up the forearm's
-            first centimetres, the hand grows to reach them, and the next cut keeps them.
-            On the validation subjects with the training renders' forearm
-            (``scripts/calibration_validation.py --forearm``, 36 subjects) the tracker's cut
-            gave bone errors of 7.92 % mean (worst 27.8 %, every bone long, the fitted wrist
-            up to 20 mm down the arm); cut at the wrist (0) 3.7 / 13.8 % (12 subjects,
-            10.7 / 27.8 % with the 36 mm cut);
-            -0.025 (chosen, with the model's surface beyond the cut optional; without that
-            the model's base pulled the hand small: -0.02 gave 9.0 % on 12 subjects) 2.70 /
-            7.20 % with a forearm and 2.24 / 4.33 % without (before: 2.17 / 4.28 %).
-            -0.01 / -0.015 / -0.02 / -0.03: 3.02 / 12.9, 2.69 / 7.22, 2.68 / 8.61 (one
-            refused), 2.71 / 5.72 % with a forearm; 2.25 / 4.79, 2.29 / 5.13, 2.33 / 4.76, 2.32 / 5.25 % without (those
-            five before the off-hand test below judged the uncut segment; with it -0.025
-            gives the same figures and no subject is refused).
+        recut_margin_m: where the data is cut at the fitted wrists (after the scale grid's first
+            fits and half-way through the rounds), beyond the wrist keypoint along the forearm [m,
+            at template size; negative: towards the fingers]; the model's surface beyond that plane
+            pairs with no data either (``wrist_optional_m`` of the fit lowered to it, at least
+            -0.04). The tracker's cut (``forearm_margin_m`` 36 mm, where the template's mesh ends)
+            let the fit slide down a forearm in view: the cut follows the fitted wrist, the palm's
+            base takes up the forearm's first centimetres, the hand grows to reach them, and the
+            next cut keeps them. On the validation subjects with the training renders' forearm
+            (``scripts/calibration_validation.py --forearm``, 36 subjects) the tracker's cut gave
+            bone errors of 7.92 % mean (worst 27.8 %, every bone long, the fitted wrist up to 20 mm
+            down the arm); cut at the wrist (0) 3.7 / 13.8 % (12 subjects, 10.7 / 27.8 % with the
+            36 mm cut); -0.025 (chosen, with the model's surface beyond the cut optional; without
+            that the model's base pulled the hand small: -0.02 gave 9.0 % on 12 subjects) 2.70 /
+            7.20 % with a forearm and 2.24 / 4.33 % without (before: 2.17 / 4.28 %). -0.01 / -0.015
+            / -0.02 / -0.03: 3.02 / 12.9, 2.69 / 7.22, 2.68 / 8.61 (one refused), 2.71 / 5.72 %
+            with a forearm; 2.25 / 4.79, 2.29 / 5.13, 2.33 / 4.76, 2.32 / 5.25 % without (those
+            five before the off-hand test below judged the uncut segment; with it -0.025 gives the
+            same figures and no subject is refused).
         subject_id: stored in the result's shape.
         min_points: fewer hand points than this in a frame (after the forearm cut) =
             refused.
