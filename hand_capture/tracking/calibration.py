@@ -163,7 +163,10 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
             / -0.02 / -0.03: 3.02 / 12.9, 2.69 / 7.22, 2.68 / 8.61 (one refused), 2.71 / 5.72 %
             with a forearm; 2.25 / 4.79, 2.29 / 5.13, 2.33 / 4.76, 2.32 / 5.25 % without (those
             five before the off-hand test below judged the uncut segment; with it -0.025 gives the
-            same figures and no subject is refused).
+            same figures and no subject is refused). Applied only when a forearm is seen (the
+            cloud cut shortened a frame's segment): on a hand alone the short cut left the
+            palm's length to the scale alone (held-out 0.85 hand of the bench: 4.33 -> 5.75 %),
+            so it keeps the tracker's cut and its figures are main's to the digit.
         subject_id: stored in the result's shape.
         min_points: fewer hand points than this in a frame (after the forearm cut) =
             refused.
@@ -189,6 +192,7 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
     if len(finger_poses) != len(frames):
         raise InputError(f"{len(frames)} frames but {len(finger_poses)} predefined poses")
     obs_list, whole = [], []
+    arm_seen = False   # a frame whose segment the cloud cut shortened (a forearm in view)
     for depth, intr in frames:
         obs = segment_hand(depth, intr, cfg)
         if len(obs.points) < 100:
@@ -196,13 +200,18 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
         whole.append(obs)
         # the forearm is not the hand: a surface fitted to it inflates the hand (40-60 %)
         if cfg.forearm_cut:
-            obs, _ = cut_forearm(obs, cfg, model.shape.global_scale)
+            obs, did = cut_forearm(obs, cfg, model.shape.global_scale)
+            arm_seen |= did
         obs_list.append(obs)
     reasons = []
     n_points = tuple(int(o.n_points) for o in obs_list)
     if min(n_points) < min_points:
         reasons.append(f"{min(n_points)} hand points in a frame (< {min_points})")
-    # the model's surface beyond the data's cut pairs with nothing (icp.optional_vertices)
+    # with a forearm in view the data is cut short of the fitted wrists, and the model's
+    # surface beyond that cut pairs with nothing (icp.optional_vertices); a hand alone keeps
+    # the tracker's cut
+    if not arm_seen:
+        recut_margin_m = cfg.forearm_margin_m
     cfg_fit = (replace(cfg, wrist_optional_m=max(-0.04, recut_margin_m))
                if cfg.wrist_optional and recut_margin_m < cfg.wrist_optional_m else cfg)
     # coarse search of the global scale first: the joint Gauss-Newton below converges slowly
