@@ -44,7 +44,7 @@ from hand_capture.model.joints import FINGERS
 from hand_capture.model.skeleton import LEVELS
 from hand_capture.tracking.calibration import calibrate, render_calibration_frames
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.train import default_intrinsics
+from hand_capture.tracking.train import default_intrinsics, forearm_mesh
 
 #: first subject seed (the bench's calibration section uses 300+, the tracking sets < 100)
 SEED0 = 900
@@ -67,6 +67,35 @@ def subject(i: int) -> tuple[HandModel, SurfaceVariant | None, np.random.Generat
     return HandModel(shape), variant, rng
 
 
+def subject_meshes(true: HandModel, variant: SurfaceVariant | None, i: int, forearm: bool,
+                   sleeves: bool = False):
+    """``q (27,) -> Mesh | list[Mesh]`` of subject ``i`` (None: the model's own mesh alone);
+    with ``forearm`` the training renders' forearm (:func:`forearm_mesh`, radius 24-40 mm,
+    length 0.25-0.5 m, bend +-0.4 rad, drawn from its own generator so that the subjects'
+    shapes, surfaces and noise are those without it) is rendered with the hand."""
+    from hand_capture.cameras.render import Mesh
+
+    hand = variant.mesh_fn(true) if variant is not None else None
+    if not forearm:
+        return hand
+    g = np.random.default_rng(SEED0 + 5000 + i)
+    radius, length = float(g.uniform(0.024, 0.04)), float(g.uniform(0.25, 0.5))
+    bend = tuple(float(b) for b in g.uniform(-0.4, 0.4, 2))
+    # with ``sleeves``, odd subjects also wear the hard validation set's sleeve (10-25 mm
+    # wider than the arm, from 40-80 mm past the wrist)
+    sleeve = ((radius + float(g.uniform(0.01, 0.025)), float(g.uniform(0.04, 0.08)))
+              if sleeves and i % 2 else None)
+
+    def fn(q: np.ndarray) -> list:
+        h = hand(q) if hand is not None else Mesh(true.vertices(q), true.faces, 1, closed=True)
+        out = [h, forearm_mesh(true, q, radius, length, bend)]
+        if sleeve is not None:
+            out.append(forearm_mesh(true, q, sleeve[0], length, bend, start=sleeve[1]))
+        return out
+
+    return fn
+
+
 def parse_sets(items: list[str]) -> dict:
     """``KEY=VALUE`` strings -> keyword arguments of ``calibrate`` (values read as YAML).
 
@@ -85,15 +114,18 @@ def parse_sets(items: list[str]) -> dict:
     return out
 
 
-def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True) -> dict:
-    """Calibrate the ``n`` validation subjects; returns the figures (see the module doc)."""
+def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True,
+        forearm: bool = False, sleeves: bool = False) -> dict:
+    """Calibrate the ``n`` validation subjects (``forearm``: each with a forearm in view;
+    ``sleeves``: every second one also in a sleeve); returns the figures (see the module
+    doc)."""
     base = HandModel()
     intr = default_intrinsics()
     errs: dict[str, list[float]] = {"own": [], "variant": []}
     bias, times, is_var, kp_err = [], [], [], []
     for i in range(n):
         true, variant, rng = subject(i)
-        mesh_fn = variant.mesh_fn(true) if variant is not None else None
+        mesh_fn = subject_meshes(true, variant, i, forearm, sleeves)
         frames = render_calibration_frames(true, intr, rng, mesh_fn=mesh_fn)
         t0 = time.perf_counter()
         cal = calibrate(frames, model=base, config=cfg, **kwargs)
@@ -158,6 +190,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", action="append", default=[], metavar="KEY=VALUE",
                     help="a TrackerConfig field")
     ap.add_argument("-q", "--quiet", action="store_true", help="no per-subject lines")
+    ap.add_argument("--forearm", action="store_true",
+                    help="every subject with a forearm in view (the training renders' kind)")
+    ap.add_argument("--sleeves", action="store_true",
+                    help="with --forearm: every second subject also in a sleeve")
     args = ap.parse_args(argv)
     try:
         kwargs = parse_sets(args.set)
@@ -165,7 +201,9 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(e, file=sys.stderr)
         return 2
-    out = run(args.n, kwargs, cfg, not args.quiet)
+    out = run(args.n, kwargs, cfg, not args.quiet, args.forearm, args.sleeves)
+    out["forearm"] = args.forearm
+    out["sleeves"] = args.sleeves
     out["set"] = args.set
     out["config"] = args.config
     print(json.dumps(out))

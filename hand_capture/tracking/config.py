@@ -86,8 +86,10 @@ class TrackerConfig:
                                  "off-hand test (real data there is forearm, sleeve, cut or "
                                  "nothing)")
     wrist_optional_m: float = param(0.0, "where the optional wrist stub begins, beyond the "
-                                    "wrist keypoint along the forearm [m, at template size]",
-                                    lo=-0.02, hi=0.036)
+                                    "wrist keypoint along the forearm [m, at template size; "
+                                    "calibration with a forearm in view lowers it to its "
+                                    "data cut, calibrate(recut_margin_m)]",
+                                    lo=-0.04, hi=0.036)
     reverse_margin_px: float = param(2.0, "model-to-data pairs only for vertices projecting "
                                      "farther than this off the hand [px]", lo=0.0)
     damping: float = param(1e-2, "Levenberg damping added to J^T J (stabilises II.27)",
