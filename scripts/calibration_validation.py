@@ -48,6 +48,9 @@ from hand_capture.tracking.train import default_intrinsics, forearm_mesh
 
 #: first subject seed (the bench's calibration section uses 300+, the tracking sets < 100)
 SEED0 = 900
+#: the sleeve's radius beyond the arm's and where it starts past the wrist [m] (``--sleeves``;
+#: the hard validation set's by default, ``--sleeve-wider`` / ``--sleeve-start`` change them)
+SLEEVE_WIDER_M, SLEEVE_START_M = (0.01, 0.025), (0.04, 0.08)
 #: bone groups of the bias table: name -> bone indices (palm 0, then 3 per finger)
 GROUPS: dict[str, list[int]] = {
     "palm": [0],
@@ -68,7 +71,7 @@ def subject(i: int) -> tuple[HandModel, SurfaceVariant | None, np.random.Generat
 
 
 def subject_meshes(true: HandModel, variant: SurfaceVariant | None, i: int, forearm: bool,
-                   sleeves: bool = False):
+                   sleeves: tuple[tuple[float, float], tuple[float, float]] | None = None):
     """``q (27,) -> Mesh | list[Mesh]`` of subject ``i`` (None: the model's own mesh alone);
     with ``forearm`` the training renders' forearm (:func:`forearm_mesh`, radius 24-40 mm,
     length 0.25-0.5 m, bend +-0.4 rad, drawn from its own generator so that the subjects'
@@ -81,10 +84,10 @@ def subject_meshes(true: HandModel, variant: SurfaceVariant | None, i: int, fore
     g = np.random.default_rng(SEED0 + 5000 + i)
     radius, length = float(g.uniform(0.024, 0.04)), float(g.uniform(0.25, 0.5))
     bend = tuple(float(b) for b in g.uniform(-0.4, 0.4, 2))
-    # with ``sleeves``, odd subjects also wear the hard validation set's sleeve (10-25 mm
-    # wider than the arm, from 40-80 mm past the wrist)
-    sleeve = ((radius + float(g.uniform(0.01, 0.025)), float(g.uniform(0.04, 0.08)))
-              if sleeves and i % 2 else None)
+    # with ``sleeves`` ((min, max) radius beyond the arm's, (min, max) start past the wrist
+    # [m]), odd subjects also wear a sleeve
+    sleeve = ((radius + float(g.uniform(*sleeves[0])), float(g.uniform(*sleeves[1])))
+              if sleeves is not None and i % 2 else None)
 
     def fn(q: np.ndarray) -> list:
         h = hand(q) if hand is not None else Mesh(true.vertices(q), true.faces, 1, closed=True)
@@ -115,10 +118,11 @@ def parse_sets(items: list[str]) -> dict:
 
 
 def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True,
-        forearm: bool = False, sleeves: bool = False) -> dict:
+        forearm: bool = False,
+        sleeves: tuple[tuple[float, float], tuple[float, float]] | None = None) -> dict:
     """Calibrate the ``n`` validation subjects (``forearm``: each with a forearm in view;
-    ``sleeves``: every second one also in a sleeve); returns the figures (see the module
-    doc)."""
+    ``sleeves``: every second one also in a sleeve, see :func:`subject_meshes`); returns the
+    figures (see the module doc)."""
     base = HandModel()
     intr = default_intrinsics()
     errs: dict[str, list[float]] = {"own": [], "variant": []}
@@ -194,6 +198,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="every subject with a forearm in view (the training renders' kind)")
     ap.add_argument("--sleeves", action="store_true",
                     help="with --forearm: every second subject also in a sleeve")
+    ap.add_argument("--sleeve-wider", type=float, nargs=2, default=SLEEVE_WIDER_M,
+                    metavar=("MIN", "MAX"), help="sleeve radius beyond the arm's [m]")
+    ap.add_argument("--sleeve-start", type=float, nargs=2, default=SLEEVE_START_M,
+                    metavar=("MIN", "MAX"), help="where the sleeve starts past the wrist [m]")
     args = ap.parse_args(argv)
     try:
         kwargs = parse_sets(args.set)
@@ -201,9 +209,11 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(e, file=sys.stderr)
         return 2
-    out = run(args.n, kwargs, cfg, not args.quiet, args.forearm, args.sleeves)
+    sleeves = ((tuple(args.sleeve_wider), tuple(args.sleeve_start)) if args.sleeves
+               else None)
+    out = run(args.n, kwargs, cfg, not args.quiet, args.forearm, sleeves)
     out["forearm"] = args.forearm
-    out["sleeves"] = args.sleeves
+    out["sleeves"] = [args.sleeve_wider, args.sleeve_start] if args.sleeves else False
     out["set"] = args.set
     out["config"] = args.config
     print(json.dumps(out))
