@@ -34,15 +34,18 @@ import numpy as np
 WRIST, TIPS = 0, (4, 8, 12, 16, 20)
 
 
-def _frames(name: str, n: int, rig: object, seed: int, circles: int, cache: Path) -> list:
+def _frames(name: str, n: int, rig: object, seed: int, circles: int, cache: Path,
+            circle_scale: float = 1.0) -> list:
     """The rendered frames of sequence ``name`` (own mesh), from the cache when there."""
     from hand_capture.multiview.sequences import make_sequence, render_sequence
 
-    f = cache / f"{name}_{n}_s{seed}_c{circles}.pkl"
+    tag = "" if circle_scale == 1.0 else f"_r{circle_scale:.4f}"
+    f = cache / f"{name}_{n}_s{seed}_c{circles}{tag}.pkl"
     if f.exists():
         with f.open("rb") as fh:
             return pickle.load(fh)
     fr = list(render_sequence(make_sequence(name, n), rig, surface="own", circles=circles,
+                              circle_scale=circle_scale,
                               seed=seed))
     cache.mkdir(parents=True, exist_ok=True)
     with f.open("wb") as fh:
@@ -64,6 +67,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sequences", nargs="+", default=["fingers", "ball", "box"])
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--circles", type=int, nargs="+", default=[100, 0])
+    ap.add_argument("--circle-scale", type=float, default=1.0,
+                    help="the circles' radii times this (1/3: seed 002's image share at 640 px)")
     ap.add_argument("--diag", action="store_true")
     ap.add_argument("--start-truth", action="store_true")
     ap.add_argument("--flow-truth", action="store_true",
@@ -79,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
         model = seq.model()
         for circles in a.circles:
             for seed in a.seeds:
-                frames = _frames(name, a.frames, rig, seed, circles, Path(a.cache))
+                frames = _frames(name, a.frames, rig, seed, circles, Path(a.cache),
+                                 a.circle_scale)
                 for lo_seed in a.lo_seeds:
                     cfg = replace(base, seed=lo_seed)
                     r = _track(seq, model, rig, frames, cfg, diag=a.diag,
@@ -93,8 +99,9 @@ def main(argv: list[str] | None = None) -> int:
                           f"{lo_seed}: {mm:5.2f} mm, {r['s']:.2f} s/frame", flush=True)
                     if a.diag:
                         _diag(r, model.n_hands)
-    out: dict[str, object] = {"lo": a.lo, "start_truth": a.start_truth,
-                              "flow_truth": a.flow_truth, "rows": rows}
+    out: dict[str, object] = {"lo": a.lo, "circle_scale": a.circle_scale,
+                              "start_truth": a.start_truth, "flow_truth": a.flow_truth,
+                              "rows": rows}
     for circles in a.circles:
         for lo_seed in a.lo_seeds:
             v = [r["mm"] for r in rows if r["circles"] == circles and r["lo_seed"] == lo_seed]

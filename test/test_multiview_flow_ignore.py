@@ -54,6 +54,23 @@ def test_circle_masks_cover_the_circles_and_leave_the_image_and_draws_unchanged(
     assert far.any() and not mask[far].any()              # beyond the largest radius
 
 
+def test_scaled_circles_keep_the_draws_and_shrink_the_discs():
+    """``radius_scale`` (seed 002's image share at another resolution) draws the same
+    circles, smaller: same centres, same next draw, a third of the radius."""
+    h, w, n = 120, 160, 6
+    img = np.random.default_rng(0).integers(0, 256, (h, w, 3)).astype(np.uint8)
+    r1, r3 = np.random.default_rng(11), np.random.default_rng(11)
+    _, m1 = _structural_noise(img, r1, n)
+    _, m3 = _structural_noise(img, r3, n, 1.0 / 3.0)
+    assert r1.integers(0, 1 << 30) == r3.integers(0, 1 << 30) == _OLD_NEXT_DRAW
+    c = _centres(11, n, w, h)
+    assert m3[c[:, 1], c[:, 0]].all() and not (m3 & ~m1).any()
+    rr, cc = np.mgrid[0:h, 0:w]
+    far = np.min(np.hypot(rr[..., None] - c[:, 1], cc[..., None] - c[:, 0]), axis=2) > 12
+    assert far.any() and not m3[far].any()               # beyond a third of 30 px (+ AA)
+    assert m3.sum() < 0.25 * m1.sum()
+
+
 def test_rendered_frames_carry_masks_of_exactly_what_the_circles_changed():
     """Held-out surface without colour noise: a view's pixels do not depend on the random
     draws, so with circles the image equals the circle-free one wherever the mask is off."""

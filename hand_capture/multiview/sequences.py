@@ -229,11 +229,12 @@ def _object_qpos(poses: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
-def _structural_noise(img: np.ndarray, rng: np.random.Generator, n: int
-                      ) -> tuple[np.ndarray, np.ndarray]:
-    """Seed 002's structural noise: ``n`` discs of radius 10-30 px at random centres of the
-    (H, W, 3) uint8 image, even ones filled with a random colour (added structure), odd ones
-    with the colour under their centre (removed structure).
+def _structural_noise(img: np.ndarray, rng: np.random.Generator, n: int,
+                      radius_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Seed 002's structural noise: ``n`` discs of radius 10-30 px (times ``radius_scale``,
+    same draws) at random centres of the (H, W, 3) uint8 image, even ones filled with a
+    random colour (added structure), odd ones with the colour under their centre (removed
+    structure).
 
     Returns:
         (the noisy image (H, W, 3) uint8, (H, W) bool mask of every pixel a disc's
@@ -247,7 +248,7 @@ def _structural_noise(img: np.ndarray, rng: np.random.Generator, n: int
     mask = np.zeros((h, w), np.uint8)
     for i in range(n):
         c = (int(rng.integers(0, w)), int(rng.integers(0, h)))
-        rad = int(rng.integers(10, 31))
+        rad = max(1, int(round(int(rng.integers(10, 31)) * radius_scale)))
         if i % 2 == 0:
             col = tuple(int(v) for v in rng.integers(0, 256, 3))
         else:
@@ -260,9 +261,12 @@ def _structural_noise(img: np.ndarray, rng: np.random.Generator, n: int
 def render_sequence(seq: Sequence, rig: Rig, *, surface: str = "heldout",
                     noise: bool = True, circles: int = 100, salient_miss: float = 0.3,
                     salient_fp: float = 0.1, seed: int = 0,
-                    frames: list[int] | None = None) -> Iterator[SequenceFrame]:
+                    frames: list[int] | None = None, circle_scale: float = 1.0
+                    ) -> Iterator[SequenceFrame]:
     """Render ``seq`` from every camera of ``rig``; see the module docstring. Each frame
-    carries the circles' pixel masks (``SequenceFrame.noise_masks``) beside its images."""
+    carries the circles' pixel masks (``SequenceFrame.noise_masks``) beside its images.
+    ``circle_scale`` scales the circles' radii (same draws; 1 = the issue's 10-30 px, 1/3 =
+    the share of a 640x480 image that seed 002's 10-30 px covered of its 1920x1080 ones)."""
     from hand_capture.cameras.render import Mesh, ZBufferRenderer
     from hand_capture.evaldata.surface import sample_surface
     from hand_capture.multiview.studio import Studio, StudioNoise, studio_scene
@@ -304,7 +308,8 @@ def render_sequence(seq: Sequence, rig: Rig, *, surface: str = "heldout",
                 dets[cam.name] = _detections(model, state, cam, depth, rng, salient_miss,
                                              salient_fp)
                 if circles:
-                    images[cam.name], masks[cam.name] = _structural_noise(rgb, rng, circles)
+                    images[cam.name], masks[cam.name] = _structural_noise(rgb, rng, circles,
+                                                                         circle_scale)
                 else:
                     images[cam.name] = rgb
             yield SequenceFrame(images, dets, masks)
