@@ -18,9 +18,14 @@ variants); the mean distance of the 21 rest-pose keypoints from the truth's [mm]
 bench's ``kp err fit``, wrist at the origin for both); and the time per calibration.
 
     PYTHONPATH=. .venv/bin/python scripts/calibration_validation.py [-n 36] \\
-        [--set rounds=20] [--config robust_mm=6]
+        [--set rounds=20] [--config robust_mm=6] [--forearm [--sleeves
+        [--sleeve-wider 0.01 0.025] [--sleeve-start 0.04 0.08]]]
 
-``--set KEY=VALUE`` overrides a keyword argument of ``calibrate`` (value read as YAML),
+``--forearm`` renders every subject with the training renders' forearm (radius 24-40 mm,
+length 0.25-0.5 m, bent +-0.4 rad, drawn from a generator of its own: the subjects' shapes,
+surfaces and noise stay those without it); ``--sleeves`` adds a sleeve to every second one
+(by default the hard validation set's: 10-25 mm wider than the arm, from 40-80 mm past the
+wrist). ``--set KEY=VALUE`` overrides a keyword argument of ``calibrate`` (value read as YAML),
 ``--config KEY=VALUE`` a :class:`TrackerConfig` field (``config.from_overrides``). The last
 line printed is the JSON of the figures.
 """
