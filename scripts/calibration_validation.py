@@ -41,7 +41,12 @@ import time
 import numpy as np
 import yaml
 
-from hand_capture.bench._tracking_heldout import SurfaceVariant, _bone_err_pct
+from hand_capture.bench._tracking_heldout import (
+    SLEEVE_START_M,
+    SLEEVE_WIDER_M,
+    SurfaceVariant,
+    _bone_err_pct,
+)
 from hand_capture.config import from_overrides
 from hand_capture.errors import ConfigError
 from hand_capture.model import N_DOF, HandModel, sample_shape
@@ -49,13 +54,10 @@ from hand_capture.model.joints import FINGERS
 from hand_capture.model.skeleton import LEVELS
 from hand_capture.tracking.calibration import calibrate, render_calibration_frames
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.train import default_intrinsics, forearm_mesh
+from hand_capture.tracking.train import default_intrinsics, draw_forearm, forearm_mesh
 
 #: first subject seed (the bench's calibration section uses 300+, the tracking sets < 100)
 SEED0 = 900
-#: the sleeve's radius beyond the arm's and where it starts past the wrist [m] (``--sleeves``;
-#: the hard validation set's by default, ``--sleeve-wider`` / ``--sleeve-start`` change them)
-SLEEVE_WIDER_M, SLEEVE_START_M = (0.01, 0.025), (0.04, 0.08)
 #: bone groups of the bias table: name -> bone indices (palm 0, then 3 per finger)
 GROUPS: dict[str, list[int]] = {
     "palm": [0],
@@ -78,17 +80,16 @@ def subject(i: int) -> tuple[HandModel, SurfaceVariant | None, np.random.Generat
 def subject_meshes(true: HandModel, variant: SurfaceVariant | None, i: int, forearm: bool,
                    sleeves: tuple[tuple[float, float], tuple[float, float]] | None = None):
     """``q (27,) -> Mesh | list[Mesh]`` of subject ``i`` (None: the model's own mesh alone);
-    with ``forearm`` the training renders' forearm (:func:`forearm_mesh`, radius 24-40 mm,
-    length 0.25-0.5 m, bend +-0.4 rad, drawn from its own generator so that the subjects'
-    shapes, surfaces and noise are those without it) is rendered with the hand."""
+    with ``forearm`` the training renders' forearm (:func:`forearm_mesh` of
+    :func:`draw_forearm`, from its own generator so that the subjects' shapes, surfaces and
+    noise are those without it) is rendered with the hand."""
     from hand_capture.cameras.render import Mesh
 
     hand = variant.mesh_fn(true) if variant is not None else None
     if not forearm:
         return hand
     g = np.random.default_rng(SEED0 + 5000 + i)
-    radius, length = float(g.uniform(0.024, 0.04)), float(g.uniform(0.25, 0.5))
-    bend = tuple(float(b) for b in g.uniform(-0.4, 0.4, 2))
+    radius, length, bend = draw_forearm(g)
     # with ``sleeves`` ((min, max) radius beyond the arm's, (min, max) start past the wrist
     # [m]), odd subjects also wear a sleeve
     sleeve = ((radius + float(g.uniform(*sleeves[0])), float(g.uniform(*sleeves[1])))

@@ -45,6 +45,9 @@ VAL_SEEDS = (21, 22)
 #: validation shapes of forearm handling (the suite's generator; the arm classifier's
 #: settings were chosen here)
 ARM_VAL_SEEDS = (21, 22, 23, 24)
+#: the hard validation set's sleeve: its radius beyond the arm's and where it starts past the
+#: wrist, uniform ranges [m]
+SLEEVE_WIDER_M, SLEEVE_START_M = (0.01, 0.025), (0.04, 0.08)
 
 
 def _bone_err_pct(model, true_model) -> float:
@@ -290,18 +293,17 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
     from hand_capture.cameras.primitives import box
     from hand_capture.cameras.render import Mesh, make_renderer
     from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
-    from hand_capture.tracking.train import forearm_mesh
+    from hand_capture.tracking.train import draw_forearm, forearm_mesh
 
     rng = np.random.default_rng(seed * 1000 + sum(map(ord, clip)))
     near = {"hfov_deg": 87.0, "camera_position": (0.0, 0.0, 0.15)} if close else {}
     cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed, clip=clip,
                                                 noise_seed=seed + 1000, **near))
     cam.open()
-    radius, length = rng.uniform(0.024, 0.04), rng.uniform(0.25, 0.5)
-    bend = tuple(rng.uniform(-0.4, 0.4, 2))
+    radius, length, bend = draw_forearm(rng)
     extra: list = []
     if sleeve:
-        extra.append((radius + rng.uniform(0.01, 0.025), rng.uniform(0.04, 0.08)))
+        extra.append((radius + rng.uniform(*SLEEVE_WIDER_M), rng.uniform(*SLEEVE_START_M)))
     renderer = make_renderer("zbuffer")
     last = int(math.floor(cam.motion.duration * 30))
     frames, kps, labels = [], [], []

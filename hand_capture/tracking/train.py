@@ -41,7 +41,7 @@ from hand_capture.tracking.regressor import (
 )
 
 __all__ = ["ARM_FRAMES", "ARM_LABEL", "HAND_LABEL", "TOWARDS_PROB", "TRAIN_SAMPLES",
-           "TrainingSample", "default_intrinsics",
+           "TrainingSample", "default_intrinsics", "draw_forearm",
            "finger_pitch_deg", "forearm_mesh", "random_pose", "render_samples",
            "train_tracker"]
 
@@ -139,6 +139,14 @@ def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: flo
     return q
 
 
+def draw_forearm(rng: np.random.Generator) -> tuple[float, float, tuple[float, float]]:
+    """The training renders' random forearm for :func:`forearm_mesh`: ``(radius, length,
+    bend)``, radius uniform in 24-40 mm, length 0.25-0.5 m, bend +-0.4 rad about each axis
+    (drawn in that order)."""
+    radius, length = float(rng.uniform(0.024, 0.04)), float(rng.uniform(0.25, 0.5))
+    return radius, length, tuple(float(b) for b in rng.uniform(-0.4, 0.4, 2))
+
+
 def forearm_mesh(model: HandModel, q: np.ndarray, radius: float = 0.03,
                  length: float = 0.4, bend: tuple[float, float] = (0.0, 0.0),
                  label: int = HAND_LABEL, start: float = -0.015) -> Mesh:
@@ -200,7 +208,8 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
     """Render ``n`` noisy, segmented samples (shapes cycled through ``models``).
 
     Widened generator (issue 13): with probability ``forearm_prob`` a forearm
-    (:func:`forearm_mesh`, random radius 24-40 mm, length 0.25-0.5 m, bend +-0.4 rad) is
+    (:func:`forearm_mesh`, :func:`draw_forearm`: radius 24-40 mm, length 0.25-0.5 m, bend
+    +-0.4 rad) is
     rendered with the hand and cut as at run time (``cut_forearm``: at a wrist estimate
     perturbed by a few mm, or from the cloud's shape alone, half each); every sample's
     surface is moved along the normals by a uniform offset in ``surface_mm`` [mm] plus as
@@ -228,8 +237,7 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
         meshes = [Mesh(V, m.faces, HAND_LABEL, closed=True)]
         arm = rng.random() < forearm_prob
         if arm:
-            meshes.append(forearm_mesh(m, q, rng.uniform(0.024, 0.04), rng.uniform(0.25, 0.5),
-                                       tuple(rng.uniform(-0.4, 0.4, 2)), label=ARM_LABEL))
+            meshes.append(forearm_mesh(m, q, *draw_forearm(rng), label=ARM_LABEL))
         res = renderer.render(meshes, intr)
         depth = nm.apply_mm(res.depth, res.cos_incidence, intr, rng)
         obs = segment_hand(depth, intr, cfg)
