@@ -148,13 +148,17 @@ _FIELDS = ("poses", "pads", "contact", "sequence", "frame", "motion")
 
 # --- natural postures ------------------------------------------------------------------------
 
-def sample_natural(rng: np.random.Generator, n: int, yaw_deg: float = 35.0,
-                   pitch_deg: tuple[float, float] = (-8.0, 5.0), roll_sd_deg: float = 5.0,
-                   curl: tuple[float, float] = (0.1, 0.6), curl_sd: float = 0.08,
-                   spread: tuple[float, float] = (-0.3, 1.0),
-                   thumb_abd_deg: tuple[float, float] = (0.0, 40.0),
-                   thumb_flex_deg: tuple[float, float] = (-10.0, 35.0)) -> np.ndarray:
-    """Natural relaxed postures (n, 27) of a right hand held palm-down over a table.
+def sample_natural(rng: np.random.Generator, n: int, yaw_deg: float = GenConfig.yaw_deg,
+                   pitch_deg: tuple[float, float] = GenConfig.pitch_deg,
+                   roll_sd_deg: float = GenConfig.roll_sd_deg,
+                   curl: tuple[float, float] = GenConfig.curl,
+                   curl_sd: float = GenConfig.curl_sd,
+                   spread: tuple[float, float] = GenConfig.spread,
+                   thumb_abd_deg: tuple[float, float] = GenConfig.thumb_abd_deg,
+                   thumb_flex_deg: tuple[float, float] = GenConfig.thumb_flex_deg
+                   ) -> np.ndarray:
+    """Natural relaxed postures (n, 27) of a right hand held palm-down over a table
+    (defaults: :class:`GenConfig`'s).
 
     Finger curl is correlated across fingers (one shared level plus a per-finger deviation)
     with DIP flexion about 2/3 of PIP flexion; the spread is shared (a level uniform in
