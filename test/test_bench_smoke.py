@@ -79,7 +79,8 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                   "val_forearm_mean_mm", "val_forearm_first_mean_mm", "val_arm_pixel_acc",
                   "forearm_cut_only_mean_mm", "heldout_arm_pixel_acc", "val_surface_mean_mm",
                   "val_surface_before_mean_mm", "heldout_before_mean_mm",
-                  "heldout_truth_drift_mm", "val_surface_no_finger_postures_mean_mm"), ()),
+                  "heldout_truth_drift_mm", "val_surface_no_finger_postures_mean_mm",
+                  "val_capsule_mean_mm", "val_capsule_reset_mean_mm"), ()),
 }
 
 

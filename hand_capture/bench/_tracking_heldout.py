@@ -7,6 +7,11 @@
   without and with a forearm (and sleeve) in view. Each subject calibrates first (II.3.6)
   from frames of the calibration poses rendered the same way (with the forearm when it is
   in view, as a user's would be) and is tracked with the product settings.
+* **Capsule validation family** (:class:`CapsuleSurface`, validation only): the suite's
+  own collision capsules drawn as the hand (another surface SHAPE, where the surface
+  validation family only moves the template along its normals), the suite's renderer and
+  noise; tracked through and from a reset tracker. Settings may be chosen here; the
+  held-out family stays for reporting.
 * **Calibration bone lengths**: subjects of global scale 0.85..1.15 from both families;
   mean relative bone-length error of the calibrated model (16 bones) beside the template's.
 * **Settings split**: ``cost_temporal_weight`` (lambda_2 of eq. II.20) chosen on a
@@ -377,8 +382,53 @@ class SurfaceVariant:
         return fn
 
 
+@dataclass(frozen=True)
+class CapsuleSurface:
+    """The suite's own collision capsules (:attr:`HandModel.capsules`, the MJCF hand's geoms)
+    drawn as the hand surface: a validation family of another SHAPE than the template's
+    (:class:`SurfaceVariant` only moves the template along its normals), the kind of
+    mismatch a user's hand brings. Cylindrical fingers with round tips, a palm of a few
+    capsules with a flat end at the wrist, no stub beyond it. The suite's own geometry,
+    nothing of the held-out family (:mod:`hand_capture.evaldata`).
+
+    Attributes:
+        radius_scale: every capsule's radius times this.
+    """
+
+    radius_scale: float = 1.0
+
+    def mesh_fn(self, model: HandModel):
+        """``q (27,) -> Mesh`` of ``model``'s capsules in pose ``q`` (one closed mesh)."""
+        import trimesh
+
+        from hand_capture.cameras.render import Mesh
+
+        seg0 = model.capsule_segments(np.zeros(27))          # (C, 2, 3)
+        lengths = np.linalg.norm(seg0[:, 1] - seg0[:, 0], axis=1)
+        parts = [trimesh.creation.capsule(height=float(length),
+                                          radius=c.radius * self.radius_scale,
+                                          count=[8, 12])
+                 for c, length in zip(model.capsules, lengths, strict=True)]
+        local = [np.asarray(m.vertices) for m in parts]       # along z, centred
+        start = np.cumsum([0] + [len(v) for v in local])
+        faces = np.concatenate([np.asarray(m.faces) + o for m, o in zip(parts, start,
+                                                                       strict=False)])
+
+        def fn(q: np.ndarray) -> Mesh:
+            seg = model.capsule_segments(q)
+            out = []
+            for (a, b), v in zip(seg, local, strict=True):
+                z = (b - a) / max(float(np.linalg.norm(b - a)), 1e-12)
+                x = np.cross(z, (1.0, 0.0, 0.0) if abs(z[0]) < 0.9 else (0.0, 1.0, 0.0))
+                x /= np.linalg.norm(x)
+                out.append(0.5 * (a + b) + v @ np.stack([x, np.cross(z, x), z]))
+            return Mesh(np.concatenate(out), faces, 1, closed=True)
+
+        return fn
+
+
 def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
-                           variant: SurfaceVariant
+                           variant: SurfaceVariant | CapsuleSurface
                            ) -> tuple[HandModel, Intrinsics, list, list, list, list]:
     """A sequence of the suite's generator (the synthetic camera's shape ``seed``, motion
     ``clip``, rasteriser and noise model, 320x240) with the hand's surface replaced by
@@ -494,6 +544,61 @@ def surface_validation_section(reg, config, quick: bool,
                 "settings", ["settings", "mean mm", "median mm", "succ@20", "bone err %",
                              "bone err max %", "drift mm"], rows)
     return out
+
+
+def capsule_validation_section(reg, config, quick: bool) -> dict:
+    """The tracker on the capsule validation family (:class:`CapsuleSurface`: the suite's
+    collision capsules as the hand, its renderer and noise, shapes :data:`ARM_VAL_SEEDS`,
+    the surface validation's motions), product settings, calibrated per sequence from the
+    same surface: keypoint error and success@20 tracked through (per motion and all),
+    calibrated bone-length error, drift from the true pose (:func:`truth_drift_mm`), and
+    every frame from a reset tracker (the regressor's re-initialisation on a surface it was
+    not trained on)."""
+    from hand_capture.bench.tracking import _summary
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import calibrate
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    seeds = ARM_VAL_SEEDS[:1] if quick else ARM_VAL_SEEDS
+    clips = ("finger_counting", "pinch") if quick else ("finger_counting", "wrist_rotation",
+                                                        "pinch", "fist")
+    n, step = (8, 4) if quick else (20, 3)
+    base = HandModel()
+    surface = CapsuleSurface()
+    by_clip: dict[str, dict[str, list]] = {c: {"e": [], "f": []} for c in clips}
+    bones, drift, cpu = [], [], []
+    for seed in seeds:
+        for clip in clips:
+            true, _, frames, kps, poses, calf = suite_surface_sequence(seed, clip, n, step,
+                                                                       surface)
+            tr = HybridTracker(base, config, reg)
+            tr.set_calibration(calibrate(calf, model=base, config=config))
+            sc = _score(tr, frames, kps)
+            by_clip[clip]["e"].append(sc["errs"])
+            cpu.append(sc["cpu"])
+            bones.append(_bone_err_pct(tr.model, true))
+            drift.append(truth_drift_mm(true, config, reg, frames, poses, kps, every=4))
+            hand_only = [(d > 0).astype(np.uint8) for d, _ in frames]   # no forearm here
+            by_clip[clip]["f"].append(_score_first(tr, frames, kps, hand_only)["errs"])
+    rows = []
+    for name, sel in [(c, (c,)) for c in clips] + [("all", clips)]:
+        e = _summary(np.concatenate([x for c in sel for x in by_clip[c]["e"]]))
+        f = _summary(np.concatenate([x for c in sel for x in by_clip[c]["f"]]))
+        rows.append([name, e["mean"], e["median"], e["s20"], f["mean"], f["s20"]])
+    print_table(f"capsule validation family (the suite's collision capsules as the hand, its "
+                f"renderer and noise; shapes {seeds}), product settings: tracked through, and "
+                "every frame from a reset tracker",
+                ["motion", "mean mm", "median mm", "succ@20", "reset mean mm",
+                 "reset succ@20"], rows)
+    d = float(np.concatenate(drift).mean())
+    print(f"capsule validation: bone err {np.mean(bones):.2f} % mean, {np.max(bones):.2f} % "
+          f"worst; drift from the true pose {d:.2f} mm")
+    return {"val_capsule_mean_mm": rows[-1][1], "val_capsule_median_mm": rows[-1][2],
+            "val_capsule_success_20mm": rows[-1][3], "val_capsule_reset_mean_mm": rows[-1][4],
+            "val_capsule_reset_success_20mm": rows[-1][5],
+            "val_capsule_bone_err_pct": float(np.mean(bones)),
+            "val_capsule_truth_drift_mm": d,
+            "val_capsule_cpu_ms": float(np.concatenate(cpu).mean()) * 1e3}
 
 
 def _score_first(tracker, frames, truth, labels) -> dict:
@@ -816,6 +921,7 @@ def run_sections(reg, config, quick: bool) -> dict:
     out = {}
     out.update(heldout_section(reg, config, quick))
     out.update(surface_validation_section(reg, config, quick))
+    out.update(capsule_validation_section(reg, config, quick))
     out.update(forearm_validation_section(reg, config, quick))
     out.update(calibration_section(quick))
     out.update(split_section(reg, config, quick))
