@@ -390,12 +390,7 @@ class CapsuleSurface:
     mismatch a user's hand brings. Cylindrical fingers with round tips, a palm of a few
     capsules with a flat end at the wrist, no stub beyond it. The suite's own geometry,
     nothing of the held-out family (:mod:`hand_capture.evaldata`).
-
-    Attributes:
-        radius_scale: every capsule's radius times this.
     """
-
-    radius_scale: float = 1.0
 
     def mesh_fn(self, model: HandModel):
         """``q (27,) -> Mesh`` of ``model``'s capsules in pose ``q`` (one closed mesh)."""
@@ -403,16 +398,13 @@ class CapsuleSurface:
 
         from hand_capture.cameras.render import Mesh
 
-        seg0 = model.capsule_segments(np.zeros(27))          # (C, 2, 3)
-        lengths = np.linalg.norm(seg0[:, 1] - seg0[:, 0], axis=1)
-        parts = [trimesh.creation.capsule(height=float(length),
-                                          radius=c.radius * self.radius_scale,
-                                          count=[8, 12])
-                 for c, length in zip(model.capsules, lengths, strict=True)]
+        parts = [trimesh.creation.capsule(height=float(np.linalg.norm(c.p1 - c.p0)),
+                                          radius=c.radius, count=[8, 12])
+                 for c in model.capsules]
         local = [np.asarray(m.vertices) for m in parts]       # along z, centred
         start = np.cumsum([0] + [len(v) for v in local])
-        faces = np.concatenate([np.asarray(m.faces) + o for m, o in zip(parts, start,
-                                                                       strict=False)])
+        faces = np.concatenate([np.asarray(m.faces) + o for m, o in zip(parts, start[:-1],
+                                                                       strict=True)])
 
         def fn(q: np.ndarray) -> Mesh:
             seg = model.capsule_segments(q)
