@@ -480,6 +480,14 @@ def surface_variants(config) -> dict[str, tuple[str, object]]:
                                                 finger_swap=False))}
 
 
+def _validation_plan(quick: bool) -> tuple[tuple[int, ...], tuple[str, ...], int, int]:
+    """The validation families' sequences (surface, capsule and forearm validation): the
+    shapes :data:`ARM_VAL_SEEDS`, the motions, the frames per sequence and their step."""
+    if quick:
+        return ARM_VAL_SEEDS[:1], ("finger_counting", "pinch"), 8, 4
+    return ARM_VAL_SEEDS, ("finger_counting", "wrist_rotation", "pinch", "fist"), 20, 3
+
+
 def surface_validation_section(reg, config, quick: bool,
                                variants: dict[str, tuple[str, object]] | None = None) -> dict:
     """Surface tolerance on the validation family (:class:`SurfaceVariant` on the suite's
@@ -496,10 +504,7 @@ def surface_validation_section(reg, config, quick: bool,
     from hand_capture.tracking.calibration import calibrate
     from hand_capture.tracking.hybrid import HybridTracker
 
-    seeds = ARM_VAL_SEEDS[:1] if quick else ARM_VAL_SEEDS
-    clips = ("finger_counting", "pinch") if quick else ("finger_counting", "wrist_rotation",
-                                                        "pinch", "fist")
-    n, step = (8, 4) if quick else (20, 3)
+    seeds, clips, n, step = _validation_plan(quick)
     base = HandModel()
     variants = surface_variants(config) if variants is None else variants
     res: dict[str, dict[str, list]] = {k: {"e": [], "b": [], "d": [], "c": []}
@@ -551,10 +556,7 @@ def capsule_validation_section(reg, config, quick: bool) -> dict:
     from hand_capture.tracking.calibration import calibrate
     from hand_capture.tracking.hybrid import HybridTracker
 
-    seeds = ARM_VAL_SEEDS[:1] if quick else ARM_VAL_SEEDS
-    clips = ("finger_counting", "pinch") if quick else ("finger_counting", "wrist_rotation",
-                                                        "pinch", "fist")
-    n, step = (8, 4) if quick else (20, 3)
+    seeds, clips, n, step = _validation_plan(quick)
     base = HandModel()
     surface = CapsuleSurface()
     by_clip: dict[str, dict[str, list]] = {c: {"e": [], "f": []} for c in clips}
@@ -649,10 +651,7 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
 
-    seeds = ARM_VAL_SEEDS[:1] if quick else ARM_VAL_SEEDS
-    clips = ("finger_counting", "pinch") if quick else ("finger_counting", "wrist_rotation",
-                                                        "pinch", "fist")
-    n, step = (8, 4) if quick else (20, 3)
+    seeds, clips, n, step = _validation_plan(quick)
     base = HandModel()
     variants = {"product": config}
     if not product_only:
