@@ -17,7 +17,8 @@ suite's own generators only (nothing of :mod:`hand_capture.evaldata`, no held-ou
 * **tracker** (product settings, the regressor's candidates in the hybrid tracker): the
   same renders, each from a reset tracker with the true shape (``ff_*``: no previous pose,
   so the regressor's candidates decide); the surface validation family
-  (:func:`surface_validation_section`) and the forearm validation
+  (:func:`surface_validation_section`), the capsule validation family
+  (:func:`capsule_validation_section`) and the forearm validation
   (:func:`forearm_validation_section`), product only, both the bench's sections.
 
     PYTHONPATH=. .venv/bin/python scripts/regressor_validation.py data/tracker/regressor.npz \\
@@ -37,6 +38,7 @@ import numpy as np
 
 from hand_capture.bench._tracking_heldout import (
     ARM_VAL_SEEDS,
+    capsule_validation_section,
     forearm_validation_section,
     surface_validation_section,
 )
@@ -157,10 +159,11 @@ def first_frames(reg: HandRegressor, models: list[HandModel], samples: list[Trai
 
 
 def tracker_validation(reg: HandRegressor, quick: bool) -> dict[str, float]:
-    """The product tracker with ``reg`` on the surface and forearm validation families
-    (the bench's sections, product settings only)."""
+    """The product tracker with ``reg`` on the surface, capsule and forearm validation
+    families (the bench's sections, product settings only)."""
     cfg = TrackerConfig()
     out = surface_validation_section(reg, cfg, quick, variants={"product": ("", cfg)})
+    out.update(capsule_validation_section(reg, cfg, quick))
     out.update(forearm_validation_section(reg, cfg, quick, product_only=True))
     return out
 

@@ -106,5 +106,6 @@ def test_regressor_validation_tracks_the_validation_families_with_the_product_al
     # the product's figures only: no ablation, no cut-alone baseline, no hard set
     assert 0.0 < out["val_surface_mean_mm"] < 100.0 and out["val_surface_cpu_ms"] > 0.0
     assert 0.0 < out["val_forearm_first_mean_mm"] < 100.0
+    assert 0.0 < out["val_capsule_reset_mean_mm"] < 100.0
     assert not [k for k in out if "_before" in k or "cut_only" in k or "val_hard" in k]
     assert "product" in capsys.readouterr().out
