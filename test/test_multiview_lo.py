@@ -16,7 +16,7 @@ from hand_capture.multiview.collision import (
     collision_energy,
     detect_collisions,
 )
-from hand_capture.multiview.correspondences import match_salient
+from hand_capture.multiview.correspondences import match_salient, saturation_image
 from hand_capture.multiview.lo import FrameData, LocalOptimizer, LOConfig
 from hand_capture.multiview.rig import Rig, RigCamera, load_rig, look_at
 from hand_capture.multiview.scene_model import SceneModel, object_mesh
@@ -439,3 +439,47 @@ def test_salient_points_of_seen_fingertips_hold_a_correct_pose_of_two_hands():
         err = np.concatenate([np.linalg.norm(a - b, axis=1) for a, b in zip(
             model.pose(res.params).keypoints, st.keypoints, strict=True)]) * 1e3
         assert err.max() < 0.5, (t, err.mean(), err.max())
+
+
+
+def test_saturation_ignores_shading():
+    """Shading scales a colour: the grey level of a shaded rim drops, its saturation does
+    not, so a saturation edge stays on the skin / grey-background outline."""
+    skin = np.array([222.0, 173.0, 148.0])
+    img = np.zeros((2, 6, 3), np.uint8)
+    img[:, :2] = skin                    # lit skin
+    img[:, 2:4] = skin * 0.35            # the same skin at grazing incidence (the rim)
+    img[:, 4:] = 128                     # grey background
+    sat = saturation_image(img).astype(int)
+    assert abs(sat[0, 0] - sat[0, 2]) <= 3 and sat[0, 2] - sat[0, 4] > 60
+    with pytest.raises(InputError):
+        saturation_image(np.zeros((4, 4), np.uint8))
+
+
+def test_saturation_edges_lie_on_the_rendered_hand_outline_at_the_default_blur(
+        clean_box_frames):
+    """The shaded rim of the own mesh's outline puts the grey level's edge about a pixel
+    inside it at the default 1 px blur (the test above); with ``edge_saturation`` the
+    hand's edges lie on the outline at that blur, and the box's stay the grey level's."""
+    rig, seq, frames = clean_box_frames
+    model = seq.model()
+    meds, box = {}, {}
+    for sat in (0.0, 2.0):
+        lo = LocalOptimizer(model, rig, LOConfig(edges_per_view=5000, edge_max_px=10.0,
+                                                 edge_saturation=sat))
+        d_all: dict[int, list] = {0: [], 1: []}
+        for t in (0, 1):
+            st = model.pose(seq.truth(model, t))
+            corr, _, _ = lo.correspondences(st, lo.prepare(frames[t].images), [0, 1])
+            for part in (0, 1):
+                sel = np.flatnonzero((corr.kind == 0) & (corr.part == part))
+                uv = np.concatenate([model.project(rig.cameras[int(c)],
+                                                   st.vertices[part][[v]])[0]
+                                     for c, v in zip(corr.cam[sel], corr.vert[sel],
+                                                     strict=True)])
+                d_all[part].append(np.sum((uv - corr.target[sel]) * corr.normal[sel],
+                                          axis=1))
+        meds[sat] = float(np.median(np.abs(np.concatenate(d_all[0]))))
+        box[sat] = np.sort(np.concatenate(d_all[1]))
+    assert meds[2.0] < 0.6 < meds[0.0], meds
+    assert np.array_equal(box[0.0], box[2.0])

@@ -29,7 +29,7 @@ from hand_capture.errors import InputError
 
 __all__ = ["FLOW_IGNORE_MARGIN_PX", "FLOW_WINDOW_PX", "ImageFeatures", "N_ORIENT",
            "edge_correspondences", "flow_correspondences", "image_features", "match_salient",
-           "model_edges", "window_clear"]
+           "model_edges", "saturation_image", "window_clear"]
 
 #: orientation bins of edge normals over [0, pi)
 N_ORIENT = 6
@@ -96,20 +96,59 @@ class ImageFeatures:
         return out, dist, nrm
 
 
+def saturation_image(rgb: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 HSV saturation of an (H, W, 3) uint8 RGB image. Shading scales a
+    surface's colour: it changes the grey level, not the saturation."""
+    import cv2
+
+    a = np.asarray(rgb)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise InputError(f"expected an (H, W, 3) colour image, got {a.shape}")
+    return cv2.cvtColor(a.astype(np.uint8, copy=False), cv2.COLOR_RGB2HSV)[:, :, 1]
+
+
+def _gradients(img: np.ndarray, blur_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sobel gradients (gx, gy) (H, W) float32 of ``img`` after a Gaussian of ``blur_px``."""
+    import cv2
+
+    k = 2 * int(np.ceil(2.0 * blur_px)) + 1     # 5 x 5 at 1 px
+    b = cv2.GaussianBlur(img, (k, k), blur_px) if blur_px > 0 else img
+    return cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=3)
+
+
 def image_features(rgb: np.ndarray, canny: tuple[float, float] = (30.0, 90.0),
-                   blur_px: float = 1.0) -> ImageFeatures:
+                   blur_px: float = 1.0, saturation: float = 0.0) -> ImageFeatures:
     """Canny edges and their orientation-binned nearest-pixel maps of one colour image,
     smoothed first by a Gaussian of ``blur_px`` [px] (0: none; Canny's Sobel still
     smooths). A wide blur pulls two close edges of opposite polarity apart (a shaded rim
-    along an outline: the outline's gradient peak moves outwards, the rim's inwards)."""
+    along an outline: the outline's gradient peak moves outwards, the rim's inwards).
+
+    ``saturation`` > 0 (a colour image): each pixel's gradient is the grey level's or
+    ``saturation`` times the HSV saturation's (:func:`saturation_image`), whichever is the
+    larger; Canny runs on that gradient. A surface seen at grazing incidence is shaded
+    darker than its inside and, often, than the background: the grey level's strongest
+    edge then lies about a pixel inside the outline, while the saturation edge of skin
+    against a grey or differently coloured background stays on it. The larger of the two
+    (not their sum, whose contrasts can cancel: skin brighter but less saturated than a
+    wooden table) keeps every edge either channel sees. The features' ``grey`` (what the
+    optical flow tracks) stays the grey level."""
     import cv2
 
     grey = to_grey(rgb)
-    k = 2 * int(np.ceil(2.0 * blur_px)) + 1     # 5 x 5 at 1 px
-    blur = cv2.GaussianBlur(grey, (k, k), blur_px) if blur_px > 0 else grey
-    edges = cv2.Canny(blur, canny[0], canny[1], L2gradient=True) > 0
-    gx = cv2.Sobel(blur, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(blur, cv2.CV_32F, 0, 1, ksize=3)
+    gx, gy = _gradients(grey, blur_px)
+    if saturation > 0.0 and np.ndim(rgb) == 3:
+        sx, sy = _gradients(saturation_image(rgb), blur_px)
+        take = np.hypot(sx, sy) * saturation > np.hypot(gx, gy)
+        gx = np.where(take, saturation * sx, gx).astype(np.float32)
+        gy = np.where(take, saturation * sy, gy).astype(np.float32)
+        lim = np.iinfo(np.int16).max
+        edges = cv2.Canny(np.clip(gx, -lim, lim).astype(np.int16),
+                          np.clip(gy, -lim, lim).astype(np.int16), canny[0], canny[1],
+                          L2gradient=True) > 0
+    else:
+        k = 2 * int(np.ceil(2.0 * blur_px)) + 1
+        blur = cv2.GaussianBlur(grey, (k, k), blur_px) if blur_px > 0 else grey
+        edges = cv2.Canny(blur, canny[0], canny[1], L2gradient=True) > 0
     bins = np.full(grey.shape, -1, dtype=np.int64)
     bins[edges] = _orient_bin(gx[edges], gy[edges])
     labels, coords, normals = [], [], []

@@ -104,6 +104,10 @@ class LOConfig:
                                "visible themselves (SceneModel.visible)")
     edge_blur_px: float = param(1.0, "Gaussian smoothing of the images before Canny [px] "
                                 "(0: none)", lo=0.0, hi=5.0)
+    edge_saturation: float = param(0.0, "the hands' edges: per pixel the larger of the grey "
+                                   "level's gradient and this times the HSV saturation's "
+                                   "(correspondences.image_features; 0: grey level only); "
+                                   "the objects' edges stay the grey level's", lo=0.0, hi=8.0)
     seed: int = param(0, "subsampling seed", lo=0)
 
     def __post_init__(self) -> None:
@@ -155,6 +159,9 @@ class FrameData:
     detections: dict[int, np.ndarray]
     flow: Correspondences
     hand_mask: dict[int, np.ndarray] = field(default_factory=dict)  # camera -> (H, W) bool
+    #: camera -> the hands' edge features when they differ from ``features``
+    #: (``LOConfig.edge_saturation``); the objects' are always ``features``
+    hand_features: dict[int, ImageFeatures] = field(default_factory=dict)
 
 
 @dataclass
@@ -251,10 +258,14 @@ class LocalOptimizer:
         projection, and its flow is dropped when one of this frame's does of its tracked end
         (:func:`~hand_capture.multiview.correspondences.flow_correspondences`)."""
         feats: dict[int, ImageFeatures] = {}
+        hand_feats: dict[int, ImageFeatures] = {}
         for c, cam in enumerate(self.rig.cameras):
             img = images.get(cam.name)
             if img is not None:
                 feats[c] = image_features(img, blur_px=self.cfg.edge_blur_px)
+                if self.cfg.edge_saturation > 0 and np.ndim(img) == 3:
+                    hand_feats[c] = image_features(img, blur_px=self.cfg.edge_blur_px,
+                                                   saturation=self.cfg.edge_saturation)
         dets = {}
         for c, cam in enumerate(self.rig.cameras):
             d = None if detections is None else detections.get(cam.name)
@@ -269,7 +280,7 @@ class LocalOptimizer:
             flow = self._flow(feats, prev[0], prev[1],
                               list(range(len(self.model.part_names))) if parts is None
                               else list(parts), flow_ignore or {}, prev_flow_ignore or {})
-        return FrameData(feats, dets, flow, masks)
+        return FrameData(feats, dets, flow, masks, hand_feats)
 
     def _flow(self, feats: dict[int, ImageFeatures], prev_images: Mapping[str, object],
               prev_state: SceneState, parts: list[int], ignore: Mapping[str, np.ndarray],
@@ -323,6 +334,7 @@ class LocalOptimizer:
                 idx, uv = m.visible(cam, state, ren, p)
                 if not len(idx):
                     continue
+                pf = frame.hand_features.get(c, feats) if p < m.n_hands else feats
                 pix = np.stack([np.floor((uv[:, 0] + 0.5) * cfg.render_scale),
                                 np.floor((uv[:, 1] + 0.5) * cfg.render_scale)],
                                axis=1).astype(np.int64)
@@ -339,7 +351,7 @@ class LocalOptimizer:
                     n_sup[p] += float(np.sum(dist <= cfg.support_px))
                 if cfg.use_edges:
                     eb = np.where(usable[:, None], pix, -1)
-                    sel, tgt, nrm = edge_correspondences(uv, eb, bins, feats, gate_px)
+                    sel, tgt, nrm = edge_correspondences(uv, eb, bins, pf, gate_px)
                     hm = frame.hand_mask.get(c) if p < m.n_hands else None
                     if hm is not None and len(sel):
                         # clutter screen: a hand's outline has hand colour beside it (the
