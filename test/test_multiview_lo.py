@@ -441,7 +441,6 @@ def test_salient_points_of_seen_fingertips_hold_a_correct_pose_of_two_hands():
         assert err.max() < 0.5, (t, err.mean(), err.max())
 
 
-
 def test_saturation_ignores_shading():
     """Shading scales a colour: the grey level of a shaded rim drops, its saturation does
     not, so a saturation edge stays on the skin / grey-background outline."""
@@ -459,8 +458,9 @@ def test_saturation_ignores_shading():
 def test_saturation_edges_lie_on_the_rendered_hand_outline_at_the_default_blur(
         clean_box_frames):
     """The shaded rim of the own mesh's outline puts the grey level's edge about a pixel
-    inside it at the default 1 px blur (the test above); with ``edge_saturation`` the
-    hand's edges lie on the outline at that blur, and the box's stay the grey level's."""
+    inside it at the default 1 px blur (the outline test at the true pose, further up); with
+    ``edge_saturation`` the hand's edges lie on the outline at that blur, and the box's stay
+    the grey level's."""
     rig, seq, frames = clean_box_frames
     model = seq.model()
     meds, box = {}, {}

@@ -107,13 +107,19 @@ def saturation_image(rgb: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(a.astype(np.uint8, copy=False), cv2.COLOR_RGB2HSV)[:, :, 1]
 
 
-def _gradients(img: np.ndarray, blur_px: float) -> tuple[np.ndarray, np.ndarray]:
-    """Sobel gradients (gx, gy) (H, W) float32 of ``img`` after a Gaussian of ``blur_px``."""
+def _blur(img: np.ndarray, blur_px: float) -> np.ndarray:
+    """``img`` after a Gaussian of ``blur_px`` [px] (0: as it is)."""
     import cv2
 
     k = 2 * int(np.ceil(2.0 * blur_px)) + 1     # 5 x 5 at 1 px
-    b = cv2.GaussianBlur(img, (k, k), blur_px) if blur_px > 0 else img
-    return cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=3)
+    return cv2.GaussianBlur(img, (k, k), blur_px) if blur_px > 0 else img
+
+
+def _sobel(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sobel gradients (gx, gy) (H, W) float32 of ``img``."""
+    import cv2
+
+    return cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3)
 
 
 def image_features(rgb: np.ndarray, canny: tuple[float, float] = (30.0, 90.0),
@@ -135,9 +141,10 @@ def image_features(rgb: np.ndarray, canny: tuple[float, float] = (30.0, 90.0),
     import cv2
 
     grey = to_grey(rgb)
-    gx, gy = _gradients(grey, blur_px)
+    blur = _blur(grey, blur_px)
+    gx, gy = _sobel(blur)
     if saturation > 0.0 and np.ndim(rgb) == 3:
-        sx, sy = _gradients(saturation_image(rgb), blur_px)
+        sx, sy = _sobel(_blur(saturation_image(rgb), blur_px))
         take = np.hypot(sx, sy) * saturation > np.hypot(gx, gy)
         gx = np.where(take, saturation * sx, gx).astype(np.float32)
         gy = np.where(take, saturation * sy, gy).astype(np.float32)
@@ -146,8 +153,6 @@ def image_features(rgb: np.ndarray, canny: tuple[float, float] = (30.0, 90.0),
                           np.clip(gy, -lim, lim).astype(np.int16), canny[0], canny[1],
                           L2gradient=True) > 0
     else:
-        k = 2 * int(np.ceil(2.0 * blur_px)) + 1
-        blur = cv2.GaussianBlur(grey, (k, k), blur_px) if blur_px > 0 else grey
         edges = cv2.Canny(blur, canny[0], canny[1], L2gradient=True) > 0
     bins = np.full(grey.shape, -1, dtype=np.int64)
     bins[edges] = _orient_bin(gx[edges], gy[edges])
