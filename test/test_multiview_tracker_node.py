@@ -83,6 +83,35 @@ def test_groups_in_poses_out_bad_views_counted(ros, tmp_path) -> None:
     assert spin_until(counted, 5), diags[-1:]
 
 
+def test_a_group_before_the_truth_is_tracked_once_the_truth_arrives(ros, tmp_path) -> None:
+    """A replay's first group can reach the tracker before the truth it starts from (rig_sync
+    emits a group once): it is kept and tracked when the truth arrives, not dropped."""
+    peer, add, spin_until = ros
+    studio = load_rig("studio6")
+    rig_file = save_rig(Rig("one", studio.cameras[:1]), tmp_path / "one.yaml")
+    add(MultiviewTrackerNode(parameter_overrides=[
+        Parameter("rig", value=str(rig_file)), Parameter("objects", value=""),
+        Parameter("iterations", value=1)]))
+    poses: list[HandPose] = []
+    peer.create_subscription(HandPose, "hand/pose", poses.append, 10)
+    truth = peer.create_publisher(HandPose, "hand/pose_truth", 10)
+    cam = studio.cameras[0]
+    img_pub = peer.create_publisher(Image, f"sync/{cam.name}/color/image_raw", SENSOR)
+    info_pub = peer.create_publisher(CameraInfo, f"sync/{cam.name}/color/camera_info", SENSOR)
+    assert spin_until(lambda: img_pub.get_subscription_count() > 0
+                      and truth.get_subscription_count() > 0, 10)
+    info = camera_info_msg(cam.intrinsics)
+    _stamp(info, 7)
+    info_pub.publish(info)
+    img = numpy_to_image(np.full((480, 640, 3), 100, np.uint8), "rgb8")
+    _stamp(img, 7)
+    img_pub.publish(img)
+    assert not spin_until(lambda: bool(poses), 0.5)     # no truth yet: nothing to start from
+    truth.publish(fill_pose_msg(HandPose(), home_pose(), status="ground_truth"))
+    assert spin_until(lambda: bool(poses), 60)
+    assert poses[0].header.stamp.sec == 7
+
+
 def test_track_multiview_offline_writes_the_estimates(tmp_path) -> None:
     """`hand-suite track-multiview` core on the shipped multi-view bag: one hand/pose per
     group with the group's stamp, tracked near the bag's ground truth, and the box."""

@@ -202,6 +202,8 @@ class MultiviewTrackerNode(Node):
             s, throttle_duration_sec=1.0))
         self._pending: dict[int, dict[str, Any]] = {}
         self._first_seen: dict[int, float] = {}
+        # the newest group that came before the truth it starts from (tracked once it arrives)
+        self._unready: tuple[int, dict[str, Any]] | None = None
         self._infos: dict[str, Any] = {}
         self.dropped_busy = 0
         self._seconds: list[float] = []
@@ -259,6 +261,10 @@ class MultiviewTrackerNode(Node):
             self._run(key)
 
     def _poll(self) -> None:
+        if self._unready is not None and self._ready():
+            key, group = self._unready
+            self._unready = None
+            self._track(key, group)
         now = time.monotonic()
         for key in sorted(self._pending):
             if now - self._first_seen[key] > self.cfg.group_timeout_s:
@@ -273,7 +279,12 @@ class MultiviewTrackerNode(Node):
             self._first_seen.pop(k, None)
             self.dropped_busy += 1
         if not self._ready():
+            self._unready = (key, group)
             return
+        self._unready = None
+        self._track(key, group)
+
+    def _track(self, key: int, group: dict[str, Any]) -> None:
         images = {c: _rgb(m) for c, m in group.items()}
         infos = {c: self._infos[c] for c in group if c in self._infos}
         t0 = time.perf_counter()
