@@ -480,16 +480,21 @@ def surface_variants(config) -> dict[str, tuple[str, object]]:
                                                 finger_swap=False))}
 
 
-def _validation_plan(quick: bool) -> tuple[tuple[int, ...], tuple[str, ...], int, int]:
+def _validation_plan(quick: bool, smoke: bool = False
+                     ) -> tuple[tuple[int, ...], tuple[str, ...], int, int]:
     """The validation families' sequences (surface, capsule and forearm validation): the
-    shapes :data:`ARM_VAL_SEEDS`, the motions, the frames per sequence and their step."""
+    shapes :data:`ARM_VAL_SEEDS`, the motions, the frames per sequence and their step
+    (``smoke``: one short sequence)."""
+    if smoke:
+        return ARM_VAL_SEEDS[:1], ("pinch",), 6, 4
     if quick:
         return ARM_VAL_SEEDS[:1], ("finger_counting", "pinch"), 8, 4
     return ARM_VAL_SEEDS, ("finger_counting", "wrist_rotation", "pinch", "fist"), 20, 3
 
 
 def surface_validation_section(reg, config, quick: bool,
-                               variants: dict[str, tuple[str, object]] | None = None) -> dict:
+                               variants: dict[str, tuple[str, object]] | None = None,
+                               smoke: bool = False) -> dict:
     """Surface tolerance on the validation family (:class:`SurfaceVariant` on the suite's
     own mesh, renderer and noise, shapes :data:`ARM_VAL_SEEDS`): where the optional wrist
     stub (``wrist_optional``, ``wrist_optional_m``) and the finger-wise selection
@@ -504,7 +509,7 @@ def surface_validation_section(reg, config, quick: bool,
     from hand_capture.tracking.calibration import calibrate
     from hand_capture.tracking.hybrid import HybridTracker
 
-    seeds, clips, n, step = _validation_plan(quick)
+    seeds, clips, n, step = _validation_plan(quick, smoke)
     base = HandModel()
     variants = surface_variants(config) if variants is None else variants
     res: dict[str, dict[str, list]] = {k: {"e": [], "b": [], "d": [], "c": []}
@@ -543,7 +548,7 @@ def surface_validation_section(reg, config, quick: bool,
     return out
 
 
-def capsule_validation_section(reg, config, quick: bool) -> dict:
+def capsule_validation_section(reg, config, quick: bool, smoke: bool = False) -> dict:
     """The tracker on the capsule validation family (:class:`CapsuleSurface`: the suite's
     collision capsules as the hand, its renderer and noise, shapes :data:`ARM_VAL_SEEDS`,
     the surface validation's motions), product settings, calibrated per sequence from the
@@ -556,7 +561,7 @@ def capsule_validation_section(reg, config, quick: bool) -> dict:
     from hand_capture.tracking.calibration import calibrate
     from hand_capture.tracking.hybrid import HybridTracker
 
-    seeds, clips, n, step = _validation_plan(quick)
+    seeds, clips, n, step = _validation_plan(quick, smoke)
     base = HandModel()
     surface = CapsuleSurface()
     by_clip: dict[str, dict[str, list]] = {c: {"e": [], "f": []} for c in clips}
@@ -636,7 +641,8 @@ def _track_both_paths(reg, base, cal, cfg, frames, kps, labels) -> tuple[object,
                      for path, fn in (("sequence", _score), ("first frame", _score_first))}
 
 
-def forearm_validation_section(reg, config, quick: bool, product_only: bool = False
+def forearm_validation_section(reg, config, quick: bool, product_only: bool = False,
+                               smoke: bool = False
                                ) -> dict:
     """The tracker with a forearm in view on the suite's own generator (validation shapes
     :data:`ARM_VAL_SEEDS`; :func:`suite_forearm_sequence`), calibrated per shape: where
@@ -651,7 +657,7 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
 
-    seeds, clips, n, step = _validation_plan(quick)
+    seeds, clips, n, step = _validation_plan(quick, smoke)
     base = HandModel()
     variants = {"product": config}
     if not product_only:
@@ -808,15 +814,17 @@ def _suite_frames(seed: int, clip: str, n: int, step: int, t0: float):
             [cam.model.joint_positions(f.pose) for f in rendered])
 
 
-def split_section(reg, config, quick: bool) -> dict:
-    """Choose ``cost_temporal_weight`` on validation shapes, report it on test shapes."""
+def split_section(reg, config, quick: bool, smoke: bool = False) -> dict:
+    """Choose ``cost_temporal_weight`` on validation shapes, report it on test shapes
+    (``smoke``: two weights, one motion)."""
     from hand_capture.bench.tracking import MOTIONS, SHAPE_SEEDS
     from hand_capture.model import HandModel
     from hand_capture.tracking.calibration import calibrate, render_calibration_frames
     from hand_capture.tracking.hybrid import HybridTracker
 
-    grid = (0.0, 30.0, 300.0) if quick else TEMPORAL_GRID
-    motions = ("finger_counting", "wrist_rotation") if quick else MOTIONS
+    grid = (0.0, 30.0) if smoke else (0.0, 30.0, 300.0) if quick else TEMPORAL_GRID
+    motions = ("finger_counting",) if smoke else \
+        ("finger_counting", "wrist_rotation") if quick else MOTIONS
     n, step = (10, 3) if quick else (45, 2)
     splits = {"validation": VAL_SEEDS[:1] if quick else VAL_SEEDS,
               "test": SHAPE_SEEDS[:1] if quick else SHAPE_SEEDS}
@@ -907,15 +915,18 @@ def transport_section(quick: bool) -> dict:
     return out
 
 
-def run_sections(reg, config, quick: bool) -> dict:
-    """Every section above, in order; their figures merged."""
+def run_sections(reg, config, quick: bool, smoke: bool = False) -> dict:
+    """Every section above, in order; their figures merged. ``smoke``: the same code on the
+    fewest sequences and frames (``hand-suite bench tracking --smoke``; its figures mean
+    nothing)."""
     out = {}
-    out.update(heldout_section(reg, config, quick))
-    out.update(surface_validation_section(reg, config, quick))
-    out.update(capsule_validation_section(reg, config, quick))
-    out.update(forearm_validation_section(reg, config, quick))
-    out.update(calibration_section(quick))
-    out.update(split_section(reg, config, quick))
+    out.update(heldout_section(reg, config, quick, cases=HELDOUT_QUICK[:1] if smoke else None,
+                               frames=(6, 6) if smoke else None))
+    out.update(surface_validation_section(reg, config, quick, smoke=smoke))
+    out.update(capsule_validation_section(reg, config, quick, smoke=smoke))
+    out.update(forearm_validation_section(reg, config, quick, smoke=smoke))
+    out.update(calibration_section(quick, scales=(1.15,) if smoke else None))
+    out.update(split_section(reg, config, quick, smoke))
     out.update(resolution_section(reg, config, quick))
     out.update(transport_section(quick))
     return out

@@ -41,6 +41,7 @@ from __future__ import annotations
 import gc
 import json
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -57,6 +58,7 @@ from hand_capture.touch.pcaik import PcaIk
 from hand_capture.touch.touch_model import MAX_REFERENCE
 from hand_capture.touch.train import (
     TRAIN,
+    TRAIN_PARTS,
     fit_encoders,
     fit_model,
     shipped_ridges,
@@ -79,11 +81,18 @@ def _sem(x: np.ndarray) -> float:
     return float(x.std(ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
 
 
+#: ``--smoke``'s training set: every part of the trainer's set with a twentieth of its
+#: sequences (the same code on a set a fresh checkout generates in seconds, not minutes)
+SMOKE_PARTS: tuple[GenConfig, ...] = tuple(replace(c, sequences=c.sequences // 20)
+                                           for c in TRAIN_PARTS)
+
+
 def datasets(quick: bool, smoke: bool = False) -> tuple[TouchDataset, TouchDataset]:
-    """(train, test); ``smoke``: a few test sequences only."""
+    """(train, test); ``smoke``: a few test sequences and :data:`SMOKE_PARTS` only."""
     per_seed = 10 if smoke else 80 if quick else 210
-    train = training_set()  # the full set in quick runs too: with a third of the template
-    # part alone the quadratic (136 coefficients per DoF) already overfits the joint angles
+    # the full set in quick runs too: with a third of the template part alone the quadratic
+    # (136 coefficients per DoF) already overfits the joint angles
+    train = training_set(SMOKE_PARTS if smoke else TRAIN_PARTS)
     test_model = build_model(TEST_SHAPE_SEED)
     parts = [load_or_generate(GenConfig(sequences=per_seed, frames=TRAIN.frames, seed=s,
                                         shape_seed=TEST_SHAPE_SEED), model=test_model)

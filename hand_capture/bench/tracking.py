@@ -21,7 +21,8 @@ of frames whose largest joint error is under 10..50 mm, Figure II.17), frames pe
 percentile: the machine is shared, so CPU time is the steadier figure) and a per-stage time
 profile. Recovery: a sequence with a gap of blank frames; the number of frames after the gap
 until the success flag is back and until the largest joint error is under 20 mm again.
-``--quick`` runs the same on one shape and short excerpts (under a minute).
+``--quick`` runs the same on one shape and short excerpts; ``--smoke`` on the fewest
+sequences and frames that still pass through every section (the test suite's run).
 """
 
 from __future__ import annotations
@@ -109,7 +110,8 @@ def _summary(errs: np.ndarray) -> dict[str, float]:
     return out
 
 
-def run(quick: bool = False) -> dict:
+def run(quick: bool = False, smoke: bool = False) -> dict:
+    """The figures; ``smoke``: the fewest frames through the same code (figures meaningless)."""
     from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
     from hand_capture.cameras.threads import limit_blas_threads
     from hand_capture.model import HandModel
@@ -118,6 +120,7 @@ def run(quick: bool = False) -> dict:
     from hand_capture.tracking.regressor import HandRegressor
     from hand_capture.tracking.train import train_tracker
 
+    quick = quick or smoke
     limit_blas_threads(1)
     configs = _configs()
     path = default_model_path()
@@ -129,7 +132,7 @@ def run(quick: bool = False) -> dict:
         reg_src = "trained in-run"
     shape_seeds = SHAPE_SEEDS[:1] if quick else SHAPE_SEEDS
     step = 4 if quick else 1
-    max_frames = 16 if quick else 10 ** 6
+    max_frames = 8 if smoke else 16 if quick else 10 ** 6
     base = HandModel()
     rng = np.random.default_rng(0)
 
@@ -310,5 +313,5 @@ def run(quick: bool = False) -> dict:
     # held-out family, calibration bone lengths, settings split, transport (issue 13)
     from hand_capture.bench._tracking_heldout import run_sections
 
-    out.update(run_sections(reg, configs["hybrid"], quick))
+    out.update(run_sections(reg, configs["hybrid"], quick, smoke))
     return out
