@@ -93,7 +93,10 @@ def test_a_group_before_the_truth_is_tracked_once_the_truth_arrives(ros, tmp_pat
         Parameter("rig", value=str(rig_file)), Parameter("objects", value=""),
         Parameter("iterations", value=1)]))
     poses: list[HandPose] = []
+    diags: list[DiagnosticStatus] = []
     peer.create_subscription(HandPose, "hand/pose", poses.append, 10)
+    peer.create_subscription(DiagnosticArray, "diagnostics",
+                             lambda m: diags.extend(m.status), 10)
     truth = peer.create_publisher(HandPose, "hand/pose_truth", 10)
     cam = studio.cameras[0]
     img_pub = peer.create_publisher(Image, f"sync/{cam.name}/color/image_raw", SENSOR)
@@ -107,6 +110,8 @@ def test_a_group_before_the_truth_is_tracked_once_the_truth_arrives(ros, tmp_pat
     _stamp(img, 7)
     img_pub.publish(img)
     assert not spin_until(lambda: bool(poses), 0.5)     # no truth yet: nothing to start from
+    assert spin_until(lambda: any("group is held" in d.message for d in diags), 5), diags[-1:]
+    assert all(d.level == DiagnosticStatus.WARN for d in diags)
     truth.publish(fill_pose_msg(HandPose(), home_pose(), status="ground_truth"))
     assert spin_until(lambda: bool(poses), 60)
     assert poses[0].header.stamp.sec == 7

@@ -310,6 +310,10 @@ class MultiviewTrackerNode(Node):
                 if s == LOST]
         level = DiagnosticStatus.WARN if lost or r.rejected else DiagnosticStatus.OK
         text = f"lost: {', '.join(lost)}" if lost else "tracking"
+        if self.tracker.params is None:   # init_from_truth, and the truth has not come
+            level = DiagnosticStatus.WARN
+            text = ("waiting for the first hand/pose_truth and object/pose_truth"
+                    + (" (a group is held)" if self._unready is not None else ""))
         st = DiagnosticStatus(level=level, name="multiview_tracker", message=text)
         vals = {"groups": r.groups, "tracked": r.tracked, "dropped_busy": self.dropped_busy,
                 "s_per_group": round(float(np.mean(self._seconds[-20:])), 3)
