@@ -23,13 +23,16 @@ def _stamp(msg, sec: int) -> None:
     msg.header.stamp.nanosec = 0
 
 
-def test_groups_in_poses_out_bad_views_counted(ros, tmp_path) -> None:
+def _tracker(ros, tmp_path, n_cams: int, **params):
+    """A multiview_tracker on the first ``n_cams`` studio cameras (no objects) and the peer's
+    ends: (cameras, received poses, received diagnostics, truth publisher, image and info
+    publishers by camera), once the tracker has subscribed."""
     peer, add, spin_until = ros
-    studio = load_rig("studio6")
-    rig_file = save_rig(Rig("three", studio.cameras[:3]), tmp_path / "three.yaml")
+    cams = load_rig("studio6").cameras[:n_cams]
+    rig_file = save_rig(Rig("part", cams), tmp_path / "part.yaml")
     add(MultiviewTrackerNode(parameter_overrides=[
         Parameter("rig", value=str(rig_file)), Parameter("objects", value=""),
-        Parameter("iterations", value=2), Parameter("group_timeout_s", value=0.2)]))
+        *(Parameter(k, value=v) for k, v in params.items())]))
     poses: list[HandPose] = []
     diags: list[DiagnosticStatus] = []
     peer.create_subscription(HandPose, "hand/pose", poses.append, 10)
@@ -37,25 +40,32 @@ def test_groups_in_poses_out_bad_views_counted(ros, tmp_path) -> None:
                              lambda m: diags.extend(m.status), 10)
     truth = peer.create_publisher(HandPose, "hand/pose_truth", 10)
     img_pub = {c.name: peer.create_publisher(Image, f"sync/{c.name}/color/image_raw", SENSOR)
-               for c in studio.cameras[:3]}
+               for c in cams}
     info_pub = {c.name: peer.create_publisher(CameraInfo, f"sync/{c.name}/color/camera_info",
-                                              SENSOR) for c in studio.cameras[:3]}
+                                              SENSOR) for c in cams}
     assert spin_until(lambda: all(p.get_subscription_count() > 0 for p in img_pub.values())
                       and truth.get_subscription_count() > 0, 10)
+    return cams, poses, diags, truth, img_pub, info_pub
+
+
+def test_groups_in_poses_out_bad_views_counted(ros, tmp_path) -> None:
+    _, _, spin_until = ros
+    cams, poses, diags, truth, img_pub, info_pub = _tracker(ros, tmp_path, 3, iterations=2,
+                                                            group_timeout_s=0.2)
     truth.publish(fill_pose_msg(HandPose(), home_pose(), status="ground_truth"))
     spin_until(lambda: False, 0.3)
     rng = np.random.default_rng(0)
     blank = rng.integers(90, 110, (480, 640, 3)).astype(np.uint8)   # no hand anywhere
 
     def group(sec: int, empty: str = "", nan_info: str = "", skip: str = "") -> None:
-        for cam in studio.cameras[:3]:
+        for cam in cams:
             info = camera_info_msg(cam.intrinsics)
             if cam.name == nan_info:
                 info.k = [float("nan")] * 9
             _stamp(info, sec)
             info_pub[cam.name].publish(info)
         spin_until(lambda: False, 0.1)
-        for cam in studio.cameras[:3]:
+        for cam in cams:
             if cam.name == skip:
                 continue
             img = numpy_to_image(np.zeros((0, 640, 3), np.uint8) if cam.name == empty
@@ -86,29 +96,15 @@ def test_groups_in_poses_out_bad_views_counted(ros, tmp_path) -> None:
 def test_a_group_before_the_truth_is_tracked_once_the_truth_arrives(ros, tmp_path) -> None:
     """A replay's first group can reach the tracker before the truth it starts from (rig_sync
     emits a group once): it is kept and tracked when the truth arrives, not dropped."""
-    peer, add, spin_until = ros
-    studio = load_rig("studio6")
-    rig_file = save_rig(Rig("one", studio.cameras[:1]), tmp_path / "one.yaml")
-    add(MultiviewTrackerNode(parameter_overrides=[
-        Parameter("rig", value=str(rig_file)), Parameter("objects", value=""),
-        Parameter("iterations", value=1)]))
-    poses: list[HandPose] = []
-    diags: list[DiagnosticStatus] = []
-    peer.create_subscription(HandPose, "hand/pose", poses.append, 10)
-    peer.create_subscription(DiagnosticArray, "diagnostics",
-                             lambda m: diags.extend(m.status), 10)
-    truth = peer.create_publisher(HandPose, "hand/pose_truth", 10)
-    cam = studio.cameras[0]
-    img_pub = peer.create_publisher(Image, f"sync/{cam.name}/color/image_raw", SENSOR)
-    info_pub = peer.create_publisher(CameraInfo, f"sync/{cam.name}/color/camera_info", SENSOR)
-    assert spin_until(lambda: img_pub.get_subscription_count() > 0
-                      and truth.get_subscription_count() > 0, 10)
+    _, _, spin_until = ros
+    cams, poses, diags, truth, img_pub, info_pub = _tracker(ros, tmp_path, 1, iterations=1)
+    cam = cams[0]
     info = camera_info_msg(cam.intrinsics)
     _stamp(info, 7)
-    info_pub.publish(info)
+    info_pub[cam.name].publish(info)
     img = numpy_to_image(np.full((480, 640, 3), 100, np.uint8), "rgb8")
     _stamp(img, 7)
-    img_pub.publish(img)
+    img_pub[cam.name].publish(img)
     assert not spin_until(lambda: bool(poses), 0.5)     # no truth yet: nothing to start from
     assert spin_until(lambda: any("group is held" in d.message for d in diags), 5), diags[-1:]
     assert all(d.level == DiagnosticStatus.WARN for d in diags)
