@@ -70,7 +70,12 @@ from hand_capture.model.joints import root_rotation_matrix
 from hand_capture.tracking.armseg import ArmClassifier, load_arm_classifier, remove_arm
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.icp import ModelTracker
-from hand_capture.tracking.preprocess import HandObservation, cut_forearm, segment_hand
+from hand_capture.tracking.preprocess import (
+    HandObservation,
+    cut_forearm,
+    segment_hand,
+    split_surfaces,
+)
 from hand_capture.tracking.regressor import DepthLookup, HandRegressor, ModelFrames, palm_init_pca
 
 __all__ = ["HybridTracker", "TrackResult", "default_model_path", "STAGES"]
@@ -266,23 +271,29 @@ class HybridTracker:
         r, dropped, cloud = self._process(depth, intr, self.arm)
         retries = []
         if dropped and cfg.arm_fallback:
-            retries.append((None, False))
+            retries.append((None, False, False))
         if cfg.flip_retry:
-            retries.append((None if dropped else self.arm, True))
+            retries.append((None if dropped else self.arm, True, False))
         best = r
         # without a tracked wrist the classifier's segment is also checked against the cut
         # alone on a frame that passes eq. II.19: a hand fitted to the arm alone can pass it
         # (E_d 22-26 mm against tau 25 on the suite's generator)
         untracked = not (before["delta"] and before["prev"] is not None)
-        for arm, flip in retries:
-            if best.success and (flip or not untracked):
+        if cfg.split_retry:
+            retries.append((self.arm, False, True))
+        for arm, flip, split in retries:
+            if best.success and (flip or split or not untracked):
                 break
             if flip and not cloud:
                 continue
             kept = {k: getattr(self, k) for k in self._STATE}
             for k, v in before.items():
                 setattr(self, k, v)
-            r2, _, cloud2 = self._process(depth, intr, arm, flip)
+            r2, _, cloud2 = self._process(depth, intr, arm, flip, split)
+            if r2 is None:   # the segment does not split: nothing to try
+                for k, v in kept.items():
+                    setattr(self, k, v)
+                continue
             for k in STAGES:
                 r2.timing[k] += best.timing[k]
             cloud = cloud or cloud2
@@ -295,14 +306,21 @@ class HybridTracker:
         return best
 
     def _process(self, depth: np.ndarray, intr: Intrinsics, arm: ArmClassifier | None,
-                 flip: bool = False) -> tuple[TrackResult, bool, bool]:
+                 flip: bool = False, split: bool = False
+                 ) -> tuple[TrackResult | None, bool, bool]:
         """One frame (:meth:`process`) with the classifier ``arm`` (None: the cut alone),
-        ``flip`` passed to the cloud cut; also whether the classifier dropped pixels and
-        whether the forearm was cut from the cloud's shape."""
+        ``flip`` passed to the cloud cut, ``split``: the segment without the large pieces
+        of other surfaces (:func:`~hand_capture.tracking.preprocess.split_surfaces`; None
+        returned, nothing changed, when it does not split); also whether the classifier
+        dropped pixels and whether the forearm was cut from the cloud's shape."""
         cfg = self.cfg
         timing = dict.fromkeys(STAGES, 0.0)
         t0 = time.perf_counter()
         obs = segment_hand(depth, intr, cfg)
+        if split:
+            obs = split_surfaces(obs, cfg.jump_m, cfg.split_share, cfg.min_hand_pixels)
+            if obs is None:
+                return None, False, False
         cut = dropped = cloud = False
         whole = None   # the uncut segment, when the cut had no tracked wrist to go by
         if cfg.forearm_cut and obs.found:

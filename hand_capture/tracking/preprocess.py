@@ -300,6 +300,63 @@ def _grow_continuous(d: np.ndarray, valid: np.ndarray, mask: np.ndarray, z_max: 
     return grown | rim
 
 
+def split_surfaces(obs: HandObservation, jump_m: float, drop_share: float,
+                   min_pixels: int) -> HandObservation | None:
+    """The segment without the large pieces of other surfaces that touch the hand.
+
+    An addition to ch. II's depth band: an object just behind the hand (a box, the table
+    edge) is connected to it in the band but not along the surface. The segment is split
+    where neighbouring pixels (4-neighbours) step more than ``jump_m`` in depth; the piece
+    holding the segment's nearest pixels (the band's anchor: ch. II.2 takes the hand for the
+    nearest object) is kept, with every piece smaller than ``drop_share`` of the segment
+    (a finger in front of the palm splits off as a small piece), and the larger other
+    pieces are dropped with the step pixels beside them.
+
+    Args:
+        obs: a segmented hand (:func:`segment_hand`).
+        jump_m: depth step that separates surfaces [m].
+        drop_share: a piece this large a share of the segment, or larger, is dropped.
+        min_pixels: fewer pixels left than this: None.
+
+    Returns:
+        The observation without the dropped pieces, or None when nothing is dropped (or
+        too little would be left).
+    """
+    if not obs.found:
+        return None
+    v, u, z = obs.vuz
+    r0, r1, c0, c1 = obs.box
+    m = obs.mask[r0:r1, c0:c1]
+    d = obs.depth_m[r0:r1, c0:c1]
+    edge = np.zeros_like(m)
+    dv = m[:-1] & m[1:] & (np.abs(np.diff(d, axis=0)) > jump_m)
+    dh = m[:, :-1] & m[:, 1:] & (np.abs(np.diff(d, axis=1)) > jump_m)
+    edge[:-1] |= dv
+    edge[1:] |= dv
+    edge[:, :-1] |= dh
+    edge[:, 1:] |= dh
+    n, lab = cv2.connectedComponents((m & ~edge).astype(np.uint8), connectivity=4)
+    if n <= 2:
+        return None
+    size = np.bincount(lab.ravel(), minlength=n)
+    size[0] = 0
+    lv, lu = v - r0, u - c0
+    lp = lab[lv, lu]
+    inner = lp > 0     # the step pixels themselves belong to no piece
+    if not inner.any():
+        return None
+    near = lp[inner & (z <= z[inner].min() + 0.01)]
+    anchor = int(np.bincount(near, minlength=n).argmax())
+    drop = size >= drop_share * len(z)
+    drop[anchor] = False
+    drop[0] = False
+    if not drop.any():
+        return None
+    gone = cv2.dilate(np.isin(lab, np.flatnonzero(drop)).astype(np.uint8),
+                      np.ones((3, 3), np.uint8)) > 0
+    return _keep(obs, ~gone[lv, lu], min_pixels)
+
+
 def depth_normals(obs: HandObservation) -> np.ndarray:
     """Unit normals (N, 3) of the observed points from depth gradients (towards the camera)."""
     d = obs.depth_m.astype(np.float64)
