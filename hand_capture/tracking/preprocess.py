@@ -306,11 +306,11 @@ def split_surfaces(obs: HandObservation, jump_m: float, drop_share: float,
 
     An addition to ch. II's depth band: an object just behind the hand (a box, the table
     edge) is connected to it in the band but not along the surface. The segment is split
-    where neighbouring pixels (4-neighbours) step more than ``jump_m`` in depth; the piece
-    holding the segment's nearest pixels (the band's anchor: ch. II.2 takes the hand for the
-    nearest object) is kept, with every piece smaller than ``drop_share`` of the segment
-    (a finger in front of the palm splits off as a small piece), and the larger other
-    pieces are dropped with the step pixels beside them.
+    where neighbouring pixels (4-neighbours) step more than ``jump_m`` in depth. Of the
+    pieces at least ``drop_share`` of the segment, the one reaching nearest the camera is
+    kept (ch. II.2 takes the hand for the nearest object) and the others are dropped with
+    the step pixels beside them; smaller pieces are kept (a finger in front of the palm
+    splits off as a small piece).
 
     Args:
         obs: a segmented hand (:func:`segment_hand`).
@@ -341,17 +341,18 @@ def split_surfaces(obs: HandObservation, jump_m: float, drop_share: float,
     size = np.bincount(lab.ravel(), minlength=n)
     size[0] = 0
     lv, lu = v - r0, u - c0
-    lp = lab[lv, lu]
-    inner = lp > 0     # the step pixels themselves belong to no piece
-    if not inner.any():
+    lp = lab[lv, lu]     # 0: a step pixel, in no piece
+    large = size >= drop_share * len(z)
+    large[0] = False
+    if large.sum() < 2:
         return None
-    near = lp[inner & (z <= z[inner].min() + 0.01)]
-    anchor = int(np.bincount(near, minlength=n).argmax())
-    drop = size >= drop_share * len(z)
-    drop[anchor] = False
-    drop[0] = False
-    if not drop.any():
-        return None
+    # the anchor: the large piece reaching nearest the camera (a small piece in front, such
+    # as a finger, is kept whatever its depth)
+    nearest = np.full(n, np.inf)
+    np.minimum.at(nearest, lp, z)
+    nearest[~large] = np.inf
+    drop = large.copy()
+    drop[int(np.argmin(nearest))] = False
     gone = cv2.dilate(np.isin(lab, np.flatnonzero(drop)).astype(np.uint8),
                       np.ones((3, 3), np.uint8)) > 0
     return _keep(obs, ~gone[lv, lu], min_pixels)
