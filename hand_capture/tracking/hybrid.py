@@ -265,7 +265,11 @@ class HybridTracker:
         pool of step 5 (eq. II.20 selects by cost). With ``flip_retry`` a failed frame whose
         forearm was cut from the cloud's shape (no previous wrist) is tried once more with
         the cloud's other end taken for the arm (clutter touching the hand can be the
-        widest place the cut takes for the palm); again the lower E_d is kept."""
+        widest place the cut takes for the palm); again the lower E_d is kept. With
+        ``split_retry`` a failed frame whose segment splits along depth steps into large
+        pieces is tried once more without the pieces but the one nearest the camera (an
+        object touching the hand joins the depth band's segment;
+        :func:`~hand_capture.tracking.preprocess.split_surfaces`); the lower E_d is kept."""
         cfg = self.cfg
         before = {k: getattr(self, k) for k in self._STATE}
         r, dropped, cloud = self._process(depth, intr, self.arm)
@@ -274,13 +278,13 @@ class HybridTracker:
             retries.append((None, False, False))
         if cfg.flip_retry:
             retries.append((None if dropped else self.arm, True, False))
+        if cfg.split_retry:
+            retries.append((self.arm, False, True))
         best = r
         # without a tracked wrist the classifier's segment is also checked against the cut
         # alone on a frame that passes eq. II.19: a hand fitted to the arm alone can pass it
         # (E_d 22-26 mm against tau 25 on the suite's generator)
         untracked = not (before["delta"] and before["prev"] is not None)
-        if cfg.split_retry:
-            retries.append((self.arm, False, True))
         for arm, flip, split in retries:
             if best.success and (flip or split or not untracked):
                 break
@@ -289,8 +293,10 @@ class HybridTracker:
             kept = {k: getattr(self, k) for k in self._STATE}
             for k, v in before.items():
                 setattr(self, k, v)
+            t0 = time.perf_counter()
             r2, _, cloud2 = self._process(depth, intr, arm, flip, split)
             if r2 is None:   # the segment does not split: nothing to try
+                best.timing["preprocess"] += time.perf_counter() - t0
                 for k, v in kept.items():
                     setattr(self, k, v)
                 continue
