@@ -269,7 +269,8 @@ class HybridTracker:
         ``split_retry`` a failed frame whose segment splits along depth steps into large
         pieces is tried once more without the pieces but the one nearest the camera (an
         object touching the hand joins the depth band's segment;
-        :func:`~hand_capture.tracking.preprocess.split_surfaces`); the lower E_d is kept."""
+        :func:`~hand_capture.tracking.preprocess.split_surfaces`); its result is kept when
+        it passes eq. II.19 at a lower E_d."""
         cfg = self.cfg
         before = {k: getattr(self, k) for k in self._STATE}
         r, dropped, cloud = self._process(depth, intr, self.arm)
@@ -303,7 +304,9 @@ class HybridTracker:
             for k in STAGES:
                 r2.timing[k] += best.timing[k]
             cloud = cloud or cloud2
-            if r2.cost < best.cost:
+            # a split retry counts only when it passes eq. II.19: a fit to what is left
+            # of a segment that still fails is no better evidence than the whole one
+            if r2.cost < best.cost and (r2.success or not split):
                 best = r2
             else:
                 best.timing = r2.timing
