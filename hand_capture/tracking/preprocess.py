@@ -269,6 +269,24 @@ def _touches_border(mask_b: np.ndarray, r0: int, c0: int, shape: tuple[int, int]
     return bool(on_border(uu + c0, vv + r0, shape[1], shape[0]).any())
 
 
+def _depth_steps(d: np.ndarray, jump_m: float, within: np.ndarray | None = None
+                 ) -> np.ndarray:
+    """(H, W) bool: the pixels of depth ``d`` [m] with a 4-neighbour more than ``jump_m``
+    nearer or farther (both in ``within`` when given: steps to pixels outside it do not
+    count)."""
+    dv = np.abs(np.diff(d, axis=0)) > jump_m
+    dh = np.abs(np.diff(d, axis=1)) > jump_m
+    if within is not None:
+        dv &= within[:-1] & within[1:]
+        dh &= within[:, :-1] & within[:, 1:]
+    edge = np.zeros(d.shape, bool)
+    edge[:-1] |= dv
+    edge[1:] |= dv
+    edge[:, :-1] |= dh
+    edge[:, 1:] |= dh
+    return edge
+
+
 def _grow_continuous(d: np.ndarray, valid: np.ndarray, mask: np.ndarray, z_max: float,
                      cfg: TrackerConfig) -> np.ndarray:
     """The segment grown over depth-continuous pixels up to ``z_max`` [m].
@@ -281,13 +299,7 @@ def _grow_continuous(d: np.ndarray, valid: np.ndarray, mask: np.ndarray, z_max: 
     removed by :func:`cut_forearm`."""
     ok = valid & (d <= z_max)
     # a pixel with a larger step to a neighbour is a surface edge: not a bridge
-    edge = np.zeros_like(ok)
-    dv = np.abs(np.diff(d, axis=0)) > cfg.jump_m
-    dh = np.abs(np.diff(d, axis=1)) > cfg.jump_m
-    edge[:-1] |= dv
-    edge[1:] |= dv
-    edge[:, :-1] |= dh
-    edge[:, 1:] |= dh
+    edge = _depth_steps(d, cfg.jump_m)
     inner = ok & ~edge
     n, lab = cv2.connectedComponents(inner.astype(np.uint8), connectivity=4)
     if n <= 1:
@@ -327,14 +339,7 @@ def split_surfaces(obs: HandObservation, jump_m: float, drop_share: float,
     v, u, z = obs.vuz
     r0, r1, c0, c1 = obs.box
     m = obs.mask[r0:r1, c0:c1]
-    d = obs.depth_m[r0:r1, c0:c1]
-    edge = np.zeros_like(m)
-    dv = m[:-1] & m[1:] & (np.abs(np.diff(d, axis=0)) > jump_m)
-    dh = m[:, :-1] & m[:, 1:] & (np.abs(np.diff(d, axis=1)) > jump_m)
-    edge[:-1] |= dv
-    edge[1:] |= dv
-    edge[:, :-1] |= dh
-    edge[:, 1:] |= dh
+    edge = _depth_steps(obs.depth_m[r0:r1, c0:c1], jump_m, m)
     n, lab = cv2.connectedComponents((m & ~edge).astype(np.uint8), connectivity=4)
     if n <= 2:
         return None
