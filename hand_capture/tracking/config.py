@@ -45,9 +45,10 @@ class TrackerConfig:
                              "for the arm and keep the result of lower E_d")
     split_retry: bool = param(True, "when a frame fails eq. II.19 and its segment splits "
                               "along depth steps of jump_m into pieces, run it again without "
-                              "the large pieces that do not hold the nearest pixels (an "
-                              "object touching the hand; preprocess.split_surfaces); its "
-                              "result is kept when it passes eq. II.19 at a lower E_d")
+                              "the pieces of at least split_share of it but the one nearest "
+                              "the camera (an object touching the hand; "
+                              "preprocess.split_surfaces); its result is kept when it passes "
+                              "eq. II.19 at a lower E_d")
     split_share: float = param(0.1, "split_retry drops pieces at least this share of the "
                                "segment", lo=0.01, hi=0.9)
     arm_model_file: str = param("", "trained arm classifier (.npz); empty = data/tracker/"
