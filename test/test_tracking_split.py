@@ -2,7 +2,7 @@
 
 ``preprocess.split_surfaces`` and the tracker's ``split_retry``: a frame that fails eq. II.19
 from a reset tracker because a box touching the hand joined its depth-band segment is tracked
-again without the box, and the result of lower E_d is kept."""
+again without the box, and the retry is kept when it passes eq. II.19 at a lower E_d."""
 
 from __future__ import annotations
 

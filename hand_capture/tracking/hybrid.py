@@ -273,7 +273,11 @@ class HybridTracker:
         it passes eq. II.19 at a lower E_d."""
         cfg = self.cfg
         before = {k: getattr(self, k) for k in self._STATE}
-        r, dropped, cloud = self._process(depth, intr, self.arm)
+        t0 = time.perf_counter()
+        seg = segment_hand(depth, intr, cfg)   # the same segment for every attempt
+        t_seg = time.perf_counter() - t0
+        r, dropped, cloud = self._process(seg, intr, self.arm)
+        r.timing["preprocess"] += t_seg
         retries = []
         if dropped and cfg.arm_fallback:
             retries.append((None, False, False))
@@ -291,16 +295,17 @@ class HybridTracker:
                 break
             if flip and not cloud:
                 continue
+            obs = seg
+            if split:
+                t0 = time.perf_counter()
+                obs = split_surfaces(seg, cfg.jump_m, cfg.split_share, cfg.min_hand_pixels)
+                best.timing["preprocess"] += time.perf_counter() - t0
+                if obs is None:   # the segment does not split: nothing to try
+                    continue
             kept = {k: getattr(self, k) for k in self._STATE}
             for k, v in before.items():
                 setattr(self, k, v)
-            t0 = time.perf_counter()
-            r2, _, cloud2 = self._process(depth, intr, arm, flip, split)
-            if r2 is None:   # the segment does not split: nothing to try
-                best.timing["preprocess"] += time.perf_counter() - t0
-                for k, v in kept.items():
-                    setattr(self, k, v)
-                continue
+            r2, _, cloud2 = self._process(obs, intr, arm, flip)
             for k in STAGES:
                 r2.timing[k] += best.timing[k]
             cloud = cloud or cloud2
@@ -314,22 +319,16 @@ class HybridTracker:
                     setattr(self, k, v)
         return best
 
-    def _process(self, depth: np.ndarray, intr: Intrinsics, arm: ArmClassifier | None,
-                 flip: bool = False, split: bool = False
-                 ) -> tuple[TrackResult | None, bool, bool]:
-        """One frame (:meth:`process`) with the classifier ``arm`` (None: the cut alone),
-        ``flip`` passed to the cloud cut, ``split``: the segment without the large pieces
-        of other surfaces (:func:`~hand_capture.tracking.preprocess.split_surfaces`; None
-        returned, nothing changed, when it does not split); also whether the classifier
-        dropped pixels and whether the forearm was cut from the cloud's shape."""
+    def _process(self, obs: HandObservation, intr: Intrinsics, arm: ArmClassifier | None,
+                 flip: bool = False) -> tuple[TrackResult, bool, bool]:
+        """One frame (:meth:`process`) from its segment ``obs`` (:func:`segment_hand`, or
+        what :func:`~hand_capture.tracking.preprocess.split_surfaces` left of it) with the
+        classifier ``arm`` (None: the cut alone), ``flip`` passed to the cloud cut; also
+        whether the classifier dropped pixels and whether the forearm was cut from the
+        cloud's shape."""
         cfg = self.cfg
         timing = dict.fromkeys(STAGES, 0.0)
         t0 = time.perf_counter()
-        obs = segment_hand(depth, intr, cfg)
-        if split:
-            obs = split_surfaces(obs, cfg.jump_m, cfg.split_share, cfg.min_hand_pixels)
-            if obs is None:
-                return None, False, False
         cut = dropped = cloud = False
         whole = None   # the uncut segment, when the cut had no tracked wrist to go by
         if cfg.forearm_cut and obs.found:
