@@ -4,8 +4,9 @@ Every node runs as its console script with ``--ros-args`` (name, parameter files
 remappings). Output lines are prefixed with the node name. The runner stops the whole graph
 and exits
 
-* 0 after SIGINT/SIGTERM (forwarded to every node as SIGINT; SIGTERM after 6 s, SIGKILL
-  after 8 s, so the graph is down within 9 s), or when a ``required`` node exits with 0;
+* 0 after SIGINT/SIGTERM (forwarded to every node as SIGINT; SIGTERM after 6 s, SIGUSR1
+  after 8 s for a stuck node's stacks, SIGKILL after 8.5 s, so the graph is down within
+  9.5 s), or when a ``required`` node exits with 0;
 * non-zero when any node exits with an error; its traceback (printed by the node's main)
   appears under its name, followed by a line naming the node and its exit code. A node that
   does not stop cleanly when the graph stops (killed, or a failing shutdown hook: e.g. a
@@ -245,10 +246,14 @@ def _supervise_once(children: list[_Child], stop: threading.Event,
 
 
 def _stop_all(children: list[_Child]) -> None:
-    """SIGINT every running node, then SIGTERM, then SIGKILL (within 9 s in all)."""
+    """SIGINT every running node, then SIGTERM, then SIGKILL (within 9.5 s in all).
+
+    Before SIGKILL a node still running gets SIGUSR1, on which the suite's nodes print every
+    thread's stack (:mod:`hand_capture.nodes.shell`): the log then says where it was stuck.
+    """
     alive = [c for c in children if c.proc.poll() is None]
     for sig, grace in ((signal.SIGINT, _STOP_GRACE[0]), (signal.SIGTERM, _STOP_GRACE[1]),
-                       (signal.SIGKILL, 0.5)):
+                       (signal.SIGUSR1, 0.5), (signal.SIGKILL, 0.5)):
         for c in alive:
             try:
                 c.proc.send_signal(sig)

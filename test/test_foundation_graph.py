@@ -211,11 +211,14 @@ def test_a_node_that_does_not_stop_cleanly_is_named_and_fails_the_run(monkeypatc
     import hand_control.runner as runner
     from hand_control.graph import GraphSpec, NodeSpec
 
-    stubborn = ("import signal, time\n"
+    stubborn = ("import faulthandler, signal, time\n"
                 "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
                 "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+                "faulthandler.register(signal.SIGUSR1, all_threads=True)  # as run_node\n"
+                "def stuck_here():\n"
+                "    time.sleep(120)\n"
                 "print('up', flush=True)\n"
-                "time.sleep(120)\n")
+                "stuck_here()\n")
     monkeypatch.setattr(runner, "node_command",
                         lambda node, files, over=None: [sys.executable, "-c", stubborn])
     graph = GraphSpec("probe", "", (), (NodeSpec("stubborn", "x"),))
@@ -225,3 +228,5 @@ def test_a_node_that_does_not_stop_cleanly_is_named_and_fails_the_run(monkeypatc
     text = out.getvalue()
     assert res.code == 1 and res.failed == ["stubborn"], text
     assert "node stubborn was killed (exit code -9)" in text
+    # before the kill it was asked where it was stuck, and said so
+    assert "in stuck_here" in text, text

@@ -19,10 +19,15 @@ Stopping, in this order (the graph runner escalates SIGINT -> SIGTERM -> SIGKILL
 2. A second signal while the node is still being built or spun means it is stuck (a long
    constructor or callback): that is interrupted (KeyboardInterrupt).
 3. Once the shutdown hook runs, no signal interrupts it (torque-off, closing a bag).
+
+``SIGUSR1`` makes a node print every thread's stack to stderr (``faulthandler``) without
+stopping it: the graph runner sends it to a node that ignored SIGINT and SIGTERM, before
+SIGKILL, so the log says where it was stuck.
 """
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -79,6 +84,7 @@ def run_node(
     _stop_signal.clear()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _on_stop_signal)
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # where a stuck node is (doc)
     argv = list(sys.argv if args is None else args)
     apply_network_defaults()  # loopback-only discovery unless the environment says otherwise
     os.environ.update(dds_environment(os.environ))  # Fast DDS profile for large images
