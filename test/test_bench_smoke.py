@@ -10,9 +10,11 @@ their smallest mode; they run in CI like the others (``-m "not slow"`` skips the
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -84,6 +86,38 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
 }
 
 
+def _check_tracking(figures: dict, text: str) -> None:
+    """The held-out, forearm and calibration sections (issue 13) report figures in their
+    ranges, with the same run's baselines."""
+    for key in ("heldout", "forearm"):
+        assert figures[f"{key}_frames"] > 0
+        assert math.isfinite(figures[f"{key}_mean_mm"]) and figures[f"{key}_mean_mm"] > 0
+        assert 0.0 <= figures[f"{key}_success_20mm"] <= 1.0
+    # the forearm frames' segment against the true labels
+    assert 0.0 <= figures["forearm_seg_arm_pct"] <= 100.0
+    assert 0.0 <= figures["forearm_seg_hand_kept_pct"] <= 100.0
+    assert 0.0 <= figures["forearm_seg_missed_rate"] <= 1.0
+    assert 0.0 < figures["heldout_seg_hand_kept_pct"] <= 100.0
+    # the geometric cut alone (the baseline) and the arm classifier's pixel accuracy
+    assert figures["forearm_cut_only_mean_mm"] > 0
+    assert 0.5 < figures["heldout_arm_pixel_acc"] <= 1.0
+    # before -> after of the surface-tolerance settings, and the drift from the true pose
+    for key in ("", "_stub_not_optional", "_no_finger_swap", "_before"):
+        assert figures[f"heldout{key}_mean_mm"] > 0
+        assert 0.0 <= figures[f"heldout{key}_truth_drift_mm"] < 100.0
+    # calibration: the smoke's one scale (1.15), whose template bones are about 15 % off
+    assert figures["calib_scales"] == [1.15]
+    assert figures["calib_bone_err_pct"] >= figures["calib_bone_err_pct_mean"] > 0
+    assert figures["calib_bone_err_pct_template"] > 5.0
+    for title in ("forearm frames", "classifier + cut", "held-out family", "d435_640",
+                  "bone-length", "surface-tolerance settings"):
+        assert title in text, title
+
+
+#: bench name -> a check of its figures (the JSON line) and printed tables beyond the keys
+CHECKS: dict[str, Callable[[dict, str], None]] = {"tracking": _check_tracking}
+
+
 def test_every_bench_has_a_row():
     from hand_control.cli import available_benches
 
@@ -106,3 +140,5 @@ def test_bench_smoke(name, tmp_path):
     assert figures["bench"] == name and figures["smoke"] is True
     missing = [k for k in BENCHES[name][0] if k not in figures]
     assert not missing, f"bench {name}: keys missing from the JSON line: {missing}"
+    if name in CHECKS:
+        CHECKS[name](figures, out.stdout)
