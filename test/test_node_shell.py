@@ -93,3 +93,24 @@ def test_a_failure_without_a_signal_is_reported_and_exits_one() -> None:
     assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
     out = "".join(lines)
     assert "[slow_stop] failed:" in out and "a real failure" in out
+
+
+def test_sigusr1_prints_the_stacks_and_the_node_goes_on() -> None:
+    """Where a stuck node is: SIGUSR1 prints every thread's stack (the graph runner sends it
+    before SIGKILL); the node keeps running and still stops cleanly."""
+    p, lines = _start()
+    try:
+        assert wait_for(lambda: "up\n" in lines, 30.0), lines
+        p.send_signal(signal.SIGUSR1)
+        assert wait_for(lambda: any("in _spin" in ln for ln in lines), 10.0), lines
+        n_up = len(lines)
+        p.send_signal(signal.SIGUSR1)  # again: still running, and says so again
+        assert wait_for(lambda: sum("in _spin" in ln for ln in lines[n_up:]) >= 1, 10.0), lines
+        assert p.poll() is None
+        p.send_signal(signal.SIGINT)
+        assert p.wait(timeout=10) == 0, "".join(lines)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
+    assert not any("failed" in ln for ln in lines), lines
