@@ -8,6 +8,8 @@ import signal
 import subprocess
 import sys
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from ros_helpers import ROOT, wait_for
 
@@ -44,26 +46,28 @@ sys.exit(run_node(Slow, sys.argv))
 """
 
 
-def _start(*args: str) -> tuple[subprocess.Popen, list[str]]:
+@contextmanager
+def _node(*args: str) -> Iterator[tuple[subprocess.Popen, list[str]]]:
+    """The NODE process and its output lines so far; killed on the way out if still up."""
     p = subprocess.Popen([sys.executable, "-c", NODE, *args], cwd=ROOT, text=True,
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                          env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(p.stdout), daemon=True).start()
-    return p, lines
+    try:
+        yield p, lines
+    finally:
+        if p.poll() is None:
+            p.kill()
 
 
 def test_signal_inside_a_callback_is_a_clean_stop_and_a_second_signal_spares_the_hook() -> None:
-    p, lines = _start()
-    try:
+    with _node() as (p, lines):
         assert wait_for(lambda: "up\n" in lines, 30.0), lines
         p.send_signal(signal.SIGINT)
         assert wait_for(lambda: "stopping\n" in lines, 10.0), lines
         p.send_signal(signal.SIGTERM)  # a runner escalating while torque goes off
         assert p.wait(timeout=10) == 0, "".join(lines)
-    finally:
-        if p.poll() is None:
-            p.kill()
     assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
     assert not any("failed" in ln for ln in lines), lines
 
@@ -71,25 +75,17 @@ def test_signal_inside_a_callback_is_a_clean_stop_and_a_second_signal_spares_the
 def test_signal_while_the_node_is_built_still_runs_its_shutdown_hook() -> None:
     # Under load a graph can be stopped while a node's constructor runs (a recorder that has
     # already opened its bag): the node must still be finished, or the bag is lost.
-    p, lines = _start("--slow-build")
-    try:
+    with _node("--slow-build") as (p, lines):
         assert wait_for(lambda: "building\n" in lines, 30.0), lines
         p.send_signal(signal.SIGINT)
         assert p.wait(timeout=10) == 0, "".join(lines)
-    finally:
-        if p.poll() is None:
-            p.kill()
     assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
     assert "up\n" in lines  # the constructor finished, then the hook ran
 
 
 def test_a_failure_without_a_signal_is_reported_and_exits_one() -> None:
-    p, lines = _start("--fail")
-    try:
+    with _node("--fail") as (p, lines):
         assert p.wait(timeout=30) == 1
-    finally:
-        if p.poll() is None:
-            p.kill()
     assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
     out = "".join(lines)
     assert "[slow_stop] failed:" in out and "a real failure" in out
@@ -98,8 +94,7 @@ def test_a_failure_without_a_signal_is_reported_and_exits_one() -> None:
 def test_sigusr1_prints_the_stacks_and_the_node_goes_on() -> None:
     """Where a stuck node is: SIGUSR1 prints every thread's stack (the graph runner sends it
     before SIGKILL); the node keeps running and still stops cleanly."""
-    p, lines = _start()
-    try:
+    with _node() as (p, lines):
         assert wait_for(lambda: "up\n" in lines, 30.0), lines
         p.send_signal(signal.SIGUSR1)
         assert wait_for(lambda: any("in _spin" in ln for ln in lines), 10.0), lines
@@ -109,8 +104,5 @@ def test_sigusr1_prints_the_stacks_and_the_node_goes_on() -> None:
         assert p.poll() is None
         p.send_signal(signal.SIGINT)
         assert p.wait(timeout=10) == 0, "".join(lines)
-    finally:
-        if p.poll() is None:
-            p.kill()
     assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
     assert not any("failed" in ln for ln in lines), lines
