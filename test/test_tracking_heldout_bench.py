@@ -63,3 +63,28 @@ def test_the_hard_validation_scene_has_clutter_touching_the_hand_and_a_sleeve() 
         return bool((near & (lab == 1)).any())
 
     assert not touches(labels_c[0]) and touches(labels_c[-1])
+
+
+def test_only_a_smoke_run_calibrates_with_fewer_rounds(monkeypatch) -> None:
+    """The benchmark's figures come from the product's calibration; a smoke run (fewest
+    rounds) changes that only while it runs."""
+    import hand_capture.tracking.calibration as calibration
+    from hand_capture.bench._tracking_heldout import (
+        SMOKE_CAL_ROUNDS,
+        bench_calibrate,
+        smoke_calibration,
+    )
+
+    seen: list[dict] = []
+    monkeypatch.setattr(calibration, "calibrate", lambda frames, **kw: seen.append(kw))
+    bench_calibrate([], model=None)
+    with smoke_calibration(False):
+        bench_calibrate([])
+    try:
+        with smoke_calibration(True):
+            bench_calibrate([])
+            raise KeyError("a failing smoke section")
+    except KeyError:
+        pass
+    bench_calibrate([])
+    assert seen == [{"model": None}, {}, {"rounds": SMOKE_CAL_ROUNDS}, {}]

@@ -29,6 +29,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -53,6 +55,32 @@ ARM_VAL_SEEDS = (21, 22, 23, 24)
 #: the hard validation set's sleeve: its radius beyond the arm's and where it starts past the
 #: wrist, uniform ranges [m]
 SLEEVE_WIDER_M, SLEEVE_START_M = (0.01, 0.025), (0.04, 0.08)
+#: shape / pose rounds of each calibration in a ``--smoke`` run (the product's 30 in every
+#: other run): the same code on the fewest rounds; a smoke run's figures mean nothing
+SMOKE_CAL_ROUNDS = 3
+_smoke_rounds: list[int] = []  # set while a smoke run goes on (:func:`smoke_calibration`)
+
+
+@contextmanager
+def smoke_calibration(smoke: bool) -> Iterator[None]:
+    """Within it, :func:`bench_calibrate` runs :data:`SMOKE_CAL_ROUNDS` rounds if ``smoke``."""
+    if smoke:
+        _smoke_rounds.append(SMOKE_CAL_ROUNDS)
+    try:
+        yield
+    finally:
+        if smoke:
+            _smoke_rounds.pop()
+
+
+def bench_calibrate(frames, **kwargs):
+    """:func:`~hand_capture.tracking.calibration.calibrate` as the benchmark runs it: the
+    product's settings, fewer rounds in a smoke run (:func:`smoke_calibration`)."""
+    from hand_capture.tracking.calibration import calibrate
+
+    if _smoke_rounds:
+        kwargs.setdefault("rounds", _smoke_rounds[-1])
+    return calibrate(frames, **kwargs)
 
 
 def _bone_err_pct(model, true_model) -> float:
@@ -135,7 +163,7 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
     from hand_capture.bench.tracking import _summary
     from hand_capture.evaldata import calibration_frames, make_sequence
     from hand_capture.model import HandModel
-    from hand_capture.tracking.calibration import CALIBRATION_POSES, calibrate
+    from hand_capture.tracking.calibration import CALIBRATION_POSES
     from hand_capture.tracking.hybrid import HybridTracker
 
     cases = cases or (HELDOUT_QUICK if quick else HELDOUT)
@@ -157,7 +185,7 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
             seq = make_sequence(seed, n, cam, forearm=arm, clutter=clutter, step=step,
                                 sleeve=bool((k + k // 2) % 2))
             t_render = (time.perf_counter() - t0) / n
-            cal = calibrate(calibration_frames(seq.model, seq.surface,
+            cal = bench_calibrate(calibration_frames(seq.model, seq.surface,
                                                list(CALIBRATION_POSES.values()), cam,
                                                np.random.default_rng(seed)), model=base)
             model = base.with_shape(cal.shape)
@@ -189,7 +217,7 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                     if c == config:
                         e_v = s["errs"]
                     else:
-                        cal_v = calibrate(calibration_frames(
+                        cal_v = bench_calibrate(calibration_frames(
                             seq.model, seq.surface, list(CALIBRATION_POSES.values()), cam,
                             np.random.default_rng(seed)), model=base, config=c)
                         t_v = HybridTracker(base, c, reg)
@@ -506,7 +534,6 @@ def surface_validation_section(reg, config, quick: bool,
     validation, ``scripts/regressor_validation.py``, scores the product alone)."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
-    from hand_capture.tracking.calibration import calibrate
     from hand_capture.tracking.hybrid import HybridTracker
 
     seeds, clips, n, step = _validation_plan(quick, smoke)
@@ -519,7 +546,7 @@ def surface_validation_section(reg, config, quick: bool,
             v = SurfaceVariant.sample(np.random.default_rng(seed * 10 + len(clip)))
             true, _, frames, kps, poses, calf = suite_surface_sequence(seed, clip, n, step, v)
             for name, (_, cfg) in variants.items():
-                cal = calibrate(calf, model=base, config=cfg)
+                cal = bench_calibrate(calf, model=base, config=cfg)
                 tr = HybridTracker(base, cfg, reg)
                 tr.set_calibration(cal)
                 sc = _score(tr, frames, kps)
@@ -558,7 +585,6 @@ def capsule_validation_section(reg, config, quick: bool, smoke: bool = False) ->
     not trained on)."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
-    from hand_capture.tracking.calibration import calibrate
     from hand_capture.tracking.hybrid import HybridTracker
 
     seeds, clips, n, step = _validation_plan(quick, smoke)
@@ -571,7 +597,7 @@ def capsule_validation_section(reg, config, quick: bool, smoke: bool = False) ->
             true, _, frames, kps, poses, calf = suite_surface_sequence(seed, clip, n, step,
                                                                        surface)
             tr = HybridTracker(base, config, reg)
-            tr.set_calibration(calibrate(calf, model=base, config=config))
+            tr.set_calibration(bench_calibrate(calf, model=base, config=config))
             sc = _score(tr, frames, kps)
             by_clip[clip]["e"].append(sc["errs"])
             cpu.append(sc["cpu"])
@@ -623,10 +649,10 @@ def _suite_calibration(true, intr, seed: int, base):
     """The calibration of the validation subject ``true`` from its rendered calibration
     frames (:func:`~hand_capture.tracking.calibration.render_calibration_frames`, drawn from
     ``seed + 500``), starting from ``base``."""
-    from hand_capture.tracking.calibration import calibrate, render_calibration_frames
+    from hand_capture.tracking.calibration import render_calibration_frames
 
-    return calibrate(render_calibration_frames(true, intr, np.random.default_rng(seed + 500)),
-                     model=base)
+    return bench_calibrate(
+        render_calibration_frames(true, intr, np.random.default_rng(seed + 500)), model=base)
 
 
 def _track_both_paths(reg, base, cal, cfg, frames, kps, labels) -> tuple[object, dict]:
@@ -756,7 +782,6 @@ def calibration_section(quick: bool, scales: tuple[float, ...] | None = None) ->
     from hand_capture.model import N_ALPHA, HandModel, HandShape
     from hand_capture.tracking.calibration import (
         CALIBRATION_POSES,
-        calibrate,
         render_calibration_frames,
     )
     from hand_capture.tracking.train import default_intrinsics
@@ -781,7 +806,7 @@ def calibration_section(quick: bool, scales: tuple[float, ...] | None = None) ->
         for fam, true, frames in (("suite", true_s, frames_s), ("heldout", true_h, frames_h),
                                   ("heldout forearm", true_h, frames_f)):
             t0 = time.perf_counter()
-            cal = calibrate(frames, model=base)
+            cal = bench_calibrate(frames, model=base)
             m = base.with_shape(cal.shape)
             fit[fam].append(_bone_err_pct(m, true))
             tmpl[fam].append(_bone_err_pct(base, true))
@@ -819,7 +844,7 @@ def split_section(reg, config, quick: bool, smoke: bool = False) -> dict:
     (``smoke``: two weights, one motion)."""
     from hand_capture.bench.tracking import MOTIONS, SHAPE_SEEDS
     from hand_capture.model import HandModel
-    from hand_capture.tracking.calibration import calibrate, render_calibration_frames
+    from hand_capture.tracking.calibration import render_calibration_frames
     from hand_capture.tracking.hybrid import HybridTracker
 
     grid = (0.0, 30.0) if smoke else (0.0, 30.0, 300.0) if quick else TEMPORAL_GRID
@@ -835,7 +860,7 @@ def split_section(reg, config, quick: bool, smoke: bool = False) -> dict:
             rng = np.random.default_rng(seed + 500)
             for clip in motions:
                 true, intr, frames, truth = _suite_frames(seed, clip, n, step, 0.0)
-                cal = calibrate(render_calibration_frames(true, intr, rng), model=base)
+                cal = bench_calibrate(render_calibration_frames(true, intr, rng), model=base)
                 data[split].append((base.with_shape(cal.shape), frames, truth))
     res: dict[str, dict[float, float]] = {"validation": {}, "test": {}}
     s20: dict[float, float] = {}
@@ -870,7 +895,7 @@ def resolution_section(reg, config, quick: bool) -> dict:
     CPU time per frame and accuracy (what ``config/camera.yaml`` defaults to)."""
     from hand_capture.evaldata import calibration_frames, make_sequence
     from hand_capture.model import HandModel
-    from hand_capture.tracking.calibration import CALIBRATION_POSES, calibrate
+    from hand_capture.tracking.calibration import CALIBRATION_POSES
     from hand_capture.tracking.hybrid import HybridTracker
 
     seeds = (401,) if quick else (401, 402, 403)
@@ -881,7 +906,7 @@ def resolution_section(reg, config, quick: bool) -> dict:
         errs, cpu = [], []
         for seed in seeds:
             seq = make_sequence(seed, n, cam, step=step)
-            cal = calibrate(calibration_frames(seq.model, seq.surface,
+            cal = bench_calibrate(calibration_frames(seq.model, seq.surface,
                                                list(CALIBRATION_POSES.values()), cam,
                                                np.random.default_rng(seed)), model=base)
             s = _score(HybridTracker(base.with_shape(cal.shape), config, reg), seq.frames,

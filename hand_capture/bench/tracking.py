@@ -111,11 +111,20 @@ def _summary(errs: np.ndarray) -> dict[str, float]:
 
 
 def run(quick: bool = False, smoke: bool = False) -> dict:
-    """The figures; ``smoke``: the fewest frames through the same code (figures meaningless)."""
+    """The figures; ``smoke``: the fewest frames and calibration rounds through the same code
+    (figures meaningless)."""
+    from hand_capture.bench._tracking_heldout import smoke_calibration
+
+    with smoke_calibration(smoke):
+        return _run(quick, smoke)
+
+
+def _run(quick: bool, smoke: bool) -> dict:
+    from hand_capture.bench._tracking_heldout import bench_calibrate
     from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
     from hand_capture.cameras.threads import limit_blas_threads
     from hand_capture.model import HandModel
-    from hand_capture.tracking.calibration import calibrate, render_calibration_frames
+    from hand_capture.tracking.calibration import render_calibration_frames
     from hand_capture.tracking.hybrid import HybridTracker, default_model_path
     from hand_capture.tracking.regressor import HandRegressor
     from hand_capture.tracking.train import train_tracker
@@ -149,7 +158,7 @@ def run(quick: bool = False, smoke: bool = False) -> dict:
         true_model = cam0.model
         intr = cam0.intrinsics
         t0 = time.perf_counter()
-        cal = calibrate(render_calibration_frames(true_model, intr, rng), model=base,
+        cal = bench_calibrate(render_calibration_frames(true_model, intr, rng), model=base,
                         subject_id=f"bench{seed}")
         cal_s = time.perf_counter() - t0
         model = base.with_shape(cal.shape)
@@ -249,9 +258,8 @@ def run(quick: bool = False, smoke: bool = False) -> dict:
         d = f.depth if not gap_start <= i < gap_start + gap_len else np.zeros_like(f.depth)
         frames.append((d, f.depth_intrinsics))
     truth = [true_model.joint_positions(f.pose) for f in rendered]
-    cal_model = base.with_shape(calibrate(render_calibration_frames(true_model, cam.intrinsics,
-                                                                    rng),
-                                          model=base).shape)
+    cal_model = base.with_shape(bench_calibrate(
+        render_calibration_frames(true_model, cam.intrinsics, rng), model=base).shape)
     rec_rows = []
     rec = {}
     for m in ("hybrid", "teleop", "icp"):
