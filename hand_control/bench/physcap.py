@@ -40,7 +40,8 @@ sensitivity row runs contact and random sampling on the test captures at the wid
 Retargeting (sec. 7.2): the first test capture's optimised control applied to three new
 objects and two lower frictions (``retarget_success``), and to a very low friction where the
 object must slip (``low_friction_slipped``). ``dask_speedup_2w``: the batch runner with 2
-worker processes against 1 (``hand_control.physcap.batch.measure_dask_speedup``).
+worker processes against 1 (``hand_control.physcap.batch.measure_dask_speedup``); not run in
+``--smoke`` (null, said in the output; ``test_physcap_batch`` runs it).
 
 **Studio family** (``studio_*`` keys; its design fixed before any method ran on it): the truth
 of every light lift at its own mass and at each heavy mass rendered by the studio6 rig (six
@@ -870,18 +871,21 @@ def run(quick: bool = False, smoke: bool = False) -> dict[str, Any]:
                 ["target", "success", "final_err_mm", "lift_mm"], rt_rows)
 
     dask: dict[str, Any] = {"dask_speedup_2w": None}
-    try:
-        from hand_control.physcap.batch import measure_dask_speedup
+    if smoke:  # two Dask clusters for a meaningless figure: test_physcap_batch times them
+        print("\ndask: NOT RUN in --smoke (dask_speedup_2w null)")
+    else:
+        try:
+            from hand_control.physcap.batch import measure_dask_speedup
 
-        t0 = time.perf_counter()
-        dcfg = PhysCapConfig(n_samples=8 if smoke else 16, n_keep=2)
-        dask = measure_dask_speedup([sc.capture for _, _, sc in caps][:2], dcfg,
-                                    quick=quick or smoke)
-        print(f"\ndask: 1 worker {dask.get('dask_1w_s')} s, 2 workers {dask.get('dask_2w_s')} s,"
-              f" speed-up {dask.get('dask_speedup_2w')}, identical {dask.get('dask_identical')}"
-              f" ({time.perf_counter() - t0:.1f} s)")
-    except ImportError as e:
-        print(f"\ndask: not measured ({e})")
+            t0 = time.perf_counter()
+            dcfg = PhysCapConfig(n_samples=16, n_keep=2)
+            dask = measure_dask_speedup([sc.capture for _, _, sc in caps][:2], dcfg,
+                                        quick=quick)
+            print(f"\ndask: 1 worker {dask.get('dask_1w_s')} s, 2 workers "
+                  f"{dask.get('dask_2w_s')} s, speed-up {dask.get('dask_speedup_2w')}, "
+                  f"identical {dask.get('dask_identical')} ({time.perf_counter() - t0:.1f} s)")
+        except ImportError as e:
+            print(f"\ndask: not measured ({e})")
 
     fig: dict[str, Any] = {}
     n_test = sum(split == "test" for split, _, _ in caps)
