@@ -185,9 +185,10 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
             seq = make_sequence(seed, n, cam, forearm=arm, clutter=clutter, step=step,
                                 sleeve=bool((k + k // 2) % 2))
             t_render = (time.perf_counter() - t0) / n
-            cal = bench_calibrate(calibration_frames(seq.model, seq.surface,
-                                               list(CALIBRATION_POSES.values()), cam,
-                                               np.random.default_rng(seed)), model=base)
+            # one set of calibration frames for the product and each setting below
+            calf = calibration_frames(seq.model, seq.surface, list(CALIBRATION_POSES.values()),
+                                      cam, np.random.default_rng(seed))
+            cal = bench_calibrate(calf, model=base)
             model = base.with_shape(cal.shape)
             tracker = HybridTracker(base, config, reg)
             tracker.set_calibration(cal)   # as the node: the shape, and tau from the fit
@@ -217,9 +218,7 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
                     if c == config:
                         e_v = s["errs"]
                     else:
-                        cal_v = bench_calibrate(calibration_frames(
-                            seq.model, seq.surface, list(CALIBRATION_POSES.values()), cam,
-                            np.random.default_rng(seed)), model=base, config=c)
+                        cal_v = bench_calibrate(calf, model=base, config=c)
                         t_v = HybridTracker(base, c, reg)
                         t_v.set_calibration(cal_v)
                         e_v = _score(t_v, seq.frames, seq.keypoints)["errs"]
@@ -907,8 +906,8 @@ def resolution_section(reg, config, quick: bool) -> dict:
         for seed in seeds:
             seq = make_sequence(seed, n, cam, step=step)
             cal = bench_calibrate(calibration_frames(seq.model, seq.surface,
-                                               list(CALIBRATION_POSES.values()), cam,
-                                               np.random.default_rng(seed)), model=base)
+                                                     list(CALIBRATION_POSES.values()), cam,
+                                                     np.random.default_rng(seed)), model=base)
             s = _score(HybridTracker(base.with_shape(cal.shape), config, reg), seq.frames,
                        seq.keypoints)
             errs.append(s["errs"])

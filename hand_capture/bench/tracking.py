@@ -159,7 +159,7 @@ def _run(quick: bool, smoke: bool) -> dict:
         intr = cam0.intrinsics
         t0 = time.perf_counter()
         cal = bench_calibrate(render_calibration_frames(true_model, intr, rng), model=base,
-                        subject_id=f"bench{seed}")
+                              subject_id=f"bench{seed}")
         cal_s = time.perf_counter() - t0
         model = base.with_shape(cal.shape)
         ratio_true = _hand_length(true_model) / _hand_length(base)
