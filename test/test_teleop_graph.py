@@ -172,10 +172,12 @@ def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
     four runs held it 93-95 mm for 1 s, the wrist 6-7 deg off its command over the approach
     (the servos' lag). Before the wrist armature was sized from its servo damping, the clamped
     wrist servos chattered: 32-93 deg off in five of five runs, and three of four missed.
-    The wrist is judged by the 90th percentile of its states' offsets, not the largest: one
-    state can be far off its command for reasons of the machine's load, not the servos (the
-    largest 5.8-12.3 deg in nine runs, 16.6 once beside a benchmark on the other core, the box
-    held 95 mm; the 90th percentile 4.6-9.8 deg)."""
+    The wrist is judged by the 90th percentile over its states of the offset from the nearest
+    of the commands received in the 150 ms before the state (_root_swing_deg): the offset from
+    the last command alone measures the machine's load as much as the servos (largest
+    5.8-22.6 deg, 90th percentile 4.6-15.2 deg, the highest with the suite's other tests and a
+    CPU burner beside it, the box held 95 mm; over 150 ms, 0.3-0.7 deg in three runs beside
+    two burners, where the last command gave 5.6-8.5)."""
     from hand_control.report.series import load_bag, positions
 
     p = hand_suite("run", "teleop", "-p", f"bag_recorder.output:={tmp_path}/bag")
@@ -194,7 +196,8 @@ def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
     # the box held clearly off the table for a second (not flung on release), with the wrist
     # following its command over the approach and the grasp
     assert held > 50.0, (held, swing, out[-4000:])
-    assert swing < 15.0, (held, swing, _root_swing_deg(data, 100.0))
+    assert swing < 10.0, (held, swing, _root_swing_deg(data, 100.0),
+                          _root_swing_deg(data, window_ms=0.0))
 
 
 def _held_lift_mm(t_ns: np.ndarray, pos: np.ndarray, hold_s: float = 1.0) -> float:
@@ -207,28 +210,31 @@ def _held_lift_mm(t_ns: np.ndarray, pos: np.ndarray, hold_s: float = 1.0) -> flo
                default=0.0)
 
 
-def _root_swing_deg(data, percentile: float = 90.0) -> float:
+def _root_swing_deg(data, percentile: float = 90.0, window_ms: float = 150.0) -> float:
     """Percentile over the states (90th by default; 100 = the largest) of the angle [deg] by
-    which the simulated wrist's root hinges were off the last joint command received before
-    each state, over the approach and the grasp (1.5 s before to 0.1 s after the first
-    reported manipulation; bag receive times). It includes the servos' lag (kd / kp = 83 ms
-    with Table 1's wrist gains: 5-7 deg as the approach turns the wrist)."""
+    which the simulated wrist's root hinges were off the nearest of the joint commands
+    received in the ``window_ms`` before each state (and the last one before it; 0: that one
+    alone), over the approach and the grasp (1.5 s before to 0.1 s after the first reported
+    manipulation; bag receive times). The window holds the servos' lag (kd / kp = 83 ms with
+    Table 1's wrist gains, 5-7 deg off the last command as the approach turns the wrist), the
+    50 Hz control period and the delivery; a wrist that chatters or does not follow is off
+    every command in it."""
     cmd, js = data.topics["control/joint_command"], data.topics["sim/joint_states"]
     ph = data.topics["control/grasp_phase"]
     t_grasp = next((t for t, m in zip(ph.t_ns, ph.msgs, strict=True)
                     if m.phase == Phase.MANIPULATION), None)
     if t_grasp is None:
         return 0.0
-    c = np.array([m.positions[3:6] for m in cmd.msgs])
+    c = np.array([m.positions[3:6] for m in cmd.msgs])  # (m, 3)
+    t_cmd = np.asarray(cmd.t_ns)
     t_js = np.asarray(js.t_ns)
     near = (t_js > t_grasp - 1_500_000_000) & (t_js < t_grasp + 100_000_000)
-    q = np.array([m.position[3:6] for m in js.msgs])[near]
-    k = np.searchsorted(np.asarray(cmd.t_ns), t_js[near], side="right") - 1
-    ok = k >= 0
-    if not ok.any():
-        return 0.0
-    off = np.degrees(np.abs(q[ok] - c[k[ok]])).max(axis=1)  # (n,) worst hinge per state
-    return float(np.percentile(off, percentile))
+    q = np.array([m.position[3:6] for m in js.msgs])[near]  # (n, 3)
+    last = np.searchsorted(t_cmd, t_js[near], side="right") - 1
+    first = np.minimum(np.searchsorted(t_cmd, t_js[near] - int(window_ms * 1e6)), last)
+    off = [np.degrees(np.abs(qi - c[a:b + 1])).max(axis=1).min()  # worst hinge, best command
+           for qi, a, b in zip(q, first, last, strict=True) if b >= 0]
+    return float(np.percentile(off, percentile)) if off else 0.0
 
 
 def test_replay_graph_runs_the_shipped_capture_through_the_chain(tmp_path: Path) -> None:
