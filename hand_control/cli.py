@@ -305,6 +305,21 @@ def cmd_track_multiview(a: argparse.Namespace) -> int:
     return 0
 
 
+TEST_WORKERS_MAX = 4  # pytest-xdist workers at most: every graph test starts 3-6 processes
+
+
+def xdist_options(pytest_args: list[str], cpus: int | None) -> list[str]:
+    """The pytest-xdist options the test command adds: one worker per CPU, at most
+    ``TEST_WORKERS_MAX``, tests handed out one by one (``--dist load``: 567 s on 2 cores
+    against 597 s with each file kept on one worker, and 921 s in one process, one machine,
+    the same day). Nothing is added when the arguments choose themselves (``-n``,
+    ``--numprocesses``, ``-p no:xdist``) or on a single CPU."""
+    chosen = any(x in ("-n", "--numprocesses", "no:xdist") or x.startswith(("-n", "--numpro"))
+                 for x in pytest_args)
+    n = min(cpus or 1, TEST_WORKERS_MAX)
+    return [] if chosen or n < 2 else ["-n", str(n), "--dist", "load"]
+
+
 def cmd_test(a: argparse.Namespace) -> int:
     root = Path(__file__).resolve().parents[1]
     venv_bin = Path(sys.executable).parent
@@ -312,8 +327,10 @@ def cmd_test(a: argparse.Namespace) -> int:
     print("[test] ruff check", flush=True)
     if subprocess.call([ruff, "check", str(root)], cwd=root) != 0:
         return 1
-    print("[test] pytest", flush=True)
-    code = subprocess.call([sys.executable, "-m", "pytest", "-q", *a.pytest_args], cwd=root)
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    args = [*xdist_options(a.pytest_args, cpus), *a.pytest_args]
+    print("[test] pytest " + " ".join(args), flush=True)
+    code = subprocess.call([sys.executable, "-m", "pytest", "-q", *args], cwd=root)
     return 1 if code == 5 else code  # 5 = no test collected: never a silent pass
 
 

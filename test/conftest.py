@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import os
-import random
 import sys
 from pathlib import Path
 
-# A domain of its own per test session, so parallel sessions on one machine never cross-talk;
-# discovery stays on this machine.
-os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randint(1, 100)))
+# A domain of its own per test session and per pytest-xdist worker (session_domain); discovery
+# stays on this machine.
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("MUJOCO_GL", "osmesa")
 os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
@@ -21,7 +20,9 @@ if str(ROOT) not in sys.path:
 
 import time  # noqa: E402  (after the environment set-up above)
 
-from ros_helpers import restore_ctrl_c  # noqa: E402
+from ros_helpers import restore_ctrl_c, session_domain  # noqa: E402
+
+os.environ["ROS_DOMAIN_ID"] = session_domain(dict(os.environ), os.getpid())
 
 # Launched in the background by a shell (`cmd &`), this process ignores SIGINT and so would
 # every child a test interrupts: restore Ctrl-C first (see restore_ctrl_c).
@@ -36,8 +37,8 @@ def pytest_configure(config: pytest.Config) -> None:
     """``HAND_SUITE_TEST_LOAD=N``: run the session beside N CPU-burning processes
     (test/load.py), to check that the tests hold on a loaded machine."""
     raw = os.environ.get(_LOAD_ENV, "").strip()
-    if not raw or config.option.collectonly:
-        return
+    if not raw or config.option.collectonly or _WORKER:
+        return  # under pytest-xdist the controller alone starts the burners
     try:
         n = int(raw)
     except ValueError as e:

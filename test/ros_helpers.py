@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import random
 import signal
 import subprocess
 import sys
@@ -12,6 +13,19 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
+
+
+def session_domain(environ: dict[str, str], pid: int) -> str:
+    """The ROS_DOMAIN_ID a test process uses: the one set (else one drawn from ``pid`` in
+    1..100), so parallel sessions on one machine never cross-talk; a pytest-xdist worker
+    (``PYTEST_XDIST_WORKER=gwK``, which inherits its controller's domain) moves to domain
+    ``1 + (D + K) % 100``, one of its own, or the graphs of two tests running at once on two
+    workers would see each other's topics."""
+    domain = int(environ.get("ROS_DOMAIN_ID") or random.Random(pid).randint(1, 100))
+    worker = environ.get("PYTEST_XDIST_WORKER", "")
+    if worker.startswith("gw") and worker[2:].isdigit():
+        domain = 1 + (domain + int(worker[2:])) % 100
+    return str(domain)
 
 
 def restore_ctrl_c() -> bool:

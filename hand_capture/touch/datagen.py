@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import zipfile
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -455,7 +456,7 @@ def load_or_generate(cfg: GenConfig, model: object | None = None,
             path.unlink(missing_ok=True)  # a damaged cache file: generate again
     ds = generate(model, cfg)
     folder.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
+    tmp = path.with_suffix(f".tmp{os.getpid()}.npz")  # two processes may fill one cache
     ds.save(tmp)
     tmp.replace(path)
     return ds
