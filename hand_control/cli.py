@@ -472,10 +472,28 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+_PASSED_ON = {"test": "pytest_args", "mjcf": "mjcf_args", "train": "train_args"}
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The command line, parsed. The commands that hand their arguments on (``test`` to pytest,
+    ``mjcf`` and ``train`` to their tools) take options first among them too (``test -n 0``,
+    ``test --durations=30 test/test_sim.py``), which ``argparse.REMAINDER`` alone refuses;
+    every other command refuses an argument it does not know."""
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    dest = _PASSED_ON.get(args.command)
+    if extra and dest is None:
+        parser.error("unrecognized arguments: " + " ".join(extra))
+    if dest is not None:
+        setattr(args, dest, [*extra, *getattr(args, dest)])
+    return args
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``hand-suite`` console script."""
     _setup_environment()
-    args = build_parser().parse_args(argv)
+    args = parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except HandSuiteError as e:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from ros_helpers import session_domain
 
-from hand_control.cli import TEST_WORKERS_MAX, xdist_options
+from hand_control.cli import TEST_WORKERS_MAX, parse_args, xdist_options
 
 
 @pytest.mark.parametrize(("cpus", "workers"), [(2, 2), (3, 3), (64, TEST_WORKERS_MAX)])
@@ -33,3 +33,22 @@ def test_every_worker_gets_a_domain_of_its_own() -> None:
     assert session_domain({"ROS_DOMAIN_ID": "100", "PYTEST_XDIST_WORKER": "gw0"}, 1) == "1"
     drawn = session_domain({}, 12345)  # none set: drawn from the pid, in 1..100
     assert drawn == session_domain({}, 12345) and 1 <= int(drawn) <= 100
+
+
+@pytest.mark.parametrize(("argv", "passed"), [
+    (["test"], []),
+    (["test", "-n", "0"], ["-n", "0"]),
+    (["test", "--durations=30", "test/test_sim.py"], ["--durations=30", "test/test_sim.py"]),
+    (["test", "test/test_sim.py", "-x"], ["test/test_sim.py", "-x"]),
+    (["test", "-x", "test/test_sim.py", "-k", "not slow"],
+     ["-x", "test/test_sim.py", "-k", "not slow"]),
+])
+def test_the_test_command_hands_every_argument_to_pytest(argv, passed) -> None:
+    assert parse_args(argv).pytest_args == passed
+
+
+def test_other_commands_refuse_arguments_they_do_not_know(capsys) -> None:
+    assert parse_args(["train", "touch", "--quick"]).train_args == ["--quick"]
+    with pytest.raises(SystemExit):
+        parse_args(["bench", "sim", "--bogus"])
+    assert "unrecognized arguments: --bogus" in capsys.readouterr().err
