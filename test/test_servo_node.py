@@ -117,9 +117,15 @@ def test_inputs_drive_the_cycles_and_the_timer_runs_only_without_them(ros) -> No
     node = started(add(ServoBridgeNode(parameter_overrides=params(source="commanded",
                                                                   control_rate_hz=50.0))),
                    spin_until)
-    timer_calls = []
+    timer_calls: list[bool] = []  # per timer wake-up: did it run a cycle
     on_timer = node._control_timer.callback
-    node._control_timer.callback = lambda: (timer_calls.append(time.monotonic()), on_timer())
+
+    def counted() -> None:
+        before = node.core._cycle
+        on_timer()
+        timer_calls.append(node.core._cycle > before)
+
+    node._control_timer.callback = counted
     pub = peer.create_publisher(JointCommand, "control/joint_command", 10)
     msg = JointCommand(joint_names=NAMES, positions=[0.0] * len(NAMES))
     last = [0.0]
@@ -135,10 +141,11 @@ def test_inputs_drive_the_cycles_and_the_timer_runs_only_without_them(ros) -> No
     assert spin_until(lambda: node.core._cycle - c0 >= 60, 60.0, tick=send)
     driven, woken = node.core._cycle - c0, len(timer_calls) - n0
     assert woken <= driven // 4, (driven, woken)  # (before: one timer wake-up per cycle)
-    c0, n0 = node.core._cycle, len(timer_calls)
-    # no input: the timer's fixed-rate cycles take over
-    assert spin_until(lambda: len(timer_calls) - n0 >= 25, 60.0)
-    assert node.core._cycle - c0 >= 25
+    n0 = len(timer_calls)
+    # no input: the timer's fixed-rate cycles take over. Counted as the timer's own cycles: a
+    # wake-up within 1.5 periods of an input still in flight when the sender stopped runs
+    # none, by design (one such, under load, once failed a count of wake-ups against cycles)
+    assert spin_until(lambda: sum(timer_calls[n0:]) >= 25, 60.0), timer_calls[n0:]
 
 
 def test_autostart_retries_a_failed_configure(ros, tmp_path) -> None:
