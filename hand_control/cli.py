@@ -314,8 +314,7 @@ def xdist_options(pytest_args: list[str], cpus: int | None) -> list[str]:
     against 597 s with each file kept on one worker, and 921 s in one process, one machine,
     the same day). Nothing is added when the arguments choose themselves (``-n``,
     ``--numprocesses``, ``-p no:xdist``) or on a single CPU."""
-    chosen = any(x in ("-n", "--numprocesses", "no:xdist") or x.startswith(("-n", "--numpro"))
-                 for x in pytest_args)
+    chosen = any(x == "no:xdist" or x.startswith(("-n", "--numpro")) for x in pytest_args)
     n = min(cpus or 1, TEST_WORKERS_MAX)
     return [] if chosen or n < 2 else ["-n", str(n), "--dist", "load"]
 

@@ -6,9 +6,8 @@ import os
 import sys
 from pathlib import Path
 
-# A domain of its own per test session and per pytest-xdist worker (session_domain); discovery
-# stays on this machine.
-_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")  # "gw0", ... in a pytest-xdist worker
+# discovery stays on this machine
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("MUJOCO_GL", "osmesa")
 os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
@@ -22,7 +21,8 @@ import time  # noqa: E402  (after the environment set-up above)
 
 from ros_helpers import restore_ctrl_c, session_domain  # noqa: E402
 
-os.environ["ROS_DOMAIN_ID"] = session_domain(dict(os.environ), os.getpid())
+# a domain of its own per test session and per pytest-xdist worker
+os.environ["ROS_DOMAIN_ID"] = session_domain(os.environ, os.getpid())
 
 # Launched in the background by a shell (`cmd &`), this process ignores SIGINT and so would
 # every child a test interrupts: restore Ctrl-C first (see restore_ctrl_c).

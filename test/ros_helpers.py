@@ -8,14 +8,14 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
 
 
-def session_domain(environ: dict[str, str], pid: int) -> str:
+def session_domain(environ: Mapping[str, str], pid: int) -> str:
     """The ROS_DOMAIN_ID a test process uses: the one set (else one drawn from ``pid`` in
     1..100), so parallel sessions on one machine never cross-talk; a pytest-xdist worker
     (``PYTEST_XDIST_WORKER=gwK``, which inherits its controller's domain) moves to domain
