@@ -143,6 +143,11 @@ class TrackerConfig:
                                   "fixed postures, abduction kept), so a finger none of the "
                                   "candidates has right can still be found")
     # -- regression (II.4) ---------------------------------------------------------------
+    regress_previous: bool = param(True, "step 2 also regresses the fingers on the previous "
+                                   "pose's palm (after its palm-only iteration of step 3): "
+                                   "one more candidate, the tracked palm with regressed "
+                                   "fingers, so a finger tracked wrong can be replaced "
+                                   "while the palm is right")
     n_modes: int = param(2, "palm modes kept by clustering the leaves (II.4.3)", lo=1, hi=16)
     ik_iterations: int = param(2, "finger IK Gauss-Newton steps per finger cascade stage",
                                lo=1, hi=20)

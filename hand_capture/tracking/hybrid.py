@@ -43,7 +43,9 @@ optional in the model-to-data pairs (``wrist_optional``, ``icp.optional_vertices
 selects finger by finger among the refined candidates (``finger_swap``,
 :meth:`HybridTracker._swap_fingers`: on another surface the regression often gets one finger
 wrong in the best candidate and right in another), each finger also tried straight and
-curled (``finger_postures``: a finger that no candidate has right).
+curled (``finger_postures``: a finger that no candidate has right); step 2 also regresses
+the fingers on the previous pose's palm (``regress_previous``: a finger tracked wrong while
+the palm is right gets a regressed alternative on the palm the tracker holds).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -389,7 +391,11 @@ class HybridTracker:
             timing["icp"] += time.perf_counter() - t
         if regress:  # step 2: finger regression on every palm
             t = time.perf_counter()
-            cands = self.regressor.regress_fingers(self.frames, lookup, np.array(palms),
+            # an addition to step 2 (regress_previous): the fingers regressed on the
+            # previous pose's palm too
+            own = cfg.regress_previous and self.prev is not None and prev is not None
+            roots = [*palms, prev] if own else palms
+            cands = self.regressor.regress_fingers(self.frames, lookup, np.array(roots),
                                                    cfg.ik_iterations)
             pool += [(qc, qc.copy()) for qc in cands]
             timing["regression"] += time.perf_counter() - t
@@ -531,6 +537,8 @@ class HybridTracker:
             palms = list(self.icp.refine_batch(palms, obs, cfg.palm_iterations,
                                                palm_only=True, points=pts))
             timing["icp"] += time.perf_counter() - t
+        if cfg.regress_previous:   # as in _process: the tracked palm too
+            palms = [*palms, q_tracked]
         t = time.perf_counter()
         cands = list(self.regressor.regress_fingers(self.frames, lookup, np.array(palms),
                                                     cfg.ik_iterations))
