@@ -82,7 +82,8 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                   "forearm_cut_only_mean_mm", "heldout_arm_pixel_acc", "val_surface_mean_mm",
                   "val_surface_before_mean_mm", "heldout_before_mean_mm",
                   "heldout_truth_drift_mm", "val_surface_no_finger_postures_mean_mm",
-                  "val_capsule_mean_mm", "val_capsule_reset_mean_mm"), ()),
+                  "val_capsule_mean_mm", "val_capsule_reset_mean_mm",
+                  "val_stereo_surface_mean_mm", "val_stereo_capsule_mean_mm"), ()),
 }
 
 

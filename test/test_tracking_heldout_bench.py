@@ -88,3 +88,23 @@ def test_only_a_smoke_run_calibrates_with_fewer_rounds(monkeypatch) -> None:
         pass
     bench_calibrate([])
     assert seen == [{"model": None}, {}, {"rounds": SMOKE_CAL_ROUNDS}, {}]
+
+
+def test_the_stereo_validation_frames_carry_artifacts_drawn_from_their_seed() -> None:
+    """``with_artifacts`` (the stereo artifacts validation): the frames change, the same seed
+    gives the same frames, and the suite's frames it was given are left as they were."""
+    from hand_capture.bench._tracking_heldout import (
+        SurfaceVariant,
+        suite_surface_sequence,
+        with_artifacts,
+    )
+
+    _, _, frames, _, _, _ = suite_surface_sequence(21, "pinch", 4, 6, SurfaceVariant())
+    before = [d.copy() for d, _ in frames]
+    a, b = with_artifacts(frames, 3), with_artifacts(frames, 3)
+    c = with_artifacts(frames, 4)
+    assert all(np.array_equal(x[0], y[0]) for x, y in zip(a, b, strict=True))
+    assert any(not np.array_equal(x[0], y[0]) for x, y in zip(a, c, strict=True))
+    assert sum(int(np.count_nonzero(x[0] != d)) for x, d in zip(a, before, strict=True)) > 100
+    assert all(np.array_equal(d, f[0]) for d, f in zip(before, frames, strict=True))
+    assert all(x[1] is f[1] and x[0].dtype == np.uint16 for x, f in zip(a, frames, strict=True))

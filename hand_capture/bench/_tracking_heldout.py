@@ -625,6 +625,57 @@ def capsule_validation_section(reg, config, quick: bool, smoke: bool = False) ->
             "val_capsule_cpu_ms": float(np.concatenate(cpu).mean()) * 1e3}
 
 
+def with_artifacts(frames: list, seed: int) -> list:
+    """``frames`` ((depth uint16 [mm], intrinsics) each) with a stereo camera's artifacts
+    (:func:`~hand_capture.tracking.augment.add_artifacts`, drawn from ``seed``)."""
+    from hand_capture.cameras.base import DEPTH_UNIT_M, depth_m_to_mm
+    from hand_capture.tracking.augment import add_artifacts
+
+    rng = np.random.default_rng(seed)
+    return [(depth_m_to_mm(add_artifacts(d * DEPTH_UNIT_M, rng)), intr) for d, intr in frames]
+
+
+def stereo_validation_section(reg, config, quick: bool, smoke: bool = False) -> dict:
+    """The surface and capsule validation families (same subjects, motions and surfaces)
+    with a stereo camera's artifacts on every frame and calibration frame
+    (:mod:`hand_capture.tracking.augment`: edge fattening, occlusion bands, holes,
+    correlated error; the suite's own model, not the held-out family's). Product settings,
+    calibrated per sequence on the artifact frames, tracked through. The same families
+    without the artifacts are :func:`surface_validation_section` (product row) and
+    :func:`capsule_validation_section` in the same run: the difference is what the
+    artifacts cost."""
+    from hand_capture.bench.tracking import _summary
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    seeds, clips, n, step = _validation_plan(quick, smoke)
+    base = HandModel()
+    errs: dict[str, list] = {"surface": [], "capsule": []}
+    for seed in seeds:
+        for clip in clips:
+            for family in errs:
+                surface = CapsuleSurface() if family == "capsule" else \
+                    SurfaceVariant.sample(np.random.default_rng(seed * 10 + len(clip)))
+                _, _, frames, kps, _, calf = suite_surface_sequence(seed, clip, n, step,
+                                                                    surface)
+                art = 7000 + 100 * seed + 10 * len(clip) + (family == "capsule")
+                tr = HybridTracker(base, config, reg)
+                tr.set_calibration(bench_calibrate(with_artifacts(calf, art + 5), model=base,
+                                                   config=config))
+                errs[family].append(_score(tr, with_artifacts(frames, art), kps)["errs"])
+    rows, out = [], {}
+    for family, parts in errs.items():
+        sm = _summary(np.concatenate(parts))
+        rows.append([family, sm["mean"], sm["median"], sm["s20"]])
+        out.update({f"val_stereo_{family}_mean_mm": sm["mean"],
+                    f"val_stereo_{family}_success_20mm": sm["s20"]})
+    print_table(f"stereo artifacts validation (the surface and capsule validation families, "
+                f"shapes {seeds}, with the suite's model of a stereo camera's artifacts), "
+                "product settings, tracked through",
+                ["family", "mean mm", "median mm", "succ@20"], rows)
+    return out
+
+
 def _score_first(tracker, frames, truth, labels) -> dict:
     """Every frame tracked from a reset tracker (the first frame, or after a lost one: no
     previous wrist to cut the forearm at); as :func:`_score`."""
@@ -948,6 +999,7 @@ def run_sections(reg, config, quick: bool, smoke: bool = False) -> dict:
                                frames=(6, 6) if smoke else None))
     out.update(surface_validation_section(reg, config, quick, smoke=smoke))
     out.update(capsule_validation_section(reg, config, quick, smoke=smoke))
+    out.update(stereo_validation_section(reg, config, quick, smoke=smoke))
     out.update(forearm_validation_section(reg, config, quick, smoke=smoke))
     out.update(calibration_section(quick, scales=(1.15,) if smoke else None))
     out.update(split_section(reg, config, quick, smoke))

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hand_capture.cameras.base import Intrinsics
+from hand_capture.cameras.base import DEPTH_UNIT_M, Intrinsics, depth_m_to_mm
 from hand_capture.cameras.motion import FIST, GRASP, OPEN, PINCH, R_PALM_TO_CAMERA
 from hand_capture.cameras.noise import DepthNoiseConfig, DepthNoiseModel
 from hand_capture.cameras.render import Mesh, make_renderer
@@ -27,6 +27,7 @@ from hand_capture.cameras.transforms import rotvec_to_matrix
 from hand_capture.errors import InputError
 from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel, default_shape, sample_shape
 from hand_capture.model.joints import pose_from_dict, root_angles_from_matrix
+from hand_capture.tracking.augment import add_artifacts
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.forest import RegressionForest
 from hand_capture.tracking.preprocess import segment_hand
@@ -54,6 +55,8 @@ ARM_FRAMES = 2000
 #: towards the camera (:func:`random_pose`): chosen on the validation shapes 21-24
 #: (``scripts/regressor_validation.py``; 3000 / 0 before, README issue 13)
 TRAIN_SAMPLES, TOWARDS_PROB = 10000, 0.15
+#: share of training renders with stereo artifacts (:mod:`~hand_capture.tracking.augment`)
+ARTIFACT_PROB = 0.5
 
 
 def default_intrinsics() -> Intrinsics:
@@ -203,8 +206,8 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
                    intr: Intrinsics, noise: DepthNoiseConfig | None = None,
                    cfg: TrackerConfig | None = None, *, forearm_prob: float = 0.0,
                    surface_mm: tuple[float, float] = (0.0, 0.0), cut_arm: bool = True,
-                   max_tilt_deg: float = 60.0, towards_prob: float = 0.0
-                   ) -> list[TrainingSample]:
+                   max_tilt_deg: float = 60.0, towards_prob: float = 0.0,
+                   artifact_prob: float = 0.0) -> list[TrainingSample]:
     """Render ``n`` noisy, segmented samples (shapes cycled through ``models``).
 
     Widened generator (issue 13): with probability ``forearm_prob`` a forearm
@@ -217,7 +220,9 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
     Each sample keeps the renderer's labels of its crop (``label``: :data:`HAND_LABEL`,
     :data:`ARM_LABEL`); ``cut_arm`` False keeps the forearm in the segment (training data of
     the per-pixel arm classifier, :mod:`~hand_capture.tracking.armseg`). ``max_tilt_deg``
-    and ``towards_prob`` set the viewpoints (:func:`random_pose`).
+    and ``towards_prob`` set the viewpoints (:func:`random_pose`). A share
+    ``artifact_prob`` of the images also gets a stereo camera's artifacts
+    (:func:`~hand_capture.tracking.augment.add_artifacts`) after the sensor model.
     """
     from hand_capture.tracking.preprocess import cut_forearm
 
@@ -240,6 +245,8 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
             meshes.append(forearm_mesh(m, q, *draw_forearm(rng), label=ARM_LABEL))
         res = renderer.render(meshes, intr)
         depth = nm.apply_mm(res.depth, res.cos_incidence, intr, rng)
+        if artifact_prob > 0 and rng.random() < artifact_prob:
+            depth = depth_m_to_mm(add_artifacts(depth * DEPTH_UNIT_M, rng))
         obs = segment_hand(depth, intr, cfg)
         if len(obs.points) < 200:
             continue
@@ -283,8 +290,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
                   n_features: int = 300, leaf_modes: int = 2, augment: int = 2,
                   intrinsics: Intrinsics | None = None, log: Callable[[str], None] | None = None,
                   forearm_prob: float = 0.5, surface_mm: tuple[float, float] = (-1.0, 2.5),
-                  max_tilt_deg: float = 60.0, towards_prob: float = TOWARDS_PROB
-                  ) -> HandRegressor:
+                  max_tilt_deg: float = 60.0, towards_prob: float = TOWARDS_PROB,
+                  artifact_prob: float = ARTIFACT_PROB) -> HandRegressor:
     """Train the cascaded regressor from scratch, reproducibly from ``seed``.
 
     Args:
@@ -302,6 +309,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
         forearm_prob: share of samples rendered with a forearm (:func:`render_samples`).
         surface_mm: range of the per-sample surface offset [mm] (:func:`render_samples`).
         max_tilt_deg, towards_prob: the viewpoints of the training poses (:func:`random_pose`).
+        artifact_prob: share of samples with a stereo camera's artifacts
+            (:func:`render_samples`).
 
     Returns:
         The trained :class:`HandRegressor`.
@@ -316,7 +325,7 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
     frames = [ModelFrames(m) for m in models]
     samples = render_samples(n_samples, rng, models, intr, forearm_prob=forearm_prob,
                              surface_mm=surface_mm, max_tilt_deg=max_tilt_deg,
-                             towards_prob=towards_prob)
+                             towards_prob=towards_prob, artifact_prob=artifact_prob)
     say(f"rendered {len(samples)} samples in {time.perf_counter() - t_start:.1f} s")
     lookups = [DepthLookup(s.crop, s.u0, s.v0, intr) for s in samples]
     rest = ModelFrames(base).rest_vertices
@@ -440,6 +449,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--samples", type=int, default=TRAIN_SAMPLES)
     ap.add_argument("--towards", type=float, default=TOWARDS_PROB,
                     help="share of training poses with the fingers towards the camera")
+    ap.add_argument("--artifacts", type=float, default=ARTIFACT_PROB,
+                    help="share of training renders with a stereo camera's artifacts")
     ap.add_argument("--arm-out", default=str(tracker_dir / "arm.npz"))
     ap.add_argument("--arm-frames", type=int, default=ARM_FRAMES)
     ap.add_argument("--arm-only", action="store_true",
@@ -448,7 +459,7 @@ def main(argv: list[str] | None = None) -> int:
     limit_blas_threads(1)
     if not a.arm_only:
         train_tracker(a.out, seed=a.seed, n_samples=a.samples, towards_prob=a.towards,
-                      log=print)
+                      artifact_prob=a.artifacts, log=print)
     train_arm_classifier(a.arm_out, seed=a.seed, n_frames=a.arm_frames, log=print)
     return 0
 
