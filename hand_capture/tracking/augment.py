@@ -1,4 +1,4 @@
-"""Depth artifacts of stereo cameras, added to training renders of the tracker (issue 13).
+"""Depth artifacts of stereo cameras: tracker training renders, a validation family (issue 13).
 
 The suite's sensor model (:mod:`hand_capture.cameras.noise`) is that of an active sensor:
 axial noise, flying pixels, grazing dropouts. Stereo depth cameras (the RealSense D400
