@@ -519,6 +519,12 @@ def _validation_plan(quick: bool, smoke: bool = False
     return ARM_VAL_SEEDS, ("finger_counting", "wrist_rotation", "pinch", "fist"), 20, 3
 
 
+def validation_surface(seed: int, clip: str) -> SurfaceVariant:
+    """The surface validation family's surface of shape ``seed`` in motion ``clip`` (the
+    same in every section that uses that family)."""
+    return SurfaceVariant.sample(np.random.default_rng(seed * 10 + len(clip)))
+
+
 def surface_validation_section(reg, config, quick: bool,
                                variants: dict[str, tuple[str, object]] | None = None,
                                smoke: bool = False) -> dict:
@@ -542,7 +548,7 @@ def surface_validation_section(reg, config, quick: bool,
                                        for k in variants}
     for seed in seeds:
         for clip in clips:
-            v = SurfaceVariant.sample(np.random.default_rng(seed * 10 + len(clip)))
+            v = validation_surface(seed, clip)
             true, _, frames, kps, poses, calf = suite_surface_sequence(seed, clip, n, step, v)
             for name, (_, cfg) in variants.items():
                 cal = bench_calibrate(calf, model=base, config=cfg)
@@ -627,12 +633,11 @@ def capsule_validation_section(reg, config, quick: bool, smoke: bool = False) ->
 
 def with_artifacts(frames: list, seed: int) -> list:
     """``frames`` ((depth uint16 [mm], intrinsics) each) with a stereo camera's artifacts
-    (:func:`~hand_capture.tracking.augment.add_artifacts`, drawn from ``seed``)."""
-    from hand_capture.cameras.base import DEPTH_UNIT_M, depth_m_to_mm
-    from hand_capture.tracking.augment import add_artifacts
+    (:func:`~hand_capture.tracking.augment.add_artifacts_mm`, drawn from ``seed``)."""
+    from hand_capture.tracking.augment import add_artifacts_mm
 
     rng = np.random.default_rng(seed)
-    return [(depth_m_to_mm(add_artifacts(d * DEPTH_UNIT_M, rng)), intr) for d, intr in frames]
+    return [(add_artifacts_mm(d, rng), intr) for d, intr in frames]
 
 
 def stereo_validation_section(reg, config, quick: bool, smoke: bool = False) -> dict:
@@ -655,7 +660,7 @@ def stereo_validation_section(reg, config, quick: bool, smoke: bool = False) -> 
         for clip in clips:
             for family in errs:
                 surface = CapsuleSurface() if family == "capsule" else \
-                    SurfaceVariant.sample(np.random.default_rng(seed * 10 + len(clip)))
+                    validation_surface(seed, clip)
                 _, _, frames, kps, _, calf = suite_surface_sequence(seed, clip, n, step,
                                                                     surface)
                 art = 7000 + 100 * seed + 10 * len(clip) + (family == "capsule")

@@ -34,10 +34,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from hand_capture.cameras.base import DEPTH_UNIT_M, depth_m_to_mm
 from hand_capture.config import param, validate
 from hand_capture.errors import ConfigError, InputError
 
-__all__ = ["ArtifactConfig", "add_artifacts"]
+__all__ = ["ArtifactConfig", "add_artifacts", "add_artifacts_mm"]
 
 #: depth where ``wave_sd_mm`` applies [m]
 _WAVE_REF_M = 0.4
@@ -120,3 +121,10 @@ def add_artifacts(depth_m: np.ndarray, rng: np.random.Generator,
         m = d > 0
         d[m] += sd * (d[m] / _WAVE_REF_M) ** 2 * field[m]
     return d
+
+
+def add_artifacts_mm(depth_mm: np.ndarray, rng: np.random.Generator,
+                     config: ArtifactConfig | None = None) -> np.ndarray:
+    """:func:`add_artifacts` on a ``uint16`` millimetre image (``16UC1``, 0 = none), rounded
+    back to one."""
+    return depth_m_to_mm(add_artifacts(np.asarray(depth_mm) * DEPTH_UNIT_M, rng, config))

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hand_capture.cameras.base import DEPTH_UNIT_M, Intrinsics, depth_m_to_mm
+from hand_capture.cameras.base import Intrinsics
 from hand_capture.cameras.motion import FIST, GRASP, OPEN, PINCH, R_PALM_TO_CAMERA
 from hand_capture.cameras.noise import DepthNoiseConfig, DepthNoiseModel
 from hand_capture.cameras.render import Mesh, make_renderer
@@ -27,7 +27,7 @@ from hand_capture.cameras.transforms import rotvec_to_matrix
 from hand_capture.errors import InputError
 from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel, default_shape, sample_shape
 from hand_capture.model.joints import pose_from_dict, root_angles_from_matrix
-from hand_capture.tracking.augment import add_artifacts
+from hand_capture.tracking.augment import add_artifacts_mm
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.forest import RegressionForest
 from hand_capture.tracking.preprocess import segment_hand
@@ -222,7 +222,7 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
     the per-pixel arm classifier, :mod:`~hand_capture.tracking.armseg`). ``max_tilt_deg``
     and ``towards_prob`` set the viewpoints (:func:`random_pose`). A share
     ``artifact_prob`` of the images also gets a stereo camera's artifacts
-    (:func:`~hand_capture.tracking.augment.add_artifacts`) after the sensor model.
+    (:func:`~hand_capture.tracking.augment.add_artifacts_mm`) after the sensor model.
     """
     from hand_capture.tracking.preprocess import cut_forearm
 
@@ -246,7 +246,7 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
         res = renderer.render(meshes, intr)
         depth = nm.apply_mm(res.depth, res.cos_incidence, intr, rng)
         if artifact_prob > 0 and rng.random() < artifact_prob:
-            depth = depth_m_to_mm(add_artifacts(depth * DEPTH_UNIT_M, rng))
+            depth = add_artifacts_mm(depth, rng)
         obs = segment_hand(depth, intr, cfg)
         if len(obs.points) < 200:
             continue
