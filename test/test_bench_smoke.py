@@ -83,7 +83,9 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                   "val_surface_before_mean_mm", "heldout_before_mean_mm",
                   "heldout_truth_drift_mm", "val_surface_no_finger_postures_mean_mm",
                   "val_capsule_mean_mm", "val_capsule_reset_mean_mm",
-                  "val_stereo_surface_mean_mm", "val_stereo_capsule_mean_mm"), ()),
+                  "val_stereo_surface_mean_mm", "val_stereo_capsule_mean_mm",
+                  "val_table_mean_mm", "val_table_no_plane_mean_mm",
+                  "val_table_seg_table_pct"), ()),
 }
 
 
@@ -110,8 +112,11 @@ def _check_tracking(figures: dict, text: str) -> None:
     assert figures["calib_scales"] == [1.15]
     assert figures["calib_bone_err_pct"] >= figures["calib_bone_err_pct_mean"] > 0
     assert figures["calib_bone_err_pct_template"] > 5.0
+    # the table behind the hand: the segment's share on it, with and without the removal
+    for key in ("val_table", "val_table_no_plane"):
+        assert 0.0 <= figures[f"{key}_seg_table_pct"] <= 100.0
     for title in ("forearm frames", "classifier + cut", "held-out family", "d435_640",
-                  "bone-length", "surface-tolerance settings"):
+                  "bone-length", "surface-tolerance settings", "a table behind the hand"):
         assert title in text, title
 
 

@@ -302,7 +302,7 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
 
 
 def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bool = False,
-                           clutter: bool = False, sleeve: bool = False
+                           clutter: bool = False, sleeve: bool = False, table: bool = False
                            ) -> tuple[HandModel, Intrinsics, list, list, list]:
     """A sequence of the suite's own generator with a forearm in view: the synthetic
     camera's shape ``seed`` and motion ``clip`` (its mesh, rasteriser and noise model,
@@ -314,7 +314,10 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
     ``close`` a close-range wide camera (87 deg, 0.15 m nearer the hand: about 0.25 m);
     ``clutter`` a box of the suite's primitives (60-100 mm) 10 mm behind the palm that slides
     in from the side over the sequence until it touches the hand; ``sleeve`` a wider cylinder
-    (10-25 mm over the arm's radius) over the forearm from 40-80 mm past the wrist.
+    (10-25 mm over the arm's radius) over the forearm from 40-80 mm past the wrist;
+    ``table`` a plane filling the view (a table or a wall) 50-120 mm behind the first frame's
+    farthest keypoint, tilted up to 10 deg about both image axes, which the forearm runs
+    into (as an arm resting on a table joins it).
 
     Returns:
         ``(model, intrinsics, frames, keypoints, labels)``: the true model, the pinhole,
@@ -322,7 +325,7 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
         (21, 3) true keypoints [m] and (H, W) labels (1 hand, 2 forearm or sleeve, 4
         clutter, 0 other) of each.
     """
-    from hand_capture.cameras.primitives import box
+    from hand_capture.cameras.primitives import box, plane
     from hand_capture.cameras.render import Mesh, make_renderer
     from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
     from hand_capture.tracking.train import draw_forearm, forearm_mesh
@@ -341,6 +344,18 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
     frames, kps, labels = [], [], []
     obj = None
     idx = list(range(0, last + 1, step))[:n]
+    if table:   # drawn after the forearm: the other variants' draws stay the same
+        kp = cam.model.joint_positions(cam.truth_pose(idx[0] / 30.0))
+        centre = kp.mean(axis=0)
+        centre[2] = kp[:, 2].max() + rng.uniform(0.05, 0.12)
+        ax, ay = np.deg2rad(rng.uniform(-10.0, 10.0, 2))
+        rot = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(ax), -np.sin(ax)],
+                        [0.0, np.sin(ax), np.cos(ax)]]) @ np.array(
+            [[np.cos(ay), 0.0, np.sin(ay)], [0.0, 1.0, 0.0], [-np.sin(ay), 0.0, np.cos(ay)]])
+        tv, tf = plane((2.0, 2.0), n=16)
+        extra_meshes = [Mesh(tv @ rot.T + centre, tf, 254)]
+    else:
+        extra_meshes = []
     for k, i in enumerate(idx):
         t = i / 30.0
         pose = cam.truth_pose(t)
@@ -360,7 +375,7 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
             # it slides in from 120 mm away to the hand's side over the sequence
             gap = 0.12 * (1.0 - k / max(len(idx) - 1, 1))
             meshes.append(Mesh(obj[0] + c + side * gap, obj[1], 254, closed=True))
-        res = renderer.render(meshes, cam.intrinsics)
+        res = renderer.render(meshes + extra_meshes, cam.intrinsics)
         frames.append((cam.noise.apply_mm(res.depth, res.cos_incidence, cam.intrinsics, rng),
                        cam.intrinsics))
         kps.append(cam.model.joint_positions(pose))
@@ -787,6 +802,59 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
     return out
 
 
+def table_validation_section(reg, config, quick: bool, smoke: bool = False) -> dict:
+    """A table (or wall) behind the hand on the suite's generator (the forearm validation
+    sequences with :func:`suite_forearm_sequence` ``table``): the product against
+    ``plane_removal`` off in the same run, each calibrated per shape and tracked through;
+    also the segment against the true labels (share of the segment on the table, share of
+    the hand kept)."""
+    from hand_capture.bench.tracking import _run_mode, _summary
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    seeds, clips, n, step = _validation_plan(quick, smoke)
+    variants = {"product": ("val_table", config),
+                "no plane removal": ("val_table_no_plane",
+                                     dataclasses.replace(config, plane_removal=False))}
+    base = HandModel()
+    res: dict[str, list] = {name: [] for name in variants}
+    for seed in seeds:
+        for clip in clips:
+            true, intr, frames, kps, labels = suite_forearm_sequence(seed, clip, n, step,
+                                                                     table=True)
+            cal = _suite_calibration(true, intr, seed, base)
+            for name, (_, cfg) in variants.items():
+                tracker = HybridTracker(base, cfg, reg)
+                tracker.set_calibration(cal)
+                seg: list[tuple[float, float]] = []
+
+                def on_result(i: int, r, seg=seg, labels=labels, frames=frames) -> None:
+                    o = r.observation
+                    px = o.pixels if o is not None and o.found else np.zeros((0, 2))
+                    lab = labels[i][px[:, 1].astype(np.int64), px[:, 0].astype(np.int64)]
+                    seg.append((float(np.mean(lab == 4)) if len(lab) else 0.0,
+                                segment_quality(px, labels[i], frames[i][0])[1]))
+
+                e = _run_mode(tracker, frames, kps, on_result=on_result)[0]
+                table, kept = np.array(seg).T
+                res[name].append((e, table, kept))
+    rows, out = [], {}
+    for name, parts in res.items():
+        sm = _summary(np.concatenate([p[0] for p in parts]))
+        table_pct = 100.0 * float(np.mean(np.concatenate([p[1] for p in parts])))
+        kept_pct = float(np.mean(np.concatenate([p[2] for p in parts])))
+        rows.append([name, sm["mean"], sm["median"], sm["s20"], table_pct, kept_pct])
+        key = variants[name][0]
+        out.update({f"{key}_mean_mm": sm["mean"], f"{key}_success_20mm": sm["s20"],
+                    f"{key}_seg_table_pct": table_pct})
+    print_table(f"a table behind the hand (the forearm validation sequences, shapes {seeds}, "
+                "with a plane 50-120 mm behind the hand that the forearm runs into): "
+                "plane_removal against off, tracked through",
+                ["segmentation", "mean mm", "median mm", "succ@20", "seg table %",
+                 "hand kept %"], rows)
+    return out
+
+
 def _hard_forearm_validation(reg, config, seeds: tuple[int, ...], quick: bool) -> dict:
     """The arm classifier's failure case on the suite's generator (issue 13): a close-range
     wide camera, a sleeve over the forearm and a box sliding in until it touches the hand
@@ -1006,6 +1074,7 @@ def run_sections(reg, config, quick: bool, smoke: bool = False) -> dict:
     out.update(capsule_validation_section(reg, config, quick, smoke=smoke))
     out.update(stereo_validation_section(reg, config, quick, smoke=smoke))
     out.update(forearm_validation_section(reg, config, quick, smoke=smoke))
+    out.update(table_validation_section(reg, config, quick, smoke=smoke))
     out.update(calibration_section(quick, scales=(1.15,) if smoke else None))
     out.update(split_section(reg, config, quick, smoke))
     out.update(resolution_section(reg, config, quick))

@@ -49,6 +49,18 @@ class TrackerConfig:
                               "the camera (an object touching the hand; "
                               "preprocess.split_surfaces); its result is kept when it passes "
                               "eq. II.19 at a lower E_d")
+    plane_removal: bool = param(True, "drop a large plane (a table, a wall, the body) and "
+                                "everything behind it from a segment larger than "
+                                "plane_min_area_m2, then keep the surface nearest the camera "
+                                "(preprocess.drop_background_plane)")
+    plane_tol_m: float = param(0.01, "pixels this close to the plane belong to it [m]",
+                               lo=0.002, hi=0.05)
+    plane_min_area_m2: float = param(0.03, "a segment or plane smaller than this is no "
+                                     "background (the palm side of a hand is about 0.015) "
+                                     "[m^2]", lo=0.005, hi=1.0)
+    plane_min_width_m: float = param(0.12, "a plane narrower than this across its second axis "
+                                     "is no background (a forearm's side) [m]", lo=0.02,
+                                     hi=1.0)
     split_share: float = param(0.1, "split_retry drops pieces at least this share of the "
                                "segment", lo=0.01, hi=0.9)
     arm_model_file: str = param("", "trained arm classifier (.npz); empty = data/tracker/"

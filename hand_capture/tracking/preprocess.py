@@ -4,7 +4,9 @@ The dissertation's sensor sees the hand as the object nearest the camera (20-50 
 :func:`segment_hand` keeps the pixels in ``[near, far]``, finds the nearest depth ``z0``
 (a low percentile, robust to flying pixels), keeps the band ``[z0, z0 + band]``, and of the
 connected components of that band keeps the one holding the nearest pixels (ties: the
-largest). An optional wrist cut drops points far from the cloud centroid. Everything is
+largest). A large plane behind the hand (a table, a wall) is dropped with what lies behind
+it (:func:`drop_background_plane`). An optional wrist cut drops points far from the cloud
+centroid. Everything is
 vectorised (OpenCV's connected components), about 1 ms at 320x240.
 """
 
@@ -17,7 +19,7 @@ from hand_capture.cameras.base import Intrinsics
 from hand_capture.errors import InputError
 from hand_capture.tracking.config import TrackerConfig
 
-__all__ = ["HandObservation", "cut_forearm", "segment_hand"]
+__all__ = ["HandObservation", "cut_forearm", "drop_background_plane", "segment_hand"]
 
 
 class HandObservation:
@@ -233,6 +235,14 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
         cols = np.flatnonzero(mask.any(axis=0))
         r0, c0 = int(rows[0]), int(cols[0])
         mask_b = mask[r0:int(rows[-1]) + 1, c0:int(cols[-1]) + 1]
+    if cfg.plane_removal:
+        m2 = drop_background_plane(d, mask, intr, cfg)
+        if m2 is not None:
+            mask = m2
+            rows = np.flatnonzero(mask.any(axis=1))
+            cols = np.flatnonzero(mask.any(axis=0))
+            r0, c0 = int(rows[0]), int(cols[0])
+            mask_b = mask[r0:int(rows[-1]) + 1, c0:int(cols[-1]) + 1]
     v, u = np.nonzero(mask_b)
     v += r0
     u += c0
@@ -249,6 +259,106 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     depth_hand[v, u] = d[v, u]
     box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
     return HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
+
+
+def _area_m2(z: np.ndarray, intr: Intrinsics) -> float:
+    """The area [m^2] that pixels at depths ``z`` [m] cover, as seen from the camera."""
+    return float(np.sum(z * z)) / (intr.fx * intr.fy)
+
+
+def fit_plane_ransac(pts: np.ndarray, tol_m: float, rng: np.random.Generator,
+                     n_hypotheses: int = 96) -> tuple[np.ndarray, np.ndarray]:
+    """The plane through most of ``pts`` (RANSAC, Fischler and Bolles 1981): planes through
+    ``n_hypotheses`` random triplets, the one with most points within ``tol_m`` refitted to
+    those by least squares.
+
+    Args:
+        pts: (N, 3) points [m], N >= 3.
+        tol_m: inlier distance [m].
+        rng: the triplets' draw.
+
+    Returns:
+        ``(centre, normal)``: a point on the plane (3,) [m] and its unit normal (3,).
+    """
+    tri = pts[rng.integers(0, len(pts), (n_hypotheses, 3))]           # (k, 3, 3)
+    nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(nrm, axis=1)
+    ok = length > 1e-12
+    if not ok.any():
+        return pts.mean(axis=0), np.array([0.0, 0.0, 1.0])
+    nrm = nrm[ok] / length[ok, None]
+    off = -np.einsum("ij,ij->i", nrm, tri[ok, 0])
+    inl = np.abs(pts @ nrm.T + off) < tol_m                           # (N, k)
+    q = pts[inl[:, int(np.argmax(inl.sum(axis=0)))]]
+    c = q.mean(axis=0)
+    return c, np.linalg.svd(q - c, full_matrices=False)[2][2]
+
+
+def _nearest_component(mask: np.ndarray, d: np.ndarray) -> np.ndarray | None:
+    """Of the pixels ``mask`` (depth ``d`` [m]), the 8-connected component holding the
+    nearest pixels (within 1 cm of a low percentile of their depths, robust to flying
+    pixels; ties: the largest), as :func:`segment_hand` picks the band's."""
+    z = d[mask]
+    k = min(len(z) - 1, max(3, len(z) // 200))
+    z0 = float(np.partition(z, k)[k])
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return None
+    counts = np.bincount(lab[mask & (d <= z0 + 0.01)], minlength=n)
+    counts[0] = 0
+    score = counts * 1e6 + stats[:, cv2.CC_STAT_AREA]
+    score[0] = -1
+    return lab == int(np.argmax(score))
+
+
+def drop_background_plane(d: np.ndarray, mask: np.ndarray, intr: Intrinsics,
+                          cfg: TrackerConfig) -> np.ndarray | None:
+    """The segment without a large plane and what lies behind it: the hand's surface only.
+
+    An addition to ch. II.2's depth band: a table, a wall or the body less than ``band_m``
+    behind the hand joins the band's segment, and through a forearm resting on it the
+    surface grown out of the image (:func:`_grow_continuous`) holds all of it. A segment
+    covering more than ``plane_min_area_m2`` is searched for a plane
+    (:func:`fit_plane_ransac`, 600 of its pixels); a plane of that area whose pixels span
+    ``plane_min_width_m`` across its second axis (not a forearm's side, not a flat hand) is
+    background. Its pixels within ``plane_tol_m`` and all behind it are dropped, and of
+    the rest the component nearest the camera is kept (:func:`_nearest_component`).
+
+    Args:
+        d: (H, W) depth [m].
+        mask: (H, W) bool, the segment.
+        intr: pinhole of the image.
+        cfg: ``plane_*``, ``min_hand_pixels``.
+
+    Returns:
+        The new (H, W) mask, or None when no background plane was found (or fewer than
+        ``min_hand_pixels`` would be left).
+    """
+    v, u = np.nonzero(mask)
+    z = d[v, u].astype(np.float64)
+    if _area_m2(z, intr) < cfg.plane_min_area_m2:
+        return None
+    pts = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
+    rng = np.random.default_rng(len(z))   # deterministic per frame
+    sample = pts[rng.choice(len(pts), min(len(pts), 600), replace=False)]
+    c, normal = fit_plane_ransac(sample, cfg.plane_tol_m, rng)
+    r = (pts - c) @ normal
+    on = np.abs(r) < cfg.plane_tol_m
+    if _area_m2(z[on], intr) < cfg.plane_min_area_m2:
+        return None
+    q = pts[on] - pts[on].mean(axis=0)
+    across = q @ np.linalg.svd(q[:: max(len(q) // 2000, 1)], full_matrices=False)[2][1]
+    if np.percentile(across, 98) - np.percentile(across, 2) < cfg.plane_min_width_m:
+        return None
+    front = np.sign(-(c @ normal)) * r > cfg.plane_tol_m   # on the camera's side
+    if np.count_nonzero(front) < cfg.min_hand_pixels:
+        return None
+    rest = np.zeros_like(mask)
+    rest[v[front], u[front]] = True
+    out = _nearest_component(rest, d)
+    if out is None or np.count_nonzero(out) < cfg.min_hand_pixels:
+        return None
+    return out
 
 
 #: a pixel this close to the image border [px] may continue beyond the image
