@@ -202,9 +202,7 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     n_valid = int(np.count_nonzero(valid))
     if n_valid < cfg.min_hand_pixels:
         return _empty(d.shape, intr)
-    vals = d[valid]
-    z0 = float(np.partition(vals, min(len(vals) - 1, max(3, len(vals) // 200)))[
-        min(len(vals) - 1, max(3, len(vals) // 200))])
+    z0 = _low_depth(d[valid])
     band = valid & (d <= z0 + cfg.band_m)
     # components of the band, labelled in its bounding box only (same components, same
     # raster order of the labels as on the whole image)
@@ -217,13 +215,7 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
                                                         connectivity=8)
     if n <= 1:
         return _empty(d.shape, intr)
-    # the component holding the nearest pixels (those within 1 cm of z0), ties: largest
-    near_lab = lab[band_b & (d_b <= z0 + 0.01)]
-    counts = np.bincount(near_lab, minlength=n)
-    counts[0] = 0
-    score = counts * 1e6 + stats[:, cv2.CC_STAT_AREA]
-    score[0] = -1
-    best = int(np.argmax(score))
+    best = _nearest_label(lab, stats, band_b & (d_b <= z0 + 0.01))
     if int(stats[best, cv2.CC_STAT_AREA]) < cfg.min_hand_pixels:
         return _empty(d.shape, intr)
     mask_b = lab == best
@@ -231,18 +223,12 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     mask[r0:r1, c0:c1] = mask_b
     if cfg.grow_m > 0 and _touches_border(mask_b, r0, c0, d.shape):
         mask = _grow_continuous(d, valid, mask, z0 + cfg.band_m + cfg.grow_m, cfg)
-        rows = np.flatnonzero(mask.any(axis=1))
-        cols = np.flatnonzero(mask.any(axis=0))
-        r0, c0 = int(rows[0]), int(cols[0])
-        mask_b = mask[r0:int(rows[-1]) + 1, c0:int(cols[-1]) + 1]
+        mask_b, r0, c0 = _crop(mask)
     if cfg.plane_removal:
-        m2 = drop_background_plane(d, mask, intr, cfg)
-        if m2 is not None:
-            mask = m2
-            rows = np.flatnonzero(mask.any(axis=1))
-            cols = np.flatnonzero(mask.any(axis=0))
-            r0, c0 = int(rows[0]), int(cols[0])
-            mask_b = mask[r0:int(rows[-1]) + 1, c0:int(cols[-1]) + 1]
+        without = drop_background_plane(d, mask, intr, cfg)
+        if without is not None:
+            mask = without
+            mask_b, r0, c0 = _crop(mask)
     v, u = np.nonzero(mask_b)
     v += r0
     u += c0
@@ -259,6 +245,31 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     depth_hand[v, u] = d[v, u]
     box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
     return HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
+
+
+def _low_depth(z: np.ndarray) -> float:
+    """The nearest of depths ``z`` (N,) [m] but for stray pixels: the (N/200)-th smallest,
+    at least the fourth (flying pixels in front of the hand)."""
+    k = min(len(z) - 1, max(3, len(z) // 200))
+    return float(np.partition(z, k)[k])
+
+
+def _nearest_label(lab: np.ndarray, stats: np.ndarray, near: np.ndarray) -> int:
+    """Of the connected components ``lab`` (0 = none; ``stats`` from OpenCV), the one holding
+    most of the pixels ``near`` (bool, the image's shape); ties: the largest."""
+    counts = np.bincount(lab[near], minlength=len(stats))
+    counts[0] = 0
+    score = counts * 1e6 + stats[:, cv2.CC_STAT_AREA]
+    score[0] = -1
+    return int(np.argmax(score))
+
+
+def _crop(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """A non-empty mask's bounding-box crop and the crop's first row and column."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    r0, c0 = int(rows[0]), int(cols[0])
+    return mask[r0:int(rows[-1]) + 1, c0:int(cols[-1]) + 1], r0, c0
 
 
 def _area_m2(z: np.ndarray, intr: Intrinsics) -> float:
@@ -296,19 +307,12 @@ def fit_plane_ransac(pts: np.ndarray, tol_m: float, rng: np.random.Generator,
 
 def _nearest_component(mask: np.ndarray, d: np.ndarray) -> np.ndarray | None:
     """Of the pixels ``mask`` (depth ``d`` [m]), the 8-connected component holding the
-    nearest pixels (within 1 cm of a low percentile of their depths, robust to flying
-    pixels; ties: the largest), as :func:`segment_hand` picks the band's."""
-    z = d[mask]
-    k = min(len(z) - 1, max(3, len(z) // 200))
-    z0 = float(np.partition(z, k)[k])
+    nearest pixels (within 1 cm of :func:`_low_depth`), as :func:`segment_hand` picks the
+    band's."""
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     if n <= 1:
         return None
-    counts = np.bincount(lab[mask & (d <= z0 + 0.01)], minlength=n)
-    counts[0] = 0
-    score = counts * 1e6 + stats[:, cv2.CC_STAT_AREA]
-    score[0] = -1
-    return lab == int(np.argmax(score))
+    return lab == _nearest_label(lab, stats, mask & (d <= _low_depth(d[mask]) + 0.01))
 
 
 def drop_background_plane(d: np.ndarray, mask: np.ndarray, intr: Intrinsics,
