@@ -12,12 +12,15 @@ import numpy as np
 
 from hand_capture.bench._tracking_heldout import suite_forearm_sequence
 from hand_capture.cameras.base import Intrinsics
+from hand_capture.model import HandModel
 from hand_capture.tracking.config import TrackerConfig
+from hand_capture.tracking.hybrid import HybridTracker, default_model_path
 from hand_capture.tracking.preprocess import (
     drop_background_plane,
     fit_plane_ransac,
     segment_hand,
 )
+from hand_capture.tracking.regressor import HandRegressor
 
 INTR = Intrinsics(320, 240, 250.0, 250.0, 160.0, 120.0)
 OFF = dataclasses.replace(TrackerConfig(), plane_removal=False)
@@ -55,7 +58,9 @@ def test_a_table_the_forearm_runs_into_is_dropped_and_the_hand_kept() -> None:
     d, masks = _scene()
     before = _kept(segment_hand(d, INTR, OFF))
     assert before[masks["table"]].mean() > 0.9       # the band and the arm join the table
-    kept = _kept(segment_hand(d, INTR, TrackerConfig()))
+    obs = segment_hand(d, INTR, TrackerConfig())
+    assert obs.background_plane                      # said on the observation
+    kept = _kept(obs)
     assert kept[masks["table"]].mean() < 0.01        # the plane is gone
     assert kept[masks["hand"]].mean() > 0.97
     assert kept[masks["finger"]].mean() > 0.6        # a piece in front stays
@@ -70,6 +75,7 @@ def test_a_hand_and_forearm_alone_are_left_alone() -> None:
     cfg = TrackerConfig()
     on, off = segment_hand(d, INTR, cfg), segment_hand(d, INTR, OFF)
     assert np.array_equal(on.mask, off.mask)
+    assert not on.background_plane
     assert drop_background_plane(d, on.mask, INTR, cfg) is None
 
 
@@ -114,3 +120,14 @@ def test_the_benchs_table_scene_is_segmented_to_the_hand_and_arm() -> None:
             share = float(np.mean(lab[seg] == 4))
             assert table_share[0] <= share <= table_share[1]
         assert seg[measured_hand].mean() > 0.9
+
+
+def test_the_tracker_says_when_it_dropped_a_background_plane() -> None:
+    """``TrackResult.background_plane`` (the node's ``background_plane_share``)."""
+    _, intr, frames, _, _ = suite_forearm_sequence(21, "pinch", 1, 6, table=True)
+    _, _, alone, _, _ = suite_forearm_sequence(21, "pinch", 1, 6)
+    tracker = HybridTracker(HandModel(), TrackerConfig(), HandRegressor.load(
+        default_model_path()))
+    assert tracker.process(*frames[0]).background_plane
+    tracker.reset()
+    assert not tracker.process(*alone[0]).background_plane

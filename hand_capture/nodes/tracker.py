@@ -19,7 +19,8 @@ Publishes:
   start;
 * ``diagnostics``: rates, dropped and rejected frames (by reason), stage times (wall clock)
   and the CPU time per frame, the share of frames that ran the regression (below 1 with
-  ``regress_every`` > 1, the teleop graph's cheaper setting).
+  ``regress_every`` > 1, the teleop graph's cheaper setting), the share of frames whose
+  segment lost a background plane (a table or wall behind the hand, ``plane_removal``).
 
 Frames are never queued: the image callback keeps only the latest image and a short timer
 processes it, so a slow frame drops the ones that arrived meanwhile (counted). Parameters:
@@ -169,6 +170,7 @@ class TrackerNode(Node):
         self.proc_s = 0.0
         self.cpu_s = 0.0
         self.regressed = 0
+        self.background_plane = 0   # frames whose segment lost a background plane
         self.stage_s: Counter[str] = Counter()
         self.last_result: TrackResult | None = None
         self._diag_n, self._diag_t = 0, time.monotonic()
@@ -262,6 +264,7 @@ class TrackerNode(Node):
             self._reject("bad_image", _IMAGE, e)
             return None
         self._account(t0, c0, res.timing, res.regressed)
+        self.background_plane += int(res.background_plane)
         self.processed += 1
         self.status_count[res.status] += 1
         self.last_result = res
@@ -431,6 +434,7 @@ class TrackerNode(Node):
                 "proc_ms_mean": f"{1e3 * self.proc_s / n:.2f}",
                 "cpu_ms_mean": f"{1e3 * self.cpu_s / n:.2f}",
                 "regressed_share": f"{self.regressed / n:.2f}",
+                "background_plane_share": f"{self.background_plane / n:.2f}",
                 "mode": self.cfg.mode,
                 "last_cost_mm": f"{self.last_result.cost:.2f}" if self.last_result else "",
                 "shape_global_scale": f"{self.tracker.model.shape.global_scale:.4f}"}

@@ -134,6 +134,8 @@ class TrackResult:
         forearm_cut: whether a forearm was cut off the segmented hand
             (:func:`~hand_capture.tracking.preprocess.cut_forearm`).
         tau_mm: the success threshold of eq. II.19 used [mm] (:attr:`HybridTracker.tau_mm`).
+        background_plane: whether a background plane (a table, a wall) was dropped from
+            the frame's segment (``TrackerConfig.plane_removal``).
     """
 
     pose: np.ndarray
@@ -148,6 +150,7 @@ class TrackResult:
     regressed: bool = False
     forearm_cut: bool = False
     tau_mm: float = 0.0
+    background_plane: bool = False
 
 
 def pose_distance_sq(q: np.ndarray, p: np.ndarray) -> float:
@@ -319,6 +322,7 @@ class HybridTracker:
                 best.timing = r2.timing
                 for k, v in kept.items():
                     setattr(self, k, v)
+        best.background_plane = seg.background_plane
         return best
 
     def _process(self, obs: HandObservation, intr: Intrinsics, arm: ArmClassifier | None,

@@ -33,6 +33,8 @@ class HandObservation:
         intrinsics: the image's pinhole.
         box: ``(row0, row1, col0, col1)`` (end exclusive) bounding the hand pixels; None
             when no hand was found (or not given).
+        background_plane: whether :func:`segment_hand` dropped a background plane (a
+            table, a wall) from this segment (:func:`drop_background_plane`).
 
     :func:`segment_hand` back-projects the hand pixels only when ``points`` / ``pixels`` are
     read: a frame tracked from the previous pose needs only the subsample of
@@ -48,6 +50,7 @@ class HandObservation:
         self._pixels = pixels
         self.intrinsics = intrinsics
         self.box = box
+        self.background_plane = False
         self._vuz: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @classmethod
@@ -224,11 +227,10 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     if cfg.grow_m > 0 and _touches_border(mask_b, r0, c0, d.shape):
         mask = _grow_continuous(d, valid, mask, z0 + cfg.band_m + cfg.grow_m, cfg)
         mask_b, r0, c0 = _crop(mask)
-    if cfg.plane_removal:
-        without = drop_background_plane(d, mask, intr, cfg)
-        if without is not None:
-            mask = without
-            mask_b, r0, c0 = _crop(mask)
+    without = drop_background_plane(d, mask, intr, cfg) if cfg.plane_removal else None
+    if without is not None:
+        mask = without
+        mask_b, r0, c0 = _crop(mask)
     v, u = np.nonzero(mask_b)
     v += r0
     u += c0
@@ -244,7 +246,9 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     depth_hand = np.zeros(d.shape, np.float32)   # the hand's depth, 0 elsewhere
     depth_hand[v, u] = d[v, u]
     box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
-    return HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
+    obs = HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
+    obs.background_plane = without is not None
+    return obs
 
 
 def _low_depth(z: np.ndarray) -> float:
