@@ -48,6 +48,12 @@ def _scene(table: bool = True) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     return d.astype(np.float32), masks
 
 
+def _pixels(mask: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rows, columns and depths [m] of the pixels ``mask``."""
+    v, u = np.nonzero(mask)
+    return v, u, d[v, u].astype(np.float64)
+
+
 def _kept(obs) -> np.ndarray:
     m = np.zeros(obs.mask.shape, bool)
     m[obs.pixels[:, 1].astype(int), obs.pixels[:, 0].astype(int)] = True
@@ -76,7 +82,7 @@ def test_a_hand_and_forearm_alone_are_left_alone() -> None:
     on, off = segment_hand(d, INTR, cfg), segment_hand(d, INTR, OFF)
     assert np.array_equal(on.mask, off.mask)
     assert not on.background_plane
-    assert drop_background_plane(d, on.mask, INTR, cfg) is None
+    assert drop_background_plane(d, *_pixels(on.mask, d), INTR, cfg) is None
 
 
 def test_no_background_without_something_in_front_or_wide_enough() -> None:
@@ -84,13 +90,14 @@ def test_no_background_without_something_in_front_or_wide_enough() -> None:
     v, u = np.mgrid[0:240, 0:320]
     # a wall alone: nothing is in front of the plane
     wall = (0.5 + 0.0003 * (u - 160)).astype(np.float32)
-    assert drop_background_plane(wall, np.ones(wall.shape, bool), INTR, cfg) is None
+    assert drop_background_plane(wall, *_pixels(np.ones(wall.shape, bool), wall), INTR,
+                                 cfg) is None
     # a long planar strip (a forearm's side) larger than plane_min_area_m2 but narrow
     strip = (np.abs(u - 160) <= 15) & (v >= 0)
     d = np.where(strip, 0.6 + 0.0005 * (v - 120), 0.0).astype(np.float32)
     z = d[strip]
     assert float(np.sum(z * z)) / (INTR.fx * INTR.fy) > cfg.plane_min_area_m2
-    assert drop_background_plane(d, strip, INTR, cfg) is None
+    assert drop_background_plane(d, *_pixels(strip, d), INTR, cfg) is None
 
 
 def test_ransac_finds_the_plane_among_outliers() -> None:

@@ -227,14 +227,15 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     if cfg.grow_m > 0 and _touches_border(mask_b, r0, c0, d.shape):
         mask = _grow_continuous(d, valid, mask, z0 + cfg.band_m + cfg.grow_m, cfg)
         mask_b, r0, c0 = _crop(mask)
-    without = drop_background_plane(d, mask, intr, cfg) if cfg.plane_removal else None
-    if without is not None:
-        mask = without
-        mask_b, r0, c0 = _crop(mask)
     v, u = np.nonzero(mask_b)
     v += r0
     u += c0
     z = d[v, u].astype(np.float64)
+    keep = drop_background_plane(d, v, u, z, intr, cfg) if cfg.plane_removal else None
+    if keep is not None:
+        v, u, z = v[keep], u[keep], z[keep]
+        mask = np.zeros_like(mask)
+        mask[v, u] = True
     if cfg.wrist_cut_m > 0:
         pts = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
         keep = np.linalg.norm(pts - pts.mean(axis=0), axis=1) <= cfg.wrist_cut_m
@@ -247,7 +248,7 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     depth_hand[v, u] = d[v, u]
     box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
     obs = HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
-    obs.background_plane = without is not None
+    obs.background_plane = keep is not None
     return obs
 
 
@@ -319,9 +320,10 @@ def _nearest_component(mask: np.ndarray, d: np.ndarray) -> np.ndarray | None:
     return lab == _nearest_label(lab, stats, mask & (d <= _low_depth(d[mask]) + 0.01))
 
 
-def drop_background_plane(d: np.ndarray, mask: np.ndarray, intr: Intrinsics,
-                          cfg: TrackerConfig) -> np.ndarray | None:
-    """The segment without a large plane and what lies behind it: the hand's surface only.
+def drop_background_plane(d: np.ndarray, v: np.ndarray, u: np.ndarray, z: np.ndarray,
+                          intr: Intrinsics, cfg: TrackerConfig) -> np.ndarray | None:
+    """Which pixels of a segment stay when a large plane and what lies behind it go: the
+    hand's surface only.
 
     An addition to ch. II.2's depth band: a table, a wall or the body less than ``band_m``
     behind the hand joins the band's segment, and through a forearm resting on it the
@@ -334,16 +336,14 @@ def drop_background_plane(d: np.ndarray, mask: np.ndarray, intr: Intrinsics,
 
     Args:
         d: (H, W) depth [m].
-        mask: (H, W) bool, the segment.
+        v, u, z: (N,) the segment's pixel rows, columns and depths [m].
         intr: pinhole of the image.
         cfg: ``plane_*``, ``min_hand_pixels``.
 
     Returns:
-        The new (H, W) mask, or None when no background plane was found (or fewer than
-        ``min_hand_pixels`` would be left).
+        (N,) bool, the pixels kept; None when no background plane was found (or fewer
+        than ``min_hand_pixels`` would be left).
     """
-    v, u = np.nonzero(mask)
-    z = d[v, u].astype(np.float64)
     if _area_m2(z, intr) < cfg.plane_min_area_m2:
         return None
     pts = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
@@ -361,12 +361,13 @@ def drop_background_plane(d: np.ndarray, mask: np.ndarray, intr: Intrinsics,
     front = np.sign(-(c @ normal)) * r > cfg.plane_tol_m   # on the camera's side
     if np.count_nonzero(front) < cfg.min_hand_pixels:
         return None
-    rest = np.zeros_like(mask)
+    rest = np.zeros(d.shape, bool)
     rest[v[front], u[front]] = True
     out = _nearest_component(rest, d)
-    if out is None or np.count_nonzero(out) < cfg.min_hand_pixels:
+    if out is None:
         return None
-    return out
+    keep = out[v, u]
+    return keep if np.count_nonzero(keep) >= cfg.min_hand_pixels else None
 
 
 #: a pixel this close to the image border [px] may continue beyond the image
