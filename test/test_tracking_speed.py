@@ -6,7 +6,9 @@ depth lookup cropped to the hand."""
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
+import cv2
 import numpy as np
 import pytest
 
@@ -157,6 +159,57 @@ def test_batched_steps_and_costs_match_single_ones(scene):
     far = f.pose.copy()
     far[2] = -1.0  # behind the camera: nothing rendered
     assert tr.depth_cost(far, obs) == cfg.depth_cap_mm
+
+
+def _plain_render(V, intr, ds):
+    """Reference for render_depth: every vertex in front of the camera splatted into its
+    nearest pixel of the whole 1/ds image, nearest depth kept, one-pixel holes closed."""
+    H, W = (intr.height + ds - 1) // ds, (intr.width + ds - 1) // ds
+    img = np.full((H, W), np.inf, np.float32)
+    for x, y, z in V:
+        if not z > 1e-3:
+            continue
+        u = np.rint((intr.fx * x / z + intr.cx) / ds)
+        w = np.rint((intr.fy * y / z + intr.cy) / ds)
+        if 0 <= u < W and 0 <= w < H:
+            img[int(w), int(u)] = min(img[int(w), int(u)], np.float32(z))
+    occ = np.isfinite(img).astype(np.uint8)
+    k = np.ones((3, 3), np.uint8)
+    holes = (cv2.morphologyEx(occ, cv2.MORPH_CLOSE, k) > 0) & (occ == 0)
+    img[~np.isfinite(img)] = 1e3
+    img[holes] = cv2.erode(img, k)[holes]
+    img[img >= 1e3] = 0.0
+    return img
+
+
+def test_batched_rendering_matches_a_plain_z_buffer(scene):
+    """depth_costs renders all poses' vertices together: poses leaving the image, straddling
+    the camera plane and with vertices that are not finite give what a plain per-vertex
+    z-buffer gives, one pose at a time, without warnings."""
+    model, f, cfg, obs = scene
+    tr = ModelTracker(model, cfg)
+    ds = cfg.cost_downsample
+    o = obs.depth_m[::ds, ::ds]
+    Q = np.repeat(f.pose[None], 4, axis=0)
+    Q[1, 0] += 0.12                      # half out of the image
+    Q[2, 2] = 0.01                       # the hand straddles the camera plane
+    Q[3, 0:3] += (0.01, -0.005, 0.02)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        costs = tr.depth_costs(Q, obs, o)
+        for b in range(4):
+            ref = _plain_render(model.vertices(Q[b]), obs.intrinsics, ds)
+            assert costs[b] == depth_error(ref, o, cfg.depth_cap_mm)
+            assert tr.depth_cost(Q[b], obs) == costs[b]
+        # points no model pose gives: on the camera plane, behind it, closer than 1 mm,
+        # not finite; dropped, not drawn (a point 2 mm away in the middle is drawn)
+        odd = [[0, 0, 0], [0.01, 0, 0], [0, 0, -0.1], [1e-5, 0, 5e-4], [np.nan, 0, 0.4],
+               [0, 0, np.nan], [np.inf, 0, 0.4], [0, 0, 2e-3]]
+        V = np.r_[model.vertices(Q[0]), odd]
+        got = render_depth(V, obs.intrinsics, ds)
+        np.testing.assert_array_equal(got, _plain_render(V, obs.intrinsics, ds))
+        assert np.count_nonzero(got == np.float32(2e-3)) == 1
+    assert 0 < costs[0] < costs[1] < cfg.depth_cap_mm
 
 
 @pytest.fixture(scope="module")

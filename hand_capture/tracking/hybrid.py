@@ -71,7 +71,7 @@ from hand_capture.model import (
 from hand_capture.model.joints import root_rotation_matrix
 from hand_capture.tracking.armseg import ArmClassifier, load_arm_classifier, remove_arm
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.icp import ModelTracker
+from hand_capture.tracking.icp import ModelTracker, downsampled_depth
 from hand_capture.tracking.preprocess import (
     HandObservation,
     cut_forearm,
@@ -360,7 +360,7 @@ class HybridTracker:
                                self.last_good, 0, timing, obs, tau_mm=self.tau_mm), dropped, cloud
         pts = obs.subsample(cfg.max_points)
         ds = cfg.cost_downsample
-        obs_ds = obs.depth_m[::ds, ::ds]
+        obs_ds = downsampled_depth(obs, ds)
 
         pool: list[tuple[np.ndarray, np.ndarray]] = []  # (pose, regression reference)
         mode = cfg.mode
@@ -450,7 +450,7 @@ class HybridTracker:
             if cut2 and obs2.n_points != obs.n_points:
                 obs, cut = obs2, True
                 pts = obs.subsample(cfg.max_points)
-                obs_ds = obs.depth_m[::ds, ::ds]
+                obs_ds = downsampled_depth(obs, ds)
                 q = self.icp.refine_batch([q], obs, cfg.icp_iterations,
                                           q_refs=[pool[best][1]], points=pts)[0]
                 c2 = self._costs([q], obs, obs_ds)[0]
@@ -485,15 +485,7 @@ class HybridTracker:
         q, c = qs[best].copy(), costs[best]
         changed = False
         for dofs in FINGER_DOFS:
-            trials = []
-            donors = [qj[dofs] for j, qj in enumerate(qs) if j != best]
-            if self.cfg.finger_postures:
-                donors += _finger_postures(q, dofs)
-            for d in donors:
-                if not np.allclose(d, q[dofs]):
-                    t = q.copy()
-                    t[dofs] = d
-                    trials.append(t)
+            trials = self._finger_trials(q, dofs, qs, best)
             if not trials:
                 continue
             tc = self._costs(trials, obs, obs_ds)
@@ -507,6 +499,24 @@ class HybridTracker:
             if c2[0] < c[0]:
                 q, c = q2, c2
         return q, c
+
+    def _finger_trials(self, q: np.ndarray, dofs: np.ndarray, qs: list[np.ndarray],
+                       best: int) -> list[np.ndarray]:
+        """:meth:`_swap_fingers`' trials for one finger: ``q`` with the finger's angles
+        ``dofs`` taken from each other candidate of ``qs`` (and, with ``finger_postures``,
+        set straight or curled), those that change them."""
+        donors = [qj[dofs] for j, qj in enumerate(qs) if j != best]
+        if self.cfg.finger_postures:
+            donors += _finger_postures(q, dofs)
+        cur = q[dofs]
+        tol = 1e-8 + 1e-5 * np.abs(cur)   # np.allclose's test (finite angles)
+        trials = []
+        for d in donors:
+            if not np.all(np.abs(d - cur) <= tol):
+                t = q.copy()
+                t[dofs] = d
+                trials.append(t)
+        return trials
 
     def _palm_modes(self, obs: HandObservation, intr: Intrinsics
                     ) -> tuple[DepthLookup, list[np.ndarray]]:

@@ -33,6 +33,7 @@ has no points.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -46,7 +47,7 @@ from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.preprocess import HandObservation
 
 __all__ = ["Correspondences", "ModelTracker", "beyond_wrist", "depth_error",
-           "huber_sqrt_weights", "optional_vertices", "render_depth"]
+           "downsampled_depth", "huber_sqrt_weights", "optional_vertices", "render_depth"]
 
 _MM = 1000.0
 #: per-DoF unit scale of E_smooth: root translation in mm, angles in rad
@@ -94,16 +95,48 @@ def _render_window(vertices: np.ndarray, intr: Intrinsics, ds: int,
     """:func:`render_depth` computed in a window only: ``(image, row0, col0)``. The window
     holds every splatted pixel with a 2-pixel margin (so the 3x3 closing is the same as on
     the whole image) and the rows / columns ``box = (r0, r1, c0, c1)`` (end exclusive)."""
-    W = (intr.width + ds - 1) // ds
-    H = (intr.height + ds - 1) // ds
-    z = vertices[:, 2]
-    ok = z > 1e-3
-    v = vertices[ok]
-    z = z[ok]
-    u = np.rint((intr.fx * v[:, 0] / z + intr.cx) / ds).astype(np.int64)
-    w = np.rint((intr.fy * v[:, 1] / z + intr.cy) / ds).astype(np.int64)
-    inside = (u >= 0) & (u < W) & (w >= 0) & (w < H)
-    u, w, z = u[inside], w[inside], z[inside]
+    return next(_render_windows(vertices[None], intr, ds, box))
+
+
+def _render_windows(Vs: np.ndarray, intr: Intrinsics, ds: int,
+                    box: tuple[int, int, int, int] | None
+                    ) -> Iterator[tuple[np.ndarray, int, int]]:
+    """:func:`_render_window` of every pose's vertices ``Vs`` (B, V, 3), in order: the
+    pixels of all poses are computed together (the same numbers as one pose at a time)."""
+    for u, w, z in _vertex_pixels(Vs, intr, ds):
+        yield _splat_window(u, w, z, *_image_size(intr, ds), box)
+
+
+def _image_size(intr: Intrinsics, ds: int) -> tuple[int, int]:
+    """(rows, columns) of the image at ``1/ds`` resolution."""
+    return (intr.height + ds - 1) // ds, (intr.width + ds - 1) // ds
+
+
+def _vertex_pixels(Vs: np.ndarray, intr: Intrinsics, ds: int
+                   ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per pose of ``Vs`` (B, N, 3): the nearest pixels (column ``u``, row ``w``, int64) at
+    ``1/ds`` resolution of its points in front of the camera and inside the image, and
+    their depths ``z`` (float32) [m]; all poses' points projected together."""
+    H, W = _image_size(intr, ds)
+    Z = Vs[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):   # dropped below: z <= 1 mm, NaN
+        U = np.rint((intr.fx * Vs[..., 0] / Z + intr.cx) / ds)     # (B, N) pixel columns
+        R = np.rint((intr.fy * Vs[..., 1] / Z + intr.cy) / ds)     # (B, N) pixel rows
+    ok = (Z > 1e-3) & (U >= 0) & (U < W) & (R >= 0) & (R < H)
+    Z32 = Z.astype(np.float32)
+    out = []
+    for b in range(len(Vs)):
+        u, w, z = U[b], R[b], Z32[b]
+        if not ok[b].all():
+            u, w, z = u[ok[b]], w[ok[b]], z[ok[b]]
+        out.append((u.astype(np.int64), w.astype(np.int64), z))
+    return out
+
+
+def _splat_window(u: np.ndarray, w: np.ndarray, z: np.ndarray, H: int, W: int,
+                  box: tuple[int, int, int, int] | None) -> tuple[np.ndarray, int, int]:
+    """Z-buffer of depths ``z`` (N,) float32 [m] at pixels (``w`` row, ``u`` column), all
+    inside the H x W image, with the one-pixel holes closed: ``(window, row0, col0)``."""
     rows = [] if box is None else [box[0], box[1] - 1]
     cols = [] if box is None else [box[2], box[3] - 1]
     if len(u):
@@ -115,7 +148,7 @@ def _render_window(vertices: np.ndarray, intr: Intrinsics, ds: int,
     c0, c1 = max(min(cols), 0), min(max(cols) + 1, W)
     h, wd = r1 - r0, c1 - c0
     buf = np.full(h * wd, _FAR, np.float32)
-    np.minimum.at(buf, (w - r0) * wd + (u - c0), z.astype(np.float32))
+    np.minimum.at(buf, (w - r0) * wd + (u - c0), z)
     buf = buf.reshape(h, wd)
     occ = (buf < _FAR).astype(np.uint8)
     closed = cv2.morphologyEx(occ, cv2.MORPH_CLOSE, _K3)
@@ -124,6 +157,12 @@ def _render_window(vertices: np.ndarray, intr: Intrinsics, ds: int,
         buf[holes] = cv2.erode(buf, _K3)[holes]
     buf[buf >= _FAR] = 0.0
     return buf, r0, c0
+
+
+def downsampled_depth(obs: HandObservation, ds: int) -> np.ndarray:
+    """The segmented depth image [m] of ``obs`` at ``1/ds`` resolution (every ``ds``-th row
+    and column), as a contiguous array: the E_d of eq. II.19 reads it once per pose."""
+    return np.ascontiguousarray(obs.depth_m[::ds, ::ds])
 
 
 def depth_error(rendered_m: np.ndarray, observed_m: np.ndarray, cap_mm: float) -> float:
@@ -138,8 +177,9 @@ def depth_error(rendered_m: np.ndarray, observed_m: np.ndarray, cap_mm: float) -
     n = int(np.count_nonzero(union))
     if n == 0:
         return float(cap_mm)
-    diff = np.abs(r[union] - o[union]) * _MM
-    both = (r[union] > 0) & (o[union] > 0)
+    ru, ou = r[union], o[union]
+    diff = np.abs(ru - ou) * _MM
+    both = (ru > 0) & (ou > 0)
     diff = np.where(both, np.minimum(diff, cap_mm), cap_mm)
     return float(diff.sum() / n)
 
@@ -580,19 +620,24 @@ class ModelTracker:
                     observed_ds: np.ndarray | None = None) -> np.ndarray:
         """:meth:`depth_cost` of poses (B, 27) (one skinning pass for all)."""
         ds = self.cfg.cost_downsample
-        o = observed_ds if observed_ds is not None else obs.depth_m[::ds, ::ds]
-        box = self._observed_box(o)
+        o = observed_ds if observed_ds is not None else downsampled_depth(obs, ds)
         Q = np.array(Q, dtype=np.float64, ndmin=2)
-        out = np.empty(len(Q))
         if not len(Q):
-            return out
-        Vs = self.model.vertices(Q)
-        for b, V in enumerate(Vs):
-            r, r0, c0 = _render_window(V, obs.intrinsics, ds, box)
-            # both silhouettes lie inside the window: E_d over it is E_d over the image
+            return np.empty(0)
+        return self._window_errors(
+            _render_windows(self.model.vertices(Q), obs.intrinsics, ds, self._observed_box(o)),
+            o)
+
+    def _window_errors(self, wins: Iterable[tuple[np.ndarray, int, int]], o: np.ndarray
+                       ) -> np.ndarray:
+        """E_d of eq. II.19 of each rendered window ``(image, row0, col0)`` against the
+        observed image ``o`` (both silhouettes lie inside the window, so E_d over it is E_d
+        over the image)."""
+        out = []
+        for r, r0, c0 in wins:
             ob = o[r0:r0 + r.shape[0], c0:c0 + r.shape[1]]
-            out[b] = depth_error(r[:ob.shape[0], :ob.shape[1]], ob, self.cfg.depth_cap_mm)
-        return out
+            out.append(depth_error(r[:ob.shape[0], :ob.shape[1]], ob, self.cfg.depth_cap_mm))
+        return np.array(out)
 
     def _observed_box(self, o: np.ndarray) -> tuple[int, int, int, int] | None:
         """Rows / columns (r0, r1, c0, c1) holding the hand pixels of ``o`` (kept while the
