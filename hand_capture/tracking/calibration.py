@@ -187,6 +187,8 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
     if not frames:
         raise InputError("calibration needs at least one depth frame")
     cfg = config or TrackerConfig()
+    # the pose fits' smoothness term holds a pose near its start, not the previous frame
+    cfg = replace(cfg, smooth_weight=cfg.calibration_smooth_weight)
     model = model or HandModel()
     presets = list(CALIBRATION_POSES.values())
     if finger_poses is None:
