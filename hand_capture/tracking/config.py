@@ -98,6 +98,14 @@ class TrackerConfig:
     smooth_weight: float = param(50.0, "lambda_2, smoothness term weight (eq. II.24; "
                                  "translations in mm, angles in rad; the paper's 0.2 is "
                                  "too weak against a data term in mm)", lo=0.0)
+    # the previous pose damps fast wrist motion as much as jitter with the weight of 50:
+    # the in-distribution translation clip lagged 2.6 -> 6.0 mm (twenty-fourth session)
+    smooth_predict: str = param(
+        "translation", "reference of the smoothness term (eq. II.24): the previous pose "
+        "(off), or that pose moved on by the change between the last two tracked frames "
+        "(constant velocity) in the global translation only, or in every degree of freedom "
+        "(pose)",
+        choices=("off", "translation", "pose"))
     calibration_smooth_weight: float = param(
         0.2, "lambda_2 in the calibration's pose fits, which hold each pose near its own "
         "start, not a previous frame (II.3.6; the paper's 0.2: 50 pulled the fitted scales "

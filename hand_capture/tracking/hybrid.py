@@ -245,6 +245,7 @@ class HybridTracker:
         self.prev: np.ndarray | None = None if initial_pose is None else \
             np.asarray(initial_pose, float).copy()
         self.delta = initial_pose is not None
+        self._prev2: np.ndarray | None = None  # the pose before prev, both tracked
         self.last_good: np.ndarray | None = self.prev
         self.frame_count = 0
         self._since_regression = 0
@@ -424,7 +425,7 @@ class HybridTracker:
                 np.argsort([c[0] for c in costs])[:cfg.refine_top]
             t = time.perf_counter()
             track = self.delta and self.prev is not None
-            refs = [self.prev if track else pool[i][1] for i in order]
+            refs = [self._smooth_ref() if track else pool[i][1] for i in order]
             refined = list(self.icp.refine_batch([pool[i][0] for i in order], obs,
                                                  cfg.icp_iterations, q_refs=refs, points=pts))
             timing["icp"] += time.perf_counter() - t
@@ -463,6 +464,7 @@ class HybridTracker:
             self.last_good = q.copy()
         else:
             status = "lost"
+        self._prev2 = self.prev if (self.delta and success) else None
         self.prev = q.copy()
         self.delta = success
         self._prev_cost = e_d
@@ -493,12 +495,26 @@ class HybridTracker:
             if tc[k][0] < c[0]:
                 q, c, changed = trials[k], tc[k], True
         if changed:
-            ref = self.prev if (self.delta and self.prev is not None) else q
+            ref = self._smooth_ref() if (self.delta and self.prev is not None) else q
             q2 = self.icp.refine_batch([q], obs, 1, q_refs=[ref], points=pts)[0]
             c2 = self._costs([q2], obs, obs_ds)[0]
             if c2[0] < c[0]:
                 q, c = q2, c2
         return q, c
+
+    def _smooth_ref(self) -> np.ndarray:
+        """Reference of the smoothness term (eq. II.24) while tracking: the previous pose,
+        or with ``smooth_predict`` that pose moved on at the last frame's velocity (a
+        departure from II.24, which damps steady motion as much as jitter)."""
+        assert self.prev is not None
+        how = self.cfg.smooth_predict
+        if how == "off" or self._prev2 is None:
+            return self.prev
+        d = self.prev - self._prev2
+        d[3:] = (d[3:] + np.pi) % (2 * np.pi) - np.pi  # angles compared modulo 2 pi
+        if how == "translation":
+            d[3:] = 0.0
+        return self.prev + d
 
     def _finger_trials(self, q: np.ndarray, dofs: np.ndarray, qs: list[np.ndarray],
                        best: int) -> list[np.ndarray]:
