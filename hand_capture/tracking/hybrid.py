@@ -71,7 +71,7 @@ from hand_capture.model import (
 from hand_capture.model.joints import root_rotation_matrix
 from hand_capture.tracking.armseg import ArmClassifier, load_arm_classifier, remove_arm
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.icp import ModelTracker, downsampled_depth
+from hand_capture.tracking.icp import ModelTracker, downsampled_depth, wrap_angles
 from hand_capture.tracking.preprocess import (
     HandObservation,
     cut_forearm,
@@ -511,7 +511,7 @@ class HybridTracker:
         if how == "off" or self._prev2 is None:
             return self.prev
         d = self.prev - self._prev2
-        d[3:] = (d[3:] + np.pi) % (2 * np.pi) - np.pi  # angles compared modulo 2 pi
+        d[3:] = wrap_angles(d[3:])
         if how == "translation":
             d[3:] = 0.0
         return self.prev + d

@@ -47,7 +47,8 @@ from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.preprocess import HandObservation
 
 __all__ = ["Correspondences", "ModelTracker", "beyond_wrist", "depth_error",
-           "downsampled_depth", "huber_sqrt_weights", "optional_vertices", "render_depth"]
+           "downsampled_depth", "huber_sqrt_weights", "optional_vertices", "render_depth",
+           "wrap_angles"]
 
 _MM = 1000.0
 #: per-DoF unit scale of E_smooth: root translation in mm, angles in rad
@@ -57,6 +58,11 @@ _LIM_HI = JOINT_LIMITS[:, 1]
 _ANGLE_DOFS = np.arange(3, N_DOF)
 _FAR = np.float32(1e3)
 _K3 = np.ones((3, 3), np.uint8)
+
+
+def wrap_angles(a: np.ndarray) -> np.ndarray:
+    """Angle differences [rad] taken modulo 2 pi into [-pi, pi)."""
+    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 @dataclass
@@ -433,7 +439,7 @@ class ModelTracker:
             s = _SMOOTH_SCALE[dofs]
             d = q[dofs] - q_ref[dofs]
             ang = dofs >= 3
-            d[ang] = (d[ang] + np.pi) % (2 * np.pi) - np.pi  # angles compared modulo 2 pi
+            d[ang] = wrap_angles(d[ang])
             r = d * s
             A[np.diag_indices(n)] += cfg.smooth_weight * s * s
             g += cfg.smooth_weight * s * r
@@ -568,7 +574,7 @@ class ModelTracker:
         if q_ref is not None and cfg.smooth_weight > 0:
             d = qd - q_ref[dofs]
             a = dt.ang
-            d[a] = (d[a] + np.pi) % (2 * np.pi) - np.pi  # angles compared modulo 2 pi
+            d[a] = wrap_angles(d[a])
             diag[dt.diag] += cfg.smooth_weight * dt.scale_sq
             g += cfg.smooth_weight * dt.scale_sq * d
         if cfg.limit_weight > 0:
