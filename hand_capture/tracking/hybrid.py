@@ -425,7 +425,8 @@ class HybridTracker:
                 np.argsort([c[0] for c in costs])[:cfg.refine_top]
             t = time.perf_counter()
             track = self.delta and self.prev is not None
-            refs = [self._smooth_ref() if track else pool[i][1] for i in order]
+            ref = self._smooth_ref() if track else None
+            refs = [ref if track else pool[i][1] for i in order]
             refined = list(self.icp.refine_batch([pool[i][0] for i in order], obs,
                                                  cfg.icp_iterations, q_refs=refs, points=pts))
             timing["icp"] += time.perf_counter() - t
@@ -511,9 +512,7 @@ class HybridTracker:
         if how == "off" or self._prev2 is None:
             return self.prev
         d = self.prev - self._prev2
-        d[3:] = wrap_angles(d[3:])
-        if how == "translation":
-            d[3:] = 0.0
+        d[3:] = 0.0 if how == "translation" else wrap_angles(d[3:])
         return self.prev + d
 
     def _finger_trials(self, q: np.ndarray, dofs: np.ndarray, qs: list[np.ndarray],
