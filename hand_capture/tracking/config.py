@@ -90,6 +90,16 @@ class TrackerConfig:
                                    "[m, at template size]", lo=0.02, hi=0.2)
     max_points: int = param(160, "observed points used per ICP iteration (subsampled)",
                             lo=16, hi=20000)
+    # a stereo camera's short gaps (tracking/preprocess.py, fill_row_gaps): chosen on the
+    # stereo validation family (bench tracking's val_stereo_*)
+    fill_band_px: int = param(4, "gaps along a row up to this long beside a depth step take "
+                              "the farther side's depth (a stereo camera's occlusion band; "
+                              "0 = off) [px]", lo=0, hi=16)
+    fill_hole_px: int = param(3, "gaps along a row or column up to this long between "
+                              "similar depths are interpolated (matching holes; 0 = off) "
+                              "[px]", lo=0, hi=16)
+    fill_step_m: float = param(0.015, "depth difference across a gap that makes it an "
+                               "occlusion band, not a hole [m]", lo=0.001, hi=0.5)
     # -- model-based tracking (II.5.2) ---------------------------------------------------
     data_weight: float = param(1.0, "lambda_1, data term weight (eq. II.21; residuals in mm)",
                                lo=0.0)

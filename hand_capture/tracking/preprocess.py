@@ -183,6 +183,51 @@ def check_depth(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
     raise InputError(f"depth image must be uint16 [mm] or float [m], got {d.dtype}")
 
 
+def fill_row_gaps(d: np.ndarray, max_px: int, step_m: float, flat_px: int = 0) -> np.ndarray:
+    """Fill short horizontal runs of missing depth (0) in ``d`` (H, W) [m], in place.
+
+    A stereo camera's occlusion band lies along its baseline (the rows) beside a nearer
+    surface: a run of at most ``max_px`` pixels between two measured pixels whose depths
+    differ by more than ``step_m`` takes the farther one's depth (the surface the band
+    hid). ``flat_px`` > 0 also fills runs of at most that many pixels between two pixels
+    within ``step_m`` of each other, linearly (a matching hole)."""
+    H, W = d.shape
+    src = d.copy()
+    for k in range(1, max(max_px, flat_px) + 1):
+        if k + 2 > W:
+            break
+        left = src[:, :W - k - 1]
+        right = src[:, k + 1:]
+        gap = (left > 0) & (right > 0)
+        for j in range(1, k + 1):
+            gap &= src[:, j:W - k - 1 + j] == 0
+        if not gap.any():
+            continue
+        diff = np.abs(left - right)
+        step = gap & (diff > step_m) & (k <= max_px)
+        flat = gap & (diff <= step_m) & (k <= flat_px)
+        r, c = np.nonzero(step | flat)
+        if not len(r):
+            continue
+        lv, rv = left[r, c], right[r, c]
+        is_step = step[r, c]
+        for j in range(1, k + 1):
+            t = j / (k + 1)
+            d[r, c + j] = np.where(is_step, np.maximum(lv, rv), (1 - t) * lv + t * rv)
+    return d
+
+
+def fill_gaps(d: np.ndarray, cfg: TrackerConfig) -> np.ndarray:
+    """Fill a stereo camera's short gaps in ``d`` (H, W) [m] with ``cfg``'s settings, in
+    place: :func:`fill_row_gaps` along the rows (bands and holes), then the holes along the
+    columns."""
+    if cfg.fill_band_px > 0 or cfg.fill_hole_px > 0:
+        fill_row_gaps(d, cfg.fill_band_px, cfg.fill_step_m, cfg.fill_hole_px)
+    if cfg.fill_hole_px > 0:
+        fill_row_gaps(d.T, 0, cfg.fill_step_m, cfg.fill_hole_px)
+    return d
+
+
 def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None = None
                  ) -> HandObservation:
     """Segment the hand (nearest connected component in a depth band) and back-project it.
@@ -201,6 +246,7 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     """
     cfg = cfg or TrackerConfig()
     d = check_depth(depth, intr)
+    fill_gaps(d, cfg)
     valid = (d > cfg.near_m) & (d < cfg.far_m)
     n_valid = int(np.count_nonzero(valid))
     if n_valid < cfg.min_hand_pixels:
