@@ -18,7 +18,7 @@ from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel, HandShape
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.forest import ForestGroup, RegressionForest, weighted_kmeans
 from hand_capture.tracking.icp import ModelTracker, depth_error, render_depth
-from hand_capture.tracking.preprocess import segment_hand
+from hand_capture.tracking.preprocess import fill_gaps, segment_hand
 from hand_capture.tracking.regressor import (
     FINGER_KP,
     DepthLookup,
@@ -301,7 +301,8 @@ def test_fast_step_matches_the_normal_equations_for_other_weights_and_dofs(scene
 
 def test_hand_box_and_the_cropped_depth_lookup(scene):
     model, f, cfg, obs = scene
-    d = f.depth.astype(np.float32) * np.float32(0.001)
+    # the segment's depth is the image's after the stereo gaps are filled (fill_gaps)
+    d = fill_gaps(f.depth.astype(np.float32) * np.float32(0.001), cfg)
     np.testing.assert_array_equal(obs.depth_m, np.where(obs.mask, d, 0.0))
     r0, r1, c0, c1 = obs.box
     rows, cols = np.flatnonzero(obs.mask.any(axis=1)), np.flatnonzero(obs.mask.any(axis=0))

@@ -107,7 +107,9 @@ def segment_quality(pixels: np.ndarray, label: np.ndarray, depth: np.ndarray
     lab = label[px[:, 1], px[:, 0]]
     arm = 100.0 * float(np.mean((lab == 2) | (lab == 3))) if len(lab) else 0.0
     n_hand = int(np.count_nonzero((label == 1) & (depth > 0)))
-    kept = 100.0 * np.count_nonzero(lab == 1) / n_hand if n_hand else 100.0
+    # measured pixels only (the tracker fills a stereo camera's short gaps: fill_gaps)
+    measured = depth[px[:, 1], px[:, 0]] > 0
+    kept = 100.0 * np.count_nonzero((lab == 1) & measured) / n_hand if n_hand else 100.0
     return arm, float(kept)
 
 
