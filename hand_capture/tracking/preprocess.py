@@ -190,30 +190,30 @@ def fill_row_gaps(d: np.ndarray, max_px: int, step_m: float, flat_px: int = 0) -
     surface: a run of at most ``max_px`` pixels between two measured pixels whose depths
     differ by more than ``step_m`` takes the farther one's depth (the surface the band
     hid). ``flat_px`` > 0 also fills runs of at most that many pixels between two pixels
-    within ``step_m`` of each other, linearly (a matching hole)."""
+    within ``step_m`` of each other, linearly (a matching hole). Runs that reach the
+    image's edge are left alone."""
     H, W = d.shape
-    src = d.copy()
-    for k in range(1, max(max_px, flat_px) + 1):
-        if k + 2 > W:
-            break
-        left = src[:, :W - k - 1]
-        right = src[:, k + 1:]
-        gap = (left > 0) & (right > 0)
-        for j in range(1, k + 1):
-            gap &= src[:, j:W - k - 1 + j] == 0
-        if not gap.any():
-            continue
-        diff = np.abs(left - right)
-        step = gap & (diff > step_m) & (k <= max_px)
-        flat = gap & (diff <= step_m) & (k <= flat_px)
-        r, c = np.nonzero(step | flat)
-        if not len(r):
-            continue
-        lv, rv = left[r, c], right[r, c]
-        is_step = step[r, c]
-        for j in range(1, k + 1):
-            t = j / (k + 1)
-            d[r, c + j] = np.where(is_step, np.maximum(lv, rv), (1 - t) * lv + t * rv)
+    if H == 0 or W < 3 or max(max_px, flat_px) <= 0:
+        return d
+    cols = np.arange(W)
+    meas = d > 0
+    # column of the nearest measured pixel to the left / right of every pixel (-1 / W: none)
+    left = np.maximum.accumulate(np.where(meas, cols, -1), axis=1)
+    right = np.minimum.accumulate(np.where(meas, cols, W)[:, ::-1], axis=1)[:, ::-1]
+    gap = ~meas & (left >= 0) & (right < W)
+    r, c = np.nonzero(gap)
+    if not len(r):
+        return d
+    lc, rc = left[r, c], right[r, c]
+    n = rc - lc - 1                        # the run's length [px]
+    lv, rv = d[r, lc], d[r, rc]
+    step = np.abs(lv - rv) > step_m
+    fill = np.where(step, n <= max_px, n <= flat_px)
+    if not fill.any():
+        return d
+    r, c, lc, n, lv, rv, step = (x[fill] for x in (r, c, lc, n, lv, rv, step))
+    t = (c - lc) / (n + 1.0)
+    d[r, c] = np.where(step, np.maximum(lv, rv), (1.0 - t) * lv + t * rv)
     return d
 
 
@@ -246,13 +246,21 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     """
     cfg = cfg or TrackerConfig()
     d = check_depth(depth, intr)
-    fill_gaps(d, cfg)
     valid = (d > cfg.near_m) & (d < cfg.far_m)
     n_valid = int(np.count_nonzero(valid))
     if n_valid < cfg.min_hand_pixels:
         return _empty(d.shape, intr)
     z0 = _low_depth(d[valid])
     band = valid & (d <= z0 + cfg.band_m)
+    fill = max(cfg.fill_band_px, cfg.fill_hole_px)
+    if fill > 0:   # a stereo camera's short gaps, around the band only (fill_gaps)
+        rows = np.flatnonzero(band.any(axis=1))
+        cols = np.flatnonzero(band.any(axis=0))
+        r0, r1 = max(int(rows[0]) - fill, 0), int(rows[-1]) + fill + 1
+        c0, c1 = max(int(cols[0]) - fill, 0), int(cols[-1]) + fill + 1
+        fill_gaps(d[r0:r1, c0:c1], cfg)
+        valid = (d > cfg.near_m) & (d < cfg.far_m)
+        band = valid & (d <= z0 + cfg.band_m)
     # components of the band, labelled in its bounding box only (same components, same
     # raster order of the labels as on the whole image)
     rows = np.flatnonzero(band.any(axis=1))
