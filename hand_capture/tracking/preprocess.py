@@ -221,10 +221,8 @@ def fill_gaps(d: np.ndarray, cfg: TrackerConfig) -> np.ndarray:
     """Fill a stereo camera's short gaps in ``d`` (H, W) [m] with ``cfg``'s settings, in
     place: :func:`fill_row_gaps` along the rows (bands and holes), then the holes along the
     columns."""
-    if cfg.fill_band_px > 0 or cfg.fill_hole_px > 0:
-        fill_row_gaps(d, cfg.fill_band_px, cfg.fill_step_m, cfg.fill_hole_px)
-    if cfg.fill_hole_px > 0:
-        fill_row_gaps(d.T, 0, cfg.fill_step_m, cfg.fill_hole_px)
+    fill_row_gaps(d, cfg.fill_band_px, cfg.fill_step_m, cfg.fill_hole_px)
+    fill_row_gaps(d.T, 0, cfg.fill_step_m, cfg.fill_hole_px)   # returns at once when 0
     return d
 
 
