@@ -19,7 +19,7 @@ bench's ``kp err fit``, wrist at the origin for both); and the time per calibrat
 
     PYTHONPATH=. .venv/bin/python scripts/calibration_validation.py [-n 36] \\
         [--set rounds=20] [--config robust_mm=6] [--forearm [--sleeves
-        [--sleeve-wider 0.01 0.025] [--sleeve-start 0.04 0.08]]]
+        [--sleeve-wider 0.01 0.025] [--sleeve-start 0.04 0.08]]] [--artifacts]
 
 ``--forearm`` renders every subject with the training renders' forearm (radius 24-40 mm,
 length 0.25-0.5 m, bent +-0.4 rad, drawn from a generator of its own: the subjects' shapes,
@@ -52,6 +52,7 @@ from hand_capture.errors import ConfigError
 from hand_capture.model import N_DOF, HandModel, sample_shape
 from hand_capture.model.joints import FINGERS
 from hand_capture.model.skeleton import LEVELS
+from hand_capture.tracking.augment import add_artifacts_mm
 from hand_capture.tracking.calibration import calibrate, render_calibration_frames
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.train import default_intrinsics, draw_forearm, forearm_mesh
@@ -125,9 +126,12 @@ def parse_sets(items: list[str]) -> dict:
 
 def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True,
         forearm: bool = False,
-        sleeves: tuple[tuple[float, float], tuple[float, float]] | None = None) -> dict:
+        sleeves: tuple[tuple[float, float], tuple[float, float]] | None = None,
+        artifacts: bool = False) -> dict:
     """Calibrate the ``n`` validation subjects (``forearm``: each with a forearm in view;
-    ``sleeves``: every second one also in a sleeve, see :func:`subject_meshes`); returns the
+    ``sleeves``: every second one also in a sleeve, see :func:`subject_meshes`;
+    ``artifacts``: the suite's stereo artifacts on every frame, :func:`~hand_capture.
+    tracking.augment.add_artifacts_mm`, from a generator of their own); returns the
     figures (see the module doc)."""
     base = HandModel()
     intr = default_intrinsics()
@@ -137,6 +141,9 @@ def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True,
         true, variant, rng = subject(i)
         mesh_fn = subject_meshes(true, variant, i, forearm, sleeves)
         frames = render_calibration_frames(true, intr, rng, mesh_fn=mesh_fn)
+        if artifacts:
+            g = np.random.default_rng(SEED0 + 7000 + i)
+            frames = [(add_artifacts_mm(d, g), di) for d, di in frames]
         t0 = time.perf_counter()
         cal = calibrate(frames, model=base, config=cfg, **kwargs)
         times.append(time.perf_counter() - t0)
@@ -208,6 +215,8 @@ def main(argv: list[str] | None = None) -> int:
                     metavar=("MIN", "MAX"), help="sleeve radius beyond the arm's [m]")
     ap.add_argument("--sleeve-start", type=float, nargs=2, default=SLEEVE_START_M,
                     metavar=("MIN", "MAX"), help="where the sleeve starts past the wrist [m]")
+    ap.add_argument("--artifacts", action="store_true",
+                    help="the suite's stereo artifacts (tracking/augment.py) on every frame")
     args = ap.parse_args(argv)
     try:
         kwargs = parse_sets(args.set)
@@ -217,9 +226,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     sleeves = ((tuple(args.sleeve_wider), tuple(args.sleeve_start)) if args.sleeves
                else None)
-    out = run(args.n, kwargs, cfg, not args.quiet, args.forearm, sleeves)
+    out = run(args.n, kwargs, cfg, not args.quiet, args.forearm, sleeves, args.artifacts)
     out["forearm"] = args.forearm
     out["sleeves"] = [args.sleeve_wider, args.sleeve_start] if args.sleeves else False
+    out["artifacts"] = args.artifacts
     out["set"] = args.set
     out["config"] = args.config
     print(json.dumps(out))

@@ -98,6 +98,33 @@ def test_forearm_cut_removes_the_forearm_and_keeps_the_hand(fingers):
         assert cut.mask.sum() == cut.n_points == np.count_nonzero(cut.depth_m)
 
 
+@pytest.mark.parametrize(("radius", "length"), [(0.027, 0.26), (0.036, 0.2)])
+def test_the_cloud_cut_finds_the_palm_through_holes(radius, length):
+    # a stereo camera leaves holes on the palm (4 px squares here, longer than the fill
+    # closes): they must not shrink the palm's inscribed circle below the forearm's, or the
+    # cut from the cloud's shape takes the palm for the arm and keeps the arm
+    fa = _WithForearm(HandModel())
+    fa.cyl = cylinder(radius, length, 24)
+    fa.faces = np.vstack([fa.m.faces, fa.cyl[1] + fa.m.rest_vertices.shape[0]])
+    q = _pose("flat")
+    intr = default_intrinsics()
+    depth = _render(fa, q)
+    kp = fa.m.joint_positions(q)
+    c = (kp[0] + kp[9]) / 2   # the palm's centre
+    u0, v0 = int(intr.fx * c[0] / c[2] + intr.cx), int(intr.fy * c[1] / c[2] + intr.cy)
+    for dv in range(-24, 25, 8):
+        for du in range(-24, 25, 8):
+            depth[v0 + dv: v0 + dv + 4, u0 + du: u0 + du + 4] = 0
+    cfg = TrackerConfig()
+    obs = segment_hand(depth, intr, cfg)
+    arm = fa.arm(q)
+    n_hand = obs.n_points - _beyond(obs.points, arm, 0.0)
+    cut, did = cut_forearm(obs, cfg, 1.0)
+    assert did
+    assert _beyond(cut.points, arm, 0.06) < 0.05 * _beyond(obs.points, arm, 0.06)
+    assert cut.n_points - _beyond(cut.points, arm, 0.0) > 0.95 * n_hand
+
+
 def test_a_flipped_cloud_cut_keeps_the_other_end():
     # the second guess of the cloud cut (flip_retry): the arm's end kept, the hand cut off
     fa = _WithForearm(HandModel())

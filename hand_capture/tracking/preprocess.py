@@ -674,10 +674,15 @@ def _geometric_cut(obs: HandObservation, cfg: TrackerConfig, hand_scale: float,
 
 def _inscribed_radius(obs: HandObservation) -> np.ndarray:
     """(N,) radius [m] of the largest circle inside the hand mask around each point
-    (distance transform [px] x depth / focal length)."""
+    (distance transform [px] x depth / focal length). Holes enclosed by the mask (a stereo
+    camera's missing pixels on the palm) count as hand: else they shrink the palm's circle
+    below a forearm's, and the cut takes the palm for the arm."""
     r0, r1, c0, c1 = obs.box
     sub = np.zeros((r1 - r0 + 2, c1 - c0 + 2), np.uint8)   # 1-px frame: border = off hand
     sub[1:-1, 1:-1] = obs.mask[r0:r1, c0:c1]
+    outside = sub.copy()
+    cv2.floodFill(outside, None, (0, 0), 2)   # the background reachable from the frame
+    sub[outside == 0] = 1
     dt = cv2.distanceTransform(sub, cv2.DIST_L2, 3)[1:-1, 1:-1]
     px = obs.pixels.astype(np.int64)
     return dt[px[:, 1] - r0, px[:, 0] - c0] * obs.points[:, 2] / obs.intrinsics.fx
