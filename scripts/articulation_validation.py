@@ -1,0 +1,148 @@
+"""Validation of the depth tracker on fingers that move on their own (issue 13; analysis,
+never shipped).
+
+The bench's validation families move the fingers as the suite's clips do (counting, a fist,
+a pinch), so a finger's joints move together. A user's fingers need not: a hooked finger
+(MCP straight, PIP and DIP bent) or a thumb folded across the palm is a posture those clips
+never show. This family keeps the suite's clips' wrist paths (shapes 21-24 of the synthetic
+camera; ``wrist_rotation``, ``translation``, ``finger_counting``, ``pinch``) and gives every
+finger joint its own smooth motion: a sinusoid of 0.2-0.8 Hz around a point 20-60 % up its
+range, amplitude 5-30 % of the range (abductions halved), clipped to the joint limits. Drawn
+by this script's own generator from the suite's model, renderer and noise model (320x240);
+nothing of :mod:`hand_capture.evaldata`. Two surfaces: the suite's own mesh and its collision
+capsules (:class:`~hand_capture.bench._tracking_heldout.CapsuleSurface`). Each sequence is
+calibrated from the calibration poses rendered the same way, then tracked through with the
+product settings (``--config`` overrides them) by the bench's own scoring.
+
+    PYTHONPATH=. .venv/bin/python scripts/articulation_validation.py [--frames 40] \\
+        [--config smooth_weight=20] [--artifacts]
+
+Printed: mean keypoint error [mm] and success@20 mm per surface; the last line is their JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+import numpy as np
+
+from hand_capture.bench._tracking_heldout import (
+    ARM_VAL_SEEDS,
+    CapsuleSurface,
+    _score,
+    bench_calibrate,
+    with_artifacts,
+)
+from hand_capture.bench.tracking import _summary
+from hand_capture.cameras.render import Mesh, make_renderer
+from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
+from hand_capture.cameras.threads import limit_blas_threads
+from hand_capture.config import from_overrides
+from hand_capture.errors import ConfigError
+from hand_capture.model import JOINT_LIMITS, HandModel
+from hand_capture.model.joints import JOINT_NAMES
+from hand_capture.tracking.calibration import render_calibration_frames
+from hand_capture.tracking.config import TrackerConfig
+from hand_capture.tracking.hybrid import HybridTracker, default_model_path
+from hand_capture.tracking.regressor import HandRegressor
+
+#: the suite's clips whose wrist paths the sequences follow
+CLIPS = ("wrist_rotation", "translation", "finger_counting", "pinch")
+#: every second frame of the 30 fps clip
+STEP = 2
+
+
+def finger_motion(rng: np.random.Generator, n: int, step: int = STEP) -> np.ndarray:
+    """(n, 21) finger joint angles [rad] of every ``step``-th frame at 30 fps: each joint on a
+    sinusoid of its own (module doc), clipped to the joint limits."""
+    lo, hi = JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1]
+    k = len(lo)
+    mid = lo + (hi - lo) * rng.uniform(0.2, 0.6, k)
+    amp = (hi - lo) * rng.uniform(0.05, 0.3, k)
+    freq = rng.uniform(0.2, 0.8, k)
+    phase = rng.uniform(0.0, 2.0 * math.pi, k)
+    t = np.arange(n)[:, None] * step / 30.0
+    q = mid + amp * np.sin(2.0 * math.pi * freq * t + phase)
+    abd = np.array(["abd" in name for name in JOINT_NAMES[6:]])
+    q[:, abd] *= 0.5
+    return np.clip(q, lo, hi)
+
+
+def sequence(seed: int, clip: str, n: int, capsules: bool, artifacts: bool
+             ) -> tuple[HandModel, list, list, list]:
+    """``(true model, frames, keypoints, calibration frames)`` of shape ``seed`` on ``clip``'s
+    wrist path with independent finger motion (module doc)."""
+    cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed, clip=clip,
+                                                noise_seed=seed + 3000))
+    cam.open()
+    rng = np.random.default_rng(seed * 100 + len(clip))
+    fingers = finger_motion(rng, n)
+    capsule_mesh = CapsuleSurface().mesh_fn(cam.model) if capsules else None
+
+    def mesh(q: np.ndarray) -> Mesh:
+        if capsule_mesh is not None:
+            return capsule_mesh(q)
+        return Mesh(cam.model.vertices(q), cam.model.faces, 1, closed=True)
+
+    renderer = make_renderer("zbuffer")
+    noise_rng = np.random.default_rng(seed + 5)
+    frames, kps = [], []
+    for i in range(n):
+        q = cam.truth_pose(i * STEP / 30.0).copy()
+        q[6:] = fingers[i]
+        out = renderer.render([mesh(q)], cam.intrinsics)
+        frames.append((cam.noise.apply_mm(out.depth, out.cos_incidence, cam.intrinsics,
+                                          noise_rng), cam.intrinsics))
+        kps.append(cam.model.joint_positions(q))
+    cal = render_calibration_frames(cam.model, cam.intrinsics, noise_rng, mesh_fn=capsule_mesh)
+    if artifacts:
+        frames = with_artifacts(frames, seed * 7 + len(clip))
+        cal = with_artifacts(cal, seed * 7 + len(clip) + 1)
+    return cam.model, frames, kps, cal
+
+
+def run(cfg: TrackerConfig, n: int, artifacts: bool) -> dict[str, float]:
+    """Mean error [mm] and success@20 of both surfaces (module doc)."""
+    reg = HandRegressor.load(default_model_path())
+    base = HandModel()
+    out: dict[str, float] = {}
+    for name, capsules in (("own", False), ("capsule", True)):
+        errs = []
+        for seed in ARM_VAL_SEEDS:
+            for clip in CLIPS:
+                _, frames, kps, cal = sequence(seed, clip, n, capsules, artifacts)
+                tracker = HybridTracker(base, cfg, reg)
+                tracker.set_calibration(bench_calibrate(cal, model=base, config=cfg))
+                errs.append(_score(tracker, frames, kps)["errs"])
+        s = _summary(np.concatenate(errs))
+        out[f"{name}_mean_mm"] = s["mean"]
+        out[f"{name}_success_20mm"] = s["s20"]
+        print(f"{name:8s} mean {s['mean']:6.2f} mm  success@20 {s['s20']:.3f}")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=40, help="frames per sequence")
+    ap.add_argument("--config", action="append", default=[], metavar="KEY=VALUE",
+                    help="a TrackerConfig field")
+    ap.add_argument("--artifacts", action="store_true",
+                    help="the suite's stereo artifacts (tracking/augment.py) on every frame")
+    args = ap.parse_args(argv)
+    try:
+        cfg = from_overrides(TrackerConfig, args.config)
+    except ConfigError as e:
+        print(e, file=sys.stderr)
+        return 2
+    limit_blas_threads(1)
+    out = run(cfg, args.frames, args.artifacts)
+    print(json.dumps({**out, "frames": args.frames, "artifacts": args.artifacts,
+                      "config": args.config}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
