@@ -8,9 +8,11 @@ never show. This family keeps the suite's clips' wrist paths (shapes 21-24 of th
 camera; ``wrist_rotation``, ``translation``, ``finger_counting``, ``pinch``) and gives every
 finger joint its own smooth motion: a sinusoid of 0.2-0.8 Hz around a point 20-60 % up its
 range, amplitude 5-30 % of the range (abductions halved), clipped to the joint limits. Drawn
-by this script's own generator from the suite's model, renderer and noise model (320x240);
-nothing of :mod:`hand_capture.evaldata`. Two surfaces: the suite's own mesh and its collision
-capsules (:class:`~hand_capture.bench._tracking_heldout.CapsuleSurface`). Each sequence is
+by this script's own generator and rendered by the bench's validation sequences
+(``suite_surface_sequence``: the suite's model, renderer and noise model, 320x240, frames up
+to the clip's end); nothing of :mod:`hand_capture.evaldata`. Two surfaces: the suite's own
+mesh and its collision capsules (:class:`~hand_capture.bench._tracking_heldout.
+CapsuleSurface`). Each sequence is
 calibrated from the calibration poses rendered the same way, then tracked through with the
 product settings (``--config`` overrides them) by the bench's own scoring.
 
@@ -32,19 +34,18 @@ import numpy as np
 from hand_capture.bench._tracking_heldout import (
     ARM_VAL_SEEDS,
     CapsuleSurface,
+    SurfaceVariant,
     _score,
     bench_calibrate,
+    suite_surface_sequence,
     with_artifacts,
 )
 from hand_capture.bench.tracking import _summary
-from hand_capture.cameras.render import Mesh, make_renderer
-from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
 from hand_capture.cameras.threads import limit_blas_threads
 from hand_capture.config import from_overrides
 from hand_capture.errors import ConfigError
 from hand_capture.model import JOINT_LIMITS, HandModel
 from hand_capture.model.joints import JOINT_NAMES
-from hand_capture.tracking.calibration import render_calibration_frames
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.hybrid import HybridTracker, default_model_path
 from hand_capture.tracking.regressor import HandRegressor
@@ -72,36 +73,17 @@ def finger_motion(rng: np.random.Generator, n: int, step: int = STEP) -> np.ndar
 
 
 def sequence(seed: int, clip: str, n: int, capsules: bool, artifacts: bool
-             ) -> tuple[HandModel, list, list, list]:
-    """``(true model, frames, keypoints, calibration frames)`` of shape ``seed`` on ``clip``'s
-    wrist path with independent finger motion (module doc)."""
-    cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed, clip=clip,
-                                                noise_seed=seed + 3000))
-    cam.open()
-    rng = np.random.default_rng(seed * 100 + len(clip))
-    fingers = finger_motion(rng, n)
-    capsule_mesh = CapsuleSurface().mesh_fn(cam.model) if capsules else None
-
-    def mesh(q: np.ndarray) -> Mesh:
-        if capsule_mesh is not None:
-            return capsule_mesh(q)
-        return Mesh(cam.model.vertices(q), cam.model.faces, 1, closed=True)
-
-    renderer = make_renderer("zbuffer")
-    noise_rng = np.random.default_rng(seed + 5)
-    frames, kps = [], []
-    for i in range(n):
-        q = cam.truth_pose(i * STEP / 30.0).copy()
-        q[6:] = fingers[i]
-        out = renderer.render([mesh(q)], cam.intrinsics)
-        frames.append((cam.noise.apply_mm(out.depth, out.cos_incidence, cam.intrinsics,
-                                          noise_rng), cam.intrinsics))
-        kps.append(cam.model.joint_positions(q))
-    cal = render_calibration_frames(cam.model, cam.intrinsics, noise_rng, mesh_fn=capsule_mesh)
+             ) -> tuple[list, list, list]:
+    """``(frames, keypoints, calibration frames)`` of shape ``seed`` on ``clip``'s wrist path
+    with independent finger motion (module doc): the bench's
+    :func:`~hand_capture.bench._tracking_heldout.suite_surface_sequence` with these fingers."""
+    fingers = finger_motion(np.random.default_rng(seed * 100 + len(clip)), n)
+    surface = CapsuleSurface() if capsules else SurfaceVariant()   # the default: own mesh
+    _, _, frames, kps, _, cal = suite_surface_sequence(seed, clip, n, STEP, surface, fingers)
     if artifacts:
         frames = with_artifacts(frames, seed * 7 + len(clip))
         cal = with_artifacts(cal, seed * 7 + len(clip) + 1)
-    return cam.model, frames, kps, cal
+    return frames, kps, cal
 
 
 def run(cfg: TrackerConfig, n: int, artifacts: bool) -> dict[str, float]:
@@ -113,7 +95,7 @@ def run(cfg: TrackerConfig, n: int, artifacts: bool) -> dict[str, float]:
         errs = []
         for seed in ARM_VAL_SEEDS:
             for clip in CLIPS:
-                _, frames, kps, cal = sequence(seed, clip, n, capsules, artifacts)
+                frames, kps, cal = sequence(seed, clip, n, capsules, artifacts)
                 tracker = HybridTracker(base, cfg, reg)
                 tracker.set_calibration(bench_calibrate(cal, model=base, config=cfg))
                 errs.append(_score(tracker, frames, kps)["errs"])

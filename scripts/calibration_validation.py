@@ -46,13 +46,13 @@ from hand_capture.bench._tracking_heldout import (
     SLEEVE_WIDER_M,
     SurfaceVariant,
     _bone_err_pct,
+    with_artifacts,
 )
 from hand_capture.config import from_overrides
 from hand_capture.errors import ConfigError
 from hand_capture.model import N_DOF, HandModel, sample_shape
 from hand_capture.model.joints import FINGERS
 from hand_capture.model.skeleton import LEVELS
-from hand_capture.tracking.augment import add_artifacts_mm
 from hand_capture.tracking.calibration import calibrate, render_calibration_frames
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.train import default_intrinsics, draw_forearm, forearm_mesh
@@ -131,7 +131,7 @@ def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True,
     """Calibrate the ``n`` validation subjects (``forearm``: each with a forearm in view;
     ``sleeves``: every second one also in a sleeve, see :func:`subject_meshes`;
     ``artifacts``: the suite's stereo artifacts on every frame, :func:`~hand_capture.
-    tracking.augment.add_artifacts_mm`, from a generator of their own); returns the
+    bench._tracking_heldout.with_artifacts`, from a generator of their own); returns the
     figures (see the module doc)."""
     base = HandModel()
     intr = default_intrinsics()
@@ -142,8 +142,7 @@ def run(n: int, kwargs: dict, cfg: TrackerConfig, verbose: bool = True,
         mesh_fn = subject_meshes(true, variant, i, forearm, sleeves)
         frames = render_calibration_frames(true, intr, rng, mesh_fn=mesh_fn)
         if artifacts:
-            g = np.random.default_rng(SEED0 + 7000 + i)
-            frames = [(add_artifacts_mm(d, g), di) for d, di in frames]
+            frames = with_artifacts(frames, SEED0 + 7000 + i)
         t0 = time.perf_counter()
         cal = calibrate(frames, model=base, config=cfg, **kwargs)
         times.append(time.perf_counter() - t0)

@@ -464,12 +464,15 @@ class CapsuleSurface:
 
 
 def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
-                           variant: SurfaceVariant | CapsuleSurface
+                           variant: SurfaceVariant | CapsuleSurface,
+                           fingers: np.ndarray | None = None
                            ) -> tuple[HandModel, Intrinsics, list, list, list, list]:
     """A sequence of the suite's generator (the synthetic camera's shape ``seed``, motion
     ``clip``, rasteriser and noise model, 320x240) with the hand's surface replaced by
-    ``variant``. Returns ``(model, intrinsics, frames, keypoints, poses, calibration
-    frames)`` (the calibration poses rendered with the same surface and noise)."""
+    ``variant``; ``fingers`` (n, 21) [rad], when given, replaces the clip's finger joint
+    angles frame by frame (the wrist keeps the clip's path). Returns ``(model, intrinsics,
+    frames, keypoints, poses, calibration frames)`` (the calibration poses rendered with the
+    same surface and noise)."""
     from hand_capture.cameras.render import make_renderer
     from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
     from hand_capture.tracking.calibration import render_calibration_frames
@@ -482,8 +485,11 @@ def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
     renderer = make_renderer("zbuffer")
     last = int(math.floor(cam.motion.duration * 30))
     frames, kps, poses = [], [], []
-    for i in list(range(0, last + 1, step))[:n]:
+    for k, i in enumerate(list(range(0, last + 1, step))[:n]):
         pose = cam.truth_pose(i / 30.0)
+        if fingers is not None:
+            pose = pose.copy()
+            pose[6:] = fingers[k]
         poses.append(pose)
         res = renderer.render([mesh(pose)], cam.intrinsics)
         frames.append((cam.noise.apply_mm(res.depth, res.cos_incidence, cam.intrinsics, rng),
