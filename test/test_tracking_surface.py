@@ -160,6 +160,55 @@ def test_finger_postures_find_a_finger_no_candidate_has():
     assert c_off == c0 and err_off > 40.0
 
 
+def test_abduction_trial_uncrosses_two_fingers():
+    """The index and middle fingers crossed (each abducted 20 deg towards the other's
+    place): the finger-wise selection, which keeps abduction and changes one finger at a
+    time, leaves them crossed; ``abduction_trial`` (refined from zero abduction) finds them
+    at a lower cost. A pose whose abduction is already right is kept."""
+    from hand_capture.model import JOINT_INDEX
+
+    m = HandModel()
+    intr = default_intrinsics()
+    q_true = random_pose(np.random.default_rng(4), m)
+    for f in ("index", "middle", "ring", "little"):
+        q_true[JOINT_INDEX[f"{f}_mcp_abd"]] = 0.0
+        for j in ("mcp_flex", "pip_flex", "dip_flex"):
+            q_true[JOINT_INDEX[f"{f}_{j}"]] = 0.15
+    res = make_renderer("zbuffer").render([SurfaceVariant().mesh_fn(m)(q_true)], intr)
+    depth = np.rint(res.depth * 1000).astype(np.uint16)
+    crossed = q_true.copy()
+    crossed[JOINT_INDEX["index_mcp_abd"]] = -0.35
+    crossed[JOINT_INDEX["middle_mcp_abd"]] = 0.35
+    tr = HybridTracker(m, TrackerConfig(), None)
+    tr.reset()
+    obs = segment_hand(depth, intr, tr.cfg)
+    obs_ds = obs.depth_m[::2, ::2]
+    pts = obs.subsample(160)
+
+    def err_mm(q: np.ndarray) -> float:
+        return float(np.linalg.norm(m.joint_positions(q) - m.joint_positions(q_true),
+                                    axis=1).max()) * 1e3
+
+    # the crossed pose refined as the tracker would (its local minimum)
+    q0 = tr.icp.refine_batch([crossed], obs, 3, q_refs=[crossed], points=pts)[0]
+    c0 = tr._costs([q0], obs, obs_ds)[0]
+    assert err_mm(q0) > 20.0
+    q_swap, _ = tr._swap_fingers([q0], [c0], 0, obs, obs_ds, pts)
+    assert err_mm(q_swap) > 20.0            # one finger at a time cannot uncross them
+    q, c = tr._abduction_trial(q0, c0, obs, obs_ds, pts)
+    assert c[0] < c0[0] and err_mm(q) < 10.0
+    # nothing to mend: the pose is kept when the trial is not cheaper
+    spread = q_true.copy()
+    spread[JOINT_INDEX["index_mcp_abd"]] = 0.3
+    spread[JOINT_INDEX["little_mcp_abd"]] = -0.3
+    res = make_renderer("zbuffer").render([SurfaceVariant().mesh_fn(m)(spread)], intr)
+    obs = segment_hand(np.rint(res.depth * 1000).astype(np.uint16), intr, tr.cfg)
+    obs_ds = obs.depth_m[::2, ::2]
+    c1 = tr._costs([spread], obs, obs_ds)[0]
+    q1, c = tr._abduction_trial(spread, c1, obs, obs_ds, obs.subsample(160))
+    assert np.array_equal(q1, spread) and c == c1
+
+
 def test_tracker_yaml_lists_known_parameters_at_their_defaults():
     """config/tracker.yaml names only TrackerConfig / TrackerNodeConfig fields, each at the
     dataclass default (the file documents the defaults), and lists the surface settings."""

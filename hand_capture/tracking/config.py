@@ -179,6 +179,12 @@ class TrackerConfig:
                                   "tries each finger straight and curled (flexion angles at "
                                   "fixed postures, abduction kept), so a finger none of the "
                                   "candidates has right can still be found")
+    abduction_trial: bool = param(True, "after the finger-wise selection the selected pose "
+                                  "is also refined from the four fingers' abduction set to "
+                                  "zero (all at once) and replaced when that lowers the cost "
+                                  "of eq. II.20: two neighbouring fingers fitted to each "
+                                  "other's points (crossed) are not mended one finger at a "
+                                  "time")
     # -- regression (II.4) ---------------------------------------------------------------
     regress_previous: bool = param(True, "step 2 also regresses the fingers on the previous "
                                    "pose's palm (after its palm-only iteration of step 3): "

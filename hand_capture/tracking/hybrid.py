@@ -93,6 +93,11 @@ _POSTURES: tuple[dict[str, float], ...] = (
 )
 
 
+#: the MCP abduction DoFs of the four fingers (not the thumb), for ``abduction_trial``
+_FINGER_ABD = np.array([i for i, n in enumerate(JOINT_NAMES)
+                        if n.endswith("_mcp_abd") and not n.startswith("thumb")])
+
+
 def _finger_postures(q: np.ndarray, dofs: np.ndarray) -> list[np.ndarray]:
     """The straight and curled alternatives of one finger (``dofs`` of the pose ``q``):
     its flexion joints set to :data:`_POSTURES`, clipped to the joint limits."""
@@ -440,6 +445,11 @@ class HybridTracker:
             q, c = self._swap_fingers([p[0] for p in pool], costs, best, obs, obs_ds, pts)
             pool[best], costs[best] = (q, q), c
             timing["selection"] += time.perf_counter() - t
+        if cfg.abduction_trial and refine:
+            t = time.perf_counter()
+            q, c = self._abduction_trial(pool[best][0], costs[best], obs, obs_ds, pts)
+            pool[best], costs[best] = (q, q), c
+            timing["selection"] += time.perf_counter() - t
         q = pool[best][0]
         e_d = costs[best][1]
         if whole is not None and refine:
@@ -502,6 +512,26 @@ class HybridTracker:
             if c2[0] < c[0]:
                 q, c = q2, c2
         return q, c
+
+    def _abduction_trial(self, q: np.ndarray, c: tuple[float, float], obs: HandObservation,
+                         obs_ds: np.ndarray, pts: tuple[np.ndarray, np.ndarray]
+                         ) -> tuple[np.ndarray, tuple[float, float]]:
+        """``abduction_trial`` (an extension of step 5): the selected pose ``q`` (cost
+        ``c``, its ``(E_c, E_d)``) with the MCP abduction of the four fingers set to zero,
+        refined as a candidate of step 4 (``icp_iterations``, the same smoothness
+        reference) and taken when its E_c of eq. II.20 is lower. Diagnosed on the validation
+        families: two neighbouring fingers each fitted to the other's points, crossed at
+        20-38 deg of abduction, with a cost E_d below tau; the finger-wise selection keeps
+        each finger's abduction and changes one finger at a time, so it cannot undo that.
+        Returns the pose and its ``(E_c, E_d)``."""
+        trial = q.copy()
+        trial[_FINGER_ABD] = 0.0
+        track = self.delta and self.prev is not None
+        ref = self._smooth_ref() if track else trial
+        r = self.icp.refine_batch([trial], obs, self.cfg.icp_iterations, q_refs=[ref],
+                                  points=pts)[0]
+        cr = self._costs([r], obs, obs_ds)[0]
+        return (r, cr) if cr[0] < c[0] else (q, c)
 
     def _smooth_ref(self) -> np.ndarray:
         """Reference of the smoothness term (eq. II.24) while tracking: the previous pose,
