@@ -134,10 +134,11 @@ def test_a_deferred_regression_runs_after_the_frame_and_feeds_the_next_one(cam, 
     costs = tr._costs
     tr._costs = lambda qs, *a: (sizes.append(len(qs)), costs(qs, *a))[1]
     r = tr.process(f.depth, f.depth_intrinsics)
-    assert sizes == [2, 1] and tr._carry is None and r.success  # screened 2, refined 1
+    # screened 2, refined 1, then the abduction trial's one pose
+    assert sizes == [2, 1, 1] and tr._carry is None and r.success
     sizes.clear()
     tr.process(f.depth, f.depth_intrinsics)
-    assert sizes == [1]  # no candidate carried: the previous pose alone, not screened
+    assert sizes == [1, 1]  # no candidate carried: the previous pose alone, not screened
     tr._costs = costs
     # after a loss: at once
     tr.process(np.zeros_like(f.depth), f.depth_intrinsics)
