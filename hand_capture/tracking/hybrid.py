@@ -506,12 +506,20 @@ class HybridTracker:
             if tc[k][0] < c[0]:
                 q, c, changed = trials[k], tc[k], True
         if changed:
-            ref = self._smooth_ref() if (self.delta and self.prev is not None) else q
-            q2 = self.icp.refine_batch([q], obs, 1, q_refs=[ref], points=pts)[0]
-            c2 = self._costs([q2], obs, obs_ds)[0]
-            if c2[0] < c[0]:
-                q, c = q2, c2
+            q, c = self._refined_if_cheaper(q, 1, q, c, obs, obs_ds, pts)
         return q, c
+
+    def _refined_if_cheaper(self, start: np.ndarray, iterations: int, q: np.ndarray,
+                            c: tuple[float, float], obs: HandObservation, obs_ds: np.ndarray,
+                            pts: tuple[np.ndarray, np.ndarray]
+                            ) -> tuple[np.ndarray, tuple[float, float]]:
+        """``start`` refined by ``iterations`` GN steps (smoothness reference: the predicted
+        pose while tracking, else ``start`` itself) when its ``(E_c, E_d)`` has a lower E_c
+        of eq. II.20 than ``c``, the cost of ``q``; else ``q`` and ``c``."""
+        ref = self._smooth_ref() if (self.delta and self.prev is not None) else start
+        r = self.icp.refine_batch([start], obs, iterations, q_refs=[ref], points=pts)[0]
+        cr = self._costs([r], obs, obs_ds)[0]
+        return (r, cr) if cr[0] < c[0] else (q, c)
 
     def _abduction_trial(self, q: np.ndarray, c: tuple[float, float], obs: HandObservation,
                          obs_ds: np.ndarray, pts: tuple[np.ndarray, np.ndarray]
@@ -526,12 +534,8 @@ class HybridTracker:
         Returns the pose and its ``(E_c, E_d)``."""
         trial = q.copy()
         trial[_FINGER_ABD] = 0.0
-        track = self.delta and self.prev is not None
-        ref = self._smooth_ref() if track else trial
-        r = self.icp.refine_batch([trial], obs, self.cfg.icp_iterations, q_refs=[ref],
-                                  points=pts)[0]
-        cr = self._costs([r], obs, obs_ds)[0]
-        return (r, cr) if cr[0] < c[0] else (q, c)
+        return self._refined_if_cheaper(trial, self.cfg.icp_iterations, q, c, obs, obs_ds,
+                                        pts)
 
     def _smooth_ref(self) -> np.ndarray:
         """Reference of the smoothness term (eq. II.24) while tracking: the previous pose,
