@@ -105,4 +105,5 @@ def test_a_first_frame_regresses_on_the_palm_modes_alone(scene, regressor) -> No
     tr = HybridTracker(m, ON, None)
     tr.regressor = reg
     tr.process(depth, default_intrinsics())
-    assert len(reg.roots) == 1 and len(reg.roots[0]) == ON.n_modes
+    # the palm modes only (a first frame asks for acquire_modes of them)
+    assert len(reg.roots) == 1 and len(reg.roots[0]) == ON.acquire_modes

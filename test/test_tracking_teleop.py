@@ -70,8 +70,10 @@ def test_regression_every_nth_frame_while_tracking_and_after_a_loss(cam, regress
     # the first frame has no previous pose; then every third frame
     assert [r.regressed for r in res] == [True, False, False, True, False, False, True]
     assert spy.calls == 3
-    # frames without regression: the previous pose only, refined
-    assert all(r.n_candidates == 1 for r in res)
+    # frames without regression: the previous pose only, refined; the first frame, with no
+    # previous pose, refines acquire_refine_top of its candidates (the wider search)
+    assert all(r.n_candidates == 1 for r in res[1:])
+    assert res[0].n_candidates > 1
     f = cam.render(0.3)
     blank = tr.process(np.zeros_like(f.depth), f.depth_intrinsics)
     assert blank.status == "no_hand" and not blank.regressed
@@ -153,7 +155,9 @@ def test_product_settings_regress_on_every_frame(cam, regressor):
     tr = HybridTracker(cam.model, cfg, regressor)
     res = _track(tr, cam, [0.0, 1 / 30, 2 / 30])
     assert all(r.regressed for r in res)
-    assert all(r.n_candidates == cfg.refine_top for r in res)
+    # the first frame has no tracked previous pose: the wider search (acquire_refine_top)
+    assert res[0].n_candidates > cfg.refine_top
+    assert all(r.n_candidates == cfg.refine_top for r in res[1:])
 
 
 def test_teleop_parameters_are_the_cheaper_hybrid_settings():

@@ -383,9 +383,14 @@ class HybridTracker:
         if defer:  # tracking: after this frame's pose is out (run_deferred)
             regress = False
         palms: list[np.ndarray] = []
+        # no tracked previous pose (the first frame, after a loss): the wider search of
+        # acquire_modes / acquire_refine_top
+        acquire = mode == "hybrid" and not tracking
+        n_modes = (cfg.acquire_modes or cfg.n_modes) if acquire else cfg.n_modes
+        top = (cfg.acquire_refine_top or cfg.refine_top) if acquire else cfg.refine_top
         if regress:  # step 1: palm modes
             t = time.perf_counter()
-            lookup, palms = self._palm_modes(obs, intr)
+            lookup, palms = self._palm_modes(obs, intr, n_modes)
             timing["regression"] += time.perf_counter() - t
         prev = None
         if mode in ("hybrid", "icp"):  # step 3: the previous pose
@@ -421,13 +426,13 @@ class HybridTracker:
         # step 4: screen by cost, refine the best, select by eq. II.20
         refine = mode != "regressor" and cfg.icp_iterations > 0
         costs = None
-        if not refine or len(pool) > cfg.refine_top:  # screening needed
+        if not refine or len(pool) > top:  # screening needed
             t = time.perf_counter()
             costs = self._costs([q for q, _ in pool], obs, obs_ds)
             timing["selection"] += time.perf_counter() - t
         if refine:
             order = np.arange(len(pool)) if costs is None else \
-                np.argsort([c[0] for c in costs])[:cfg.refine_top]
+                np.argsort([c[0] for c in costs])[:top]
             t = time.perf_counter()
             track = self.delta and self.prev is not None
             ref = self._smooth_ref() if track else None
@@ -567,15 +572,17 @@ class HybridTracker:
                 trials.append(t)
         return trials
 
-    def _palm_modes(self, obs: HandObservation, intr: Intrinsics
+    def _palm_modes(self, obs: HandObservation, intr: Intrinsics, n_modes: int | None = None
                     ) -> tuple[DepthLookup, list[np.ndarray]]:
-        """Step 1: the regressor's palm modes of a frame, and its depth lookup."""
+        """Step 1: the regressor's palm modes of a frame (``n_modes``, default
+        ``TrackerConfig.n_modes``), and its depth lookup."""
         # the features read depth in the hand's bounding box (off it: background, as off the
         # hand anywhere)
         r0, r1, c0, c1 = obs.box if obs.box is not None else (0, intr.height, 0, intr.width)
         lookup = DepthLookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
         q0 = palm_init_pca(obs.points, self.frames)
-        return lookup, self.regressor.palm_modes(self.frames, lookup, q0, self.cfg.n_modes)
+        return lookup, self.regressor.palm_modes(self.frames, lookup, q0,
+                                                 n_modes or self.cfg.n_modes)
 
     def run_deferred(self) -> dict[str, float] | None:
         """Steps 1-2 for the last frame, when it deferred them (``defer_regression``).

@@ -1,0 +1,102 @@
+"""The wider search on frames without a tracked previous pose (``acquire_modes``,
+``acquire_refine_top``): the first frame and every frame after a loss ask the regressor for
+more palm modes and refine more candidates; tracked frames keep the product's
+``n_modes`` / ``refine_top``; the ablation modes are untouched."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
+from hand_capture.cameras.threads import limit_blas_threads
+from hand_capture.errors import ConfigError
+from hand_capture.tracking.config import TrackerConfig
+from hand_capture.tracking.hybrid import HybridTracker, default_model_path
+from hand_capture.tracking.regressor import HandRegressor
+from hand_capture.tracking.train import train_tracker
+
+limit_blas_threads(1)
+
+
+@pytest.fixture(scope="module")
+def regressor():
+    p = default_model_path()
+    if p.exists():
+        return HandRegressor.load(p)
+    return train_tracker(None, seed=1, n_samples=160, n_shapes=4, palm_stages=2,
+                         finger_stages=1, n_trees=3, max_depth=8, n_features=120)
+
+
+@pytest.fixture(scope="module")
+def cam():
+    c = SyntheticCamera(SyntheticCameraConfig(render_color=False, clip="translation"))
+    c.open()
+    return c
+
+
+@pytest.fixture(scope="module")
+def frames(cam):
+    return [cam.render(i / 30) for i in range(3)]
+
+
+class _Modes:
+    """A regressor that records how many palm modes each frame asked for (step 1)."""
+
+    def __init__(self, reg: HandRegressor) -> None:
+        self.reg = reg
+        self.asked: list[int] = []
+
+    def palm_modes(self, frames, lookup, q0, n_modes):
+        self.asked.append(n_modes)
+        return self.reg.palm_modes(frames, lookup, q0, n_modes)
+
+    def regress_fingers(self, *a, **kw):
+        return self.reg.regress_fingers(*a, **kw)
+
+
+def _run(tr: HybridTracker, frames: list) -> list:
+    return [tr.process(f.depth, f.depth_intrinsics) for f in frames]
+
+
+def test_the_first_frame_and_a_frame_after_a_loss_search_wider(regressor, cam, frames):
+    cfg = TrackerConfig()
+    assert cfg.acquire_modes > cfg.n_modes and cfg.acquire_refine_top > cfg.refine_top
+    spy = _Modes(regressor)
+    tr = HybridTracker(cam.model, cfg, spy)
+    res = _run(tr, frames)
+    assert all(r.success for r in res)
+    # the first frame: acquire_modes palms and more than refine_top candidates refined;
+    # then the previous pose is tracked: the product's numbers
+    assert spy.asked == [cfg.acquire_modes, cfg.n_modes, cfg.n_modes]
+    assert cfg.refine_top < res[0].n_candidates <= cfg.acquire_refine_top
+    assert [r.n_candidates for r in res[1:]] == [cfg.refine_top] * 2
+    # a blank frame loses the hand; the next frame searches wider again
+    blank = tr.process(np.zeros_like(frames[0].depth), frames[0].depth_intrinsics)
+    assert blank.status == "no_hand" and not blank.success
+    r = tr.process(frames[2].depth, frames[2].depth_intrinsics)
+    assert spy.asked[-1] == cfg.acquire_modes and r.status == "recovering"
+    assert r.n_candidates > cfg.refine_top
+
+
+def test_zero_keeps_the_tracking_numbers_and_the_ablations_are_untouched(regressor, cam,
+                                                                         frames):
+    spy = _Modes(regressor)
+    cfg = TrackerConfig(acquire_modes=0, acquire_refine_top=0)
+    res = _run(HybridTracker(cam.model, cfg, spy), frames[:2])
+    assert spy.asked == [cfg.n_modes, cfg.n_modes]
+    assert [r.n_candidates for r in res] == [cfg.refine_top] * 2
+    # regressor-only (Fig. II.18's ablation) never tracks: still n_modes on every frame
+    spy = _Modes(regressor)
+    _run(HybridTracker(cam.model, dataclasses.replace(TrackerConfig(), mode="regressor"), spy),
+         frames[:2])
+    assert spy.asked == [TrackerConfig().n_modes] * 2
+
+
+def test_the_settings_are_range_checked():
+    for bad in ({"acquire_modes": 17}, {"acquire_modes": -1}, {"acquire_refine_top": 33}):
+        with pytest.raises(ConfigError):
+            TrackerConfig(**bad)
+
