@@ -45,7 +45,10 @@ selects finger by finger among the refined candidates (``finger_swap``,
 wrong in the best candidate and right in another), each finger also tried straight and
 curled (``finger_postures``: a finger that no candidate has right); step 2 also regresses
 the fingers on the previous pose's palm (``regress_previous``: a finger tracked wrong while
-the palm is right gets a regressed alternative on the palm the tracker holds).
+the palm is right gets a regressed alternative on the palm the tracker holds); a frame
+without a tracked previous pose (the first, any after a loss) searches wider, with
+``acquire_modes`` palm modes in step 1 and ``acquire_refine_top`` candidates refined in
+step 4 (no previous pose carries the fit there, and a wrong start is kept for many frames).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
