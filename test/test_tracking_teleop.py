@@ -8,35 +8,28 @@ import dataclasses
 
 import numpy as np
 import pytest
+from tracking_helpers import shipped_or_tiny_regressor, translation_camera
 
 from hand_capture.bench.tracking import teleop_config
-from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
 from hand_capture.cameras.threads import limit_blas_threads
 from hand_capture.config import load_yaml
 from hand_capture.errors import ConfigError
 from hand_capture.paths import config_dir
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.hybrid import HybridTracker, default_model_path
+from hand_capture.tracking.hybrid import HybridTracker
 from hand_capture.tracking.regressor import HandRegressor
-from hand_capture.tracking.train import train_tracker
 
 limit_blas_threads(1)
 
 
 @pytest.fixture(scope="module")
 def regressor():
-    p = default_model_path()
-    if p.exists():
-        return HandRegressor.load(p)
-    return train_tracker(None, seed=1, n_samples=160, n_shapes=4, palm_stages=2,
-                         finger_stages=1, n_trees=3, max_depth=8, n_features=120)
+    return shipped_or_tiny_regressor()
 
 
 @pytest.fixture(scope="module")
 def cam():
-    c = SyntheticCamera(SyntheticCameraConfig(render_color=False, clip="translation"))
-    c.open()
-    return c
+    return translation_camera()
 
 
 class _Counting:
