@@ -3,24 +3,18 @@ shipped): its forearm / sleeve subjects and its command line."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from script_helpers import load_script
 
 from hand_capture.cameras.render import Mesh
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "calibration_validation.py"
 
 
 @pytest.fixture(scope="module")
 def cv():
-    spec = importlib.util.spec_from_file_location("calibration_validation", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("calibration_validation")
 
 
 def test_forearm_and_sleeve_keep_the_subjects_draws(cv):

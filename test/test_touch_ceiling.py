@@ -3,19 +3,12 @@ features and classes on frames with known answers."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "touch_label_ceiling.py"
+from script_helpers import load_script
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("touch_label_ceiling", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("touch_label_ceiling")
 
 
 def test_ceiling_classes_name_every_finger_in_surface_x_order():

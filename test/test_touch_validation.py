@@ -4,13 +4,12 @@ subjects (scripts/touch_encoding_validation.py, issue #13; not shipped)."""
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import json
 from dataclasses import asdict
-from pathlib import Path
 
 import numpy as np
 import pytest
+from script_helpers import load_script as _script
 
 from hand_capture.errors import InputError
 from hand_capture.model.joints import JOINT_INDEX
@@ -22,15 +21,6 @@ from hand_capture.touch.datagen import (
     sample_natural,
 )
 from hand_capture.touch.train import TRAIN_PARTS
-
-SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
-
-
-def _script(name: str):
-    spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_posture_ranges_are_the_given_ones_and_the_defaults_draw_as_before():

@@ -3,12 +3,11 @@ and the regressor validation harness (``scripts/regressor_validation.py``)."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from script_helpers import load_script
 
 from hand_capture.errors import InputError
 from hand_capture.model import N_DOF, HandModel
@@ -70,11 +69,7 @@ def test_render_samples_passes_the_viewpoint_options() -> None:
 
 
 def _harness():
-    path = Path(__file__).resolve().parents[1] / "scripts" / "regressor_validation.py"
-    spec = importlib.util.spec_from_file_location("regressor_validation", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("regressor_validation")
 
 
 def test_regressor_validation_scores_candidates_and_first_frames() -> None:

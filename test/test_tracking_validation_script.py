@@ -3,21 +3,15 @@ not shipped): its per-sequence file, its paired comparison and its command line.
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "tracking_validation.py"
+from script_helpers import load_script
 
 
 @pytest.fixture(scope="module")
 def tv():
-    spec = importlib.util.spec_from_file_location("tracking_validation", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("tracking_validation")
 
 
 def test_one_shape_writes_its_sequences_and_compares_paired(tv, tmp_path, capsys):
