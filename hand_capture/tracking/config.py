@@ -179,6 +179,10 @@ class TrackerConfig:
                                   "tries each finger straight and curled (flexion angles at "
                                   "fixed postures, abduction kept), so a finger none of the "
                                   "candidates has right can still be found")
+    keep_unrefined: bool = param(True, "step 4 keeps a screened candidate as it was when "
+                                 "its refinement raised its cost of eq. II.20 (the "
+                                 "refinement's smoothness term holds it near the previous "
+                                 "pose, which a regressed candidate may rightly leave)")
     abduction_trial: bool = param(True, "after the finger-wise selection the selected pose "
                                   "is also refined from the four fingers' abduction set to "
                                   "zero (all at once) and replaced when that lowers the cost "

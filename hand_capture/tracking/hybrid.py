@@ -48,7 +48,11 @@ the fingers on the previous pose's palm (``regress_previous``: a finger tracked 
 the palm is right gets a regressed alternative on the palm the tracker holds); a frame
 without a tracked previous pose (the first, any after a loss) searches wider, with
 ``acquire_modes`` palm modes in step 1 and ``acquire_refine_top`` candidates refined in
-step 4 (no previous pose carries the fit there, and a wrong start is kept for many frames).
+step 4 (no previous pose carries the fit there, and a wrong start is kept for many frames);
+step 4 keeps a screened candidate as it was when its refinement raised its cost
+(``keep_unrefined``: while tracking, the smoothness term of eq. II.24 holds every candidate
+near the previous pose, so a regressed candidate that rightly leaves a wrong previous pose
+comes out of the refinement worse than it went in).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -444,8 +448,14 @@ class HybridTracker:
                                                  cfg.icp_iterations, q_refs=refs, points=pts))
             timing["icp"] += time.perf_counter() - t
             t = time.perf_counter()
+            before = None if costs is None else [costs[i] for i in order]
+            starts = [pool[i][0] for i in order]
             pool = [(q, q) for q in refined]
             costs = self._costs(refined, obs, obs_ds)
+            if cfg.keep_unrefined and before is not None:  # as screened, when cheaper
+                for k, (cb, cr) in enumerate(zip(before, costs, strict=True)):
+                    if cb[0] < cr[0]:
+                        pool[k], costs[k] = (starts[k], starts[k]), cb
             timing["selection"] += time.perf_counter() - t
         best = int(np.argmin([c[0] for c in costs]))
         if cfg.finger_swap and refine and (len(pool) > 1 or cfg.finger_postures):
