@@ -448,14 +448,15 @@ class HybridTracker:
                                                  cfg.icp_iterations, q_refs=refs, points=pts))
             timing["icp"] += time.perf_counter() - t
             t = time.perf_counter()
-            before = None if costs is None else [costs[i] for i in order]
-            starts = [pool[i][0] for i in order]
+            # (pose, cost) of each refined candidate as screened, for keep_unrefined
+            screened = ([(pool[i][0], costs[i]) for i in order]
+                        if cfg.keep_unrefined and costs is not None else None)
             pool = [(q, q) for q in refined]
             costs = self._costs(refined, obs, obs_ds)
-            if cfg.keep_unrefined and before is not None:  # as screened, when cheaper
-                for k, (cb, cr) in enumerate(zip(before, costs, strict=True)):
-                    if cb[0] < cr[0]:
-                        pool[k], costs[k] = (starts[k], starts[k]), cb
+            if screened is not None:  # as screened, when cheaper
+                for k, (q0, c0) in enumerate(screened):
+                    if c0[0] < costs[k][0]:
+                        pool[k], costs[k] = (q0, q0), c0
             timing["selection"] += time.perf_counter() - t
         best = int(np.argmin([c[0] for c in costs]))
         if cfg.finger_swap and refine and (len(pool) > 1 or cfg.finger_postures):
@@ -585,17 +586,16 @@ class HybridTracker:
                 trials.append(t)
         return trials
 
-    def _palm_modes(self, obs: HandObservation, intr: Intrinsics, n_modes: int | None = None
+    def _palm_modes(self, obs: HandObservation, intr: Intrinsics, n_modes: int
                     ) -> tuple[DepthLookup, list[np.ndarray]]:
-        """Step 1: the regressor's palm modes of a frame (``n_modes``, default
-        ``TrackerConfig.n_modes``), and its depth lookup."""
+        """Step 1: ``n_modes`` palm modes of the regressor for a frame, and its depth
+        lookup."""
         # the features read depth in the hand's bounding box (off it: background, as off the
         # hand anywhere)
         r0, r1, c0, c1 = obs.box if obs.box is not None else (0, intr.height, 0, intr.width)
         lookup = DepthLookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
         q0 = palm_init_pca(obs.points, self.frames)
-        return lookup, self.regressor.palm_modes(self.frames, lookup, q0,
-                                                 n_modes or self.cfg.n_modes)
+        return lookup, self.regressor.palm_modes(self.frames, lookup, q0, n_modes)
 
     def run_deferred(self) -> dict[str, float] | None:
         """Steps 1-2 for the last frame, when it deferred them (``defer_regression``).
@@ -613,7 +613,7 @@ class HybridTracker:
         cfg = self.cfg
         timing = dict.fromkeys(STAGES, 0.0)
         t = time.perf_counter()
-        lookup, palms = self._palm_modes(obs, intr)
+        lookup, palms = self._palm_modes(obs, intr, cfg.n_modes)
         timing["regression"] += time.perf_counter() - t
         if cfg.palm_iterations:
             t = time.perf_counter()
