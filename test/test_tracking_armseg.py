@@ -13,9 +13,11 @@ from hand_capture.errors import ConfigError, InputError
 from hand_capture.model import HandModel, sample_shape
 from hand_capture.tracking import HandRegressor, HybridTracker, TrackerConfig
 from hand_capture.tracking.armseg import (
+    BACKGROUND_REL_M,
     ArmClassifier,
     default_arm_path,
     load_arm_classifier,
+    pixel_features,
     remove_arm,
 )
 from hand_capture.tracking.hybrid import default_model_path
@@ -100,6 +102,46 @@ def test_the_tracker_drops_the_arm_pixels_before_fitting(clf) -> None:
     # the segment the tracker fitted holds much less arm with the classifier, and the hand
     assert cls[0] < 0.6 * byp[0]
     assert cls[1] > 0.9
+
+
+def test_a_probe_off_the_segment_reads_relative_to_the_pixel() -> None:
+    # a flat patch at 0.4 m and at 0.7 m: the probe against the pixel itself that lands
+    # off the segment reads the same at both distances (no absolute depth in a feature)
+    intr = default_intrinsics()
+    # (feature, probe, (du, dv)) [m]: probe 1 off the patch against the pixel itself, the
+    # other way round, and a probe on the patch
+    offsets = np.array([[[0.2, 0.0], [0.0, 0.0]],
+                        [[0.0, 0.0], [0.2, 0.0]],
+                        [[0.005, 0.0], [0.0, 0.0]]], np.float32)
+    feats = []
+    for z in (0.4, 0.7):
+        img = np.full((intr.height, intr.width), -1.0, np.float32)
+        img[110:130, 150:170] = z
+        v, u = np.array([120]), np.array([160])
+        feats.append(pixel_features(img, v, u, np.array([z]), offsets, intr.fx, intr.fy)[0])
+    np.testing.assert_allclose(feats[0], feats[1], atol=1e-6)
+    np.testing.assert_allclose(feats[0], [BACKGROUND_REL_M, -BACKGROUND_REL_M, 0.0], atol=1e-6)
+
+
+def test_a_hand_farther_than_the_training_renders_is_not_called_arm(clf) -> None:
+    # the suite's generator with a D435-like camera 0.2 m farther back (hand at 0.55-0.65 m,
+    # the training renders' palms at 0.30-0.55 m): the hand's pixels stay hand (format 1 of
+    # the classifier, with a constant background, called 85 % of them arm)
+    from hand_capture.bench._tracking_heldout import FAR_CAMERA, suite_forearm_sequence
+
+    _, intr, frames, _, labels = suite_forearm_sequence(21, "finger_counting", 3, 10,
+                                                        camera=FAR_CAMERA)
+    hand_called_arm, arm_called_arm = [], []
+    for (mm, _), lab in zip(frames, labels, strict=True):
+        depth = np.where(lab > 0, mm.astype(np.float32) * 1e-3, 0.0).astype(np.float32)
+        obs = _obs(depth, intr)
+        _, prob, _ = remove_arm(obs, clf, margin_m=0.0)
+        v, u, _ = obs.vuz
+        lv = lab[v, u]
+        hand_called_arm.append(np.mean(prob[lv == 1] > 0.5))
+        arm_called_arm.append(np.mean(prob[lv == 2] > 0.5))
+    assert np.mean(hand_called_arm) < 0.1
+    assert np.mean(arm_called_arm) > 0.8
 
 
 def test_a_hand_alone_is_left_whole(clf) -> None:

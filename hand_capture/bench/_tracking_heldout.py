@@ -52,6 +52,9 @@ VAL_SEEDS = (21, 22)
 #: validation shapes of forearm handling (the suite's generator; the arm classifier's
 #: settings were chosen here)
 ARM_VAL_SEEDS = (21, 22, 23, 24)
+#: the far forearm validation family's camera (:func:`forearm_validation_section` ``far``):
+#: D435-like depth (640x480, 87 deg) 0.2 m behind the suite's camera
+FAR_CAMERA = {"width": 640, "height": 480, "hfov_deg": 87.0, "camera_position": (0.0, 0.0, -0.2)}
 #: the hard validation set's sleeve: its radius beyond the arm's and where it starts past the
 #: wrist, uniform ranges [m]
 SLEEVE_WIDER_M, SLEEVE_START_M = (0.01, 0.025), (0.04, 0.08)
@@ -304,7 +307,9 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
 
 
 def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bool = False,
-                           clutter: bool = False, sleeve: bool = False, table: bool = False
+                           clutter: bool = False, sleeve: bool = False, table: bool = False,
+                           surface: SurfaceVariant | CapsuleSurface | None = None,
+                           camera: dict | None = None
                            ) -> tuple[HandModel, Intrinsics, list, list, list]:
     """A sequence of the suite's own generator with a forearm in view: the synthetic
     camera's shape ``seed`` and motion ``clip`` (its mesh, rasteriser and noise model,
@@ -319,7 +324,10 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
     (10-25 mm over the arm's radius) over the forearm from 40-80 mm past the wrist;
     ``table`` a plane filling the view (a table or a wall) 50-120 mm behind the first frame's
     farthest keypoint, tilted up to 10 deg about both image axes, which the forearm runs
-    into (as an arm resting on a table joins it).
+    into (as an arm resting on a table joins it). ``surface`` replaces the hand's surface
+    (:class:`SurfaceVariant`, :class:`CapsuleSurface`; None: the template mesh); ``camera``
+    overrides fields of the synthetic camera's config (e.g. ``width``, ``height``,
+    ``hfov_deg``, ``camera_position``; after ``close``'s).
 
     Returns:
         ``(model, intrinsics, frames, keypoints, labels)``: the true model, the pinhole,
@@ -334,6 +342,7 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
 
     rng = np.random.default_rng(seed * 1000 + sum(map(ord, clip)))
     near = {"hfov_deg": 87.0, "camera_position": (0.0, 0.0, 0.15)} if close else {}
+    near.update(camera or {})
     cam = SyntheticCamera(SyntheticCameraConfig(render_color=False, shape_seed=seed, clip=clip,
                                                 noise_seed=seed + 1000, **near))
     cam.open()
@@ -345,6 +354,7 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
     last = int(math.floor(cam.motion.duration * 30))
     frames, kps, labels = [], [], []
     obj = None
+    hand_mesh = surface.mesh_fn(cam.model) if surface is not None else None
     idx = list(range(0, last + 1, step))[:n]
     if table:   # drawn after the forearm: the other variants' draws stay the same
         kp = cam.model.joint_positions(cam.truth_pose(idx[0] / 30.0))
@@ -362,6 +372,8 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
         t = i / 30.0
         pose = cam.truth_pose(t)
         meshes, _ = cam.scene_meshes(t, pose)
+        if hand_mesh is not None:
+            meshes[0] = hand_mesh(pose)
         arm = forearm_mesh(cam.model, pose, radius, length, bend, label=255)
         meshes += [arm] + [forearm_mesh(cam.model, pose, r, length, bend, label=255, start=s)
                            for r, s in extra]
@@ -723,14 +735,16 @@ def _score_first(tracker, frames, truth, labels) -> dict:
     return s
 
 
-def _suite_calibration(true, intr, seed: int, base):
+def _suite_calibration(true, intr, seed: int, base, surface=None):
     """The calibration of the validation subject ``true`` from its rendered calibration
     frames (:func:`~hand_capture.tracking.calibration.render_calibration_frames`, drawn from
-    ``seed + 500``), starting from ``base``."""
+    ``seed + 500``; ``surface`` a :class:`SurfaceVariant` or :class:`CapsuleSurface` drawn
+    instead of the template mesh), starting from ``base``."""
     from hand_capture.tracking.calibration import render_calibration_frames
 
-    return bench_calibrate(
-        render_calibration_frames(true, intr, np.random.default_rng(seed + 500)), model=base)
+    mesh_fn = surface.mesh_fn(true) if surface is not None else None
+    return bench_calibrate(render_calibration_frames(true, intr, np.random.default_rng(
+        seed + 500), mesh_fn=mesh_fn), model=base)
 
 
 def _track_both_paths(reg, base, cal, cfg, frames, kps, labels) -> tuple[object, dict]:
@@ -746,7 +760,7 @@ def _track_both_paths(reg, base, cal, cfg, frames, kps, labels) -> tuple[object,
 
 
 def forearm_validation_section(reg, config, quick: bool, product_only: bool = False,
-                               smoke: bool = False
+                               smoke: bool = False, capsules: bool = False, far: bool = False
                                ) -> dict:
     """The tracker with a forearm in view on the suite's own generator (validation shapes
     :data:`ARM_VAL_SEEDS`; :func:`suite_forearm_sequence`), calibrated per shape: where
@@ -757,11 +771,18 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
     geometric cut alone (``arm_classifier`` off). ``cloud cut``: the share of frames cut
     without a previous wrist. Also the arm classifier's pixel accuracy on these frames.
     ``product_only``: the product alone, without the cut-alone baseline and the hard set
-    (:func:`_hard_forearm_validation`; the regressor validation's use)."""
+    (:func:`_hard_forearm_validation`; the regressor validation's use). ``capsules``: the
+    hand drawn as the suite's collision capsules (:class:`CapsuleSurface`, calibrated on
+    them; keys ``val_capsule_forearm*``, without the hard set); ``far``: a D435-like camera
+    (640x480, 87 deg) 0.2 m farther than the suite's (keys ``val_far_forearm*``, without the
+    hard set)."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
 
     seeds, clips, n, step = _validation_plan(quick, smoke)
+    surface = CapsuleSurface() if capsules else None
+    camera = FAR_CAMERA if far else None
+    fam = "val_capsule_forearm" if capsules else "val_far_forearm" if far else "val_forearm"
     base = HandModel()
     variants = {"product": config}
     if not product_only:
@@ -771,8 +792,9 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
     arm = None
     for seed in seeds:
         for clip in clips:
-            true, intr, frames, kps, labels = suite_forearm_sequence(seed, clip, n, step)
-            cal = _suite_calibration(true, intr, seed, base)
+            true, intr, frames, kps, labels = suite_forearm_sequence(
+                seed, clip, n, step, surface=surface, camera=camera)
+            cal = _suite_calibration(true, intr, seed, base, surface)
             for name, cfg in variants.items():
                 tracker, scores = _track_both_paths(reg, base, cal, cfg, frames, kps, labels)
                 if name == "product":
@@ -790,22 +812,26 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
                      float(np.mean(sq[:, 0])), float(np.mean(sq[:, 1])),
                      float(np.mean(sq[:, 2] == 0))])
         tag = {"sequence": "", "first frame": "_first"}[path]
-        pre = "val_forearm" if name == "product" else "val_forearm_cut_only"
+        pre = fam if name == "product" else f"{fam}_cut_only"
         out.update({f"{pre}{tag}_mean_mm": sm["mean"], f"{pre}{tag}_success_20mm": sm["s20"],
                     f"{pre}{tag}_seg_arm_pct": rows[-1][6],
                     f"{pre}{tag}_seg_hand_kept_pct": rows[-1][7]})
         if name == "product" and path == "sequence":
-            out["val_forearm_cloud_cut_share"] = rows[-1][8]
+            out[f"{fam}_cloud_cut_share"] = rows[-1][8]
     print_table(f"forearm in view, the suite's own generator (validation shapes {seeds}, the "
-                "training renders' forearm): forearm handling is tuned here and reported on "
-                "the held-out family; first frame = every frame from a reset tracker",
+                "training renders' forearm"
+                + (", the hand drawn as its collision capsules" if capsules else "")
+                + (", a 640x480 87 deg camera 0.2 m farther" if far else "")
+                + "): forearm handling is tuned here and reported on the held-out family; "
+                "first frame = every frame from a reset tracker",
                 ["forearm handling", "path", "frames", "mean mm", "median mm", "succ@20",
                  "seg arm %", "hand kept %", "cloud cut"], rows)
-    if not product_only:
+    if not product_only and not capsules and not far:
         out.update(_hard_forearm_validation(reg, config, seeds, quick))
     if arm is not None:
-        out["val_arm_pixel_acc"] = acc[0] / max(acc[1], 1)
-        print(f"arm classifier pixel accuracy on these frames: {out['val_arm_pixel_acc']:.3f} "
+        key = "val_arm_pixel_acc" if fam == "val_forearm" else f"{fam}_arm_pixel_acc"
+        out[key] = acc[0] / max(acc[1], 1)
+        print(f"arm classifier pixel accuracy on these frames: {out[key]:.3f} "
               f"({acc[1]} labelled pixels)")
     return out
 
@@ -1082,6 +1108,9 @@ def run_sections(reg, config, quick: bool, smoke: bool = False) -> dict:
     out.update(capsule_validation_section(reg, config, quick, smoke=smoke))
     out.update(stereo_validation_section(reg, config, quick, smoke=smoke))
     out.update(forearm_validation_section(reg, config, quick, smoke=smoke))
+    for kind in ("capsules", "far"):   # the product only: other hand surface, other camera
+        out.update(forearm_validation_section(reg, config, quick, product_only=True,
+                                              smoke=smoke, **{kind: True}))
     out.update(table_validation_section(reg, config, quick, smoke=smoke))
     out.update(calibration_section(quick, scales=(1.15,) if smoke else None))
     out.update(split_section(reg, config, quick, smoke))

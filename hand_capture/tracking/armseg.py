@@ -11,8 +11,11 @@ depth images, the dissertation's pixel features of eq. II.15 without the shape i
 
 (offsets ``o`` in metres, so a feature probes the same metric neighbourhood at any distance
 and any focal length; ``o_2 = 0`` for half of them: the probe against the pixel itself).
-Off the segment the depth reads a background constant; off the image it reads the image
-border (an arm running out of the image continues there). A random forest (the suite's
+Off the segment a probe reads the pixel's own depth plus :data:`BACKGROUND_REL_M`, so no
+feature depends on how far the hand is (format 1 read a constant 2 m there: ``2 - d(x)``
+made the distance a cue, and a hand 0.2 m farther than the training renders was called arm
+on 85 % of its pixels); off the image it reads the image border (an arm running out of the
+image continues there). A random forest (the suite's
 :class:`~hand_capture.tracking.forest.RegressionForest` regressing the 0/1 arm label)
 gives the arm probability.
 
@@ -42,13 +45,14 @@ from scipy.spatial import cKDTree
 from hand_capture.cameras.base import Intrinsics
 from hand_capture.errors import InputError
 from hand_capture.tracking.forest import RegressionForest
-from hand_capture.tracking.regressor import BACKGROUND_M
 
 __all__ = ["ArmClassifier", "default_arm_path", "load_arm_classifier", "remove_arm",
            "train_arm_classifier"]
 
-#: format version of the saved model
-FORMAT = 1
+#: format version of the saved model (2: the background read relative to the pixel)
+FORMAT = 2
+#: what a probe off the segment reads, beyond the probed pixel's own depth [m]
+BACKGROUND_REL_M = 1.0
 
 
 def default_arm_path() -> Path:
@@ -59,21 +63,26 @@ def default_arm_path() -> Path:
 
 
 def _padded(depth: np.ndarray) -> np.ndarray:
-    """The segment's depth with the background filled in (BACKGROUND_M off the segment)."""
-    return np.where(depth > 0, depth, np.float32(BACKGROUND_M)).astype(np.float32)
+    """The segment's depth with the background marked (-1 off the segment: read as the
+    probed pixel's depth + :data:`BACKGROUND_REL_M` by :func:`_probe_difference`)."""
+    return np.where(depth > 0, depth, np.float32(-1.0)).astype(np.float32)
 
 
 def _probe_difference(flat: np.ndarray, H: int, W: int, u: np.ndarray, v: np.ndarray,
-                      off: np.ndarray, su: np.ndarray, sv: np.ndarray) -> np.ndarray:
-    """``d(probe 1) - d(probe 2)`` of pixels (u, v) for metric offsets ``off`` (..., 2, 2)
-    [m] (probe, (du, dv)), scaled to pixels by ``su`` = fx / z and ``sv`` = fy / z; probes
-    off the image read its border. Shapes broadcast: u, v, su, sv (n, 1) against ``off``'s
-    leading dimensions."""
+                      off: np.ndarray, su: np.ndarray, sv: np.ndarray, z: np.ndarray
+                      ) -> np.ndarray:
+    """``d(probe 1) - d(probe 2)`` of pixels (u, v) at depths ``z`` [m] for metric offsets
+    ``off`` (..., 2, 2) [m] (probe, (du, dv)), scaled to pixels by ``su`` = fx / z and
+    ``sv`` = fy / z; probes off the image read its border, off the segment (marked < 0,
+    :func:`_padded`) ``z + BACKGROUND_REL_M``. Shapes broadcast: u, v, su, sv, z (n, 1)
+    against ``off``'s leading dimensions."""
+    back = z + np.float32(BACKGROUND_REL_M)
     vals = []
     for k in range(2):
         uu = np.clip(np.rint(u + off[..., k, 0] * su).astype(np.intp), 0, W - 1)
         vv = np.clip(np.rint(v + off[..., k, 1] * sv).astype(np.intp), 0, H - 1)
-        vals.append(flat[vv * W + uu])
+        d = flat[vv * W + uu]
+        vals.append(np.where(d < 0, back, d))
     return vals[0] - vals[1]
 
 
@@ -82,7 +91,7 @@ def pixel_features(img: np.ndarray, v: np.ndarray, u: np.ndarray, z: np.ndarray,
     """Depth-difference features of pixels (Shotton et al.; see the module docstring).
 
     Args:
-        img: (H, W) float32 segment depth [m], background filled (:func:`_padded`).
+        img: (H, W) float32 segment depth [m], background marked (:func:`_padded`).
         v, u: (N,) pixel rows and columns; z: (N,) their depths [m].
         offsets: (F, 2, 2) metric offsets [m] (feature, probe, (du, dv)).
         fx, fy: focal lengths [px].
@@ -91,9 +100,10 @@ def pixel_features(img: np.ndarray, v: np.ndarray, u: np.ndarray, z: np.ndarray,
         (N, F) float32 ``d(probe 1) - d(probe 2)`` [m].
     """
     H, W = img.shape
-    inv = (1.0 / np.maximum(z, 1e-3)).astype(np.float32)[:, None]
+    zc = np.asarray(z, np.float32)[:, None]
+    inv = (1.0 / np.maximum(zc, 1e-3)).astype(np.float32)
     return _probe_difference(img.reshape(-1), H, W, u[:, None], v[:, None], offsets[None],
-                             fx * inv, fy * inv)
+                             fx * inv, fy * inv, zc)
 
 
 @dataclass
@@ -134,11 +144,12 @@ class ArmClassifier:
         flat = img.reshape(-1)
         n, T = len(v), self.forest.n_trees
         node = np.broadcast_to(self.forest.roots.astype(np.intp)[None, :], (n, T)).copy()
-        inv = (1.0 / np.maximum(z, 1e-3)).astype(np.float32)[:, None]
+        zc = np.asarray(z, np.float32)[:, None]
+        inv = (1.0 / np.maximum(zc, 1e-3)).astype(np.float32)
         su, sv = intr.fx * inv, intr.fy * inv
         vi, ui = v[:, None].astype(np.float32), u[:, None].astype(np.float32)
         for _ in range(self.forest.depth):
-            diff = _probe_difference(flat, H, W, ui, vi, self.offsets[f[node]], su, sv)
+            diff = _probe_difference(flat, H, W, ui, vi, self.offsets[f[node]], su, sv, zc)
             node = left[node] + (diff >= t[node])                # offsets: (n, T, 2, 2)
         return self.forest.value[self.forest.leaf[node], 0].mean(axis=1)
 
@@ -331,7 +342,7 @@ def labelled_pixels(samples: list, intr: Intrinsics, offsets: np.ndarray, per_fr
     Xs, ys = [], []
     for s in samples:
         h, w = s.crop.shape
-        img = np.full((intr.height, intr.width), np.float32(BACKGROUND_M), np.float32)
+        img = np.full((intr.height, intr.width), np.float32(-1.0), np.float32)
         img[s.v0:s.v0 + h, s.u0:s.u0 + w] = _padded(s.crop)
         picks = []
         for lab in (HAND_LABEL, ARM_LABEL):
