@@ -48,7 +48,6 @@ from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.regressor import (
     FINGER_KP,
     PALM_KP,
-    DepthLookup,
     HandRegressor,
     ModelFrames,
 )
@@ -98,7 +97,7 @@ def candidate_quality(reg: HandRegressor, models: list[HandModel],
     t = time.process_time()
     for s in samples:
         m = models[s.shape_index]
-        cands = reg.predict(frames[s.shape_index], DepthLookup(s.crop, s.u0, s.v0, intr),
+        cands = reg.predict(frames[s.shape_index], reg.lookup(s.crop, s.u0, s.v0, intr),
                             s.points, n_modes)
         kp_true = m.joint_positions(s.pose)
         err = np.array([np.linalg.norm(m.joint_positions(c) - kp_true, axis=1)

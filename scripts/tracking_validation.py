@@ -83,6 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sections", nargs="+", default=list(SECTIONS), choices=SECTIONS)
     ap.add_argument("--config", action="append", default=[], metavar="KEY=VALUE",
                     help="TrackerConfig override (repeatable)")
+    ap.add_argument("--regressor", type=Path, default=None,
+                    help="a regressor file other than the shipped one (a retrained candidate)")
     ap.add_argument("--out", type=Path, help="JSON file of every sequence's figures")
     ap.add_argument("--against", type=Path, help="another run's --out file: paired differences")
     a = ap.parse_args(argv)
@@ -92,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         print(e, file=sys.stderr)
         return 2
     limit_blas_threads(1)
-    reg = HandRegressor.load(default_model_path())
+    reg = HandRegressor.load(a.regressor or default_model_path())
     shapes = tuple(range(a.shapes[0], a.shapes[1] + 1))
     # the bench's sections read their shapes and score their sequences through these two
     # module names; swapped for the run (analysis only), restored after

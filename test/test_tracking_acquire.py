@@ -49,6 +49,9 @@ class _Modes:
     def regress_fingers(self, *a, **kw):
         return self.reg.regress_fingers(*a, **kw)
 
+    def lookup(self, *a, **kw):
+        return self.reg.lookup(*a, **kw)
+
 
 def _run(tr: HybridTracker, frames: list) -> list:
     return [tr.process(f.depth, f.depth_intrinsics) for f in frames]

@@ -20,6 +20,7 @@ from hand_capture.tracking.forest import ForestGroup, RegressionForest, weighted
 from hand_capture.tracking.icp import ModelTracker, depth_error, render_depth
 from hand_capture.tracking.preprocess import fill_gaps, segment_hand
 from hand_capture.tracking.regressor import (
+    BACKGROUND_REL_M,
     FINGER_KP,
     DepthLookup,
     HandRegressor,
@@ -317,6 +318,23 @@ def test_hand_box_and_the_cropped_depth_lookup(scene):
     P[50:100, 1] -= 1.0
     np.testing.assert_array_equal(crop(P.reshape(30, 100, 3)), full(P.reshape(30, 100, 3)))
     assert (full(P) < 1.0).any() and (full(P) == 2.0).any()
+    # relative background (the shipped model's): a point off the hand reads its own depth
+    # + BACKGROUND_REL_M, on the hand the same depth as before; so a hand and its points
+    # moved 0.3 m farther give every feature (a difference of two reads) the same value
+    rel = DepthLookup(obs.depth_m, 0, 0, obs.intrinsics, relative=True)
+    rcrop = DepthLookup(obs.depth_m[r0:r1, c0:c1], c0, r0, obs.intrinsics, relative=True)
+    got = rel(P)
+    np.testing.assert_array_equal(rcrop(P), got)
+    off = full(P) == 2.0
+    np.testing.assert_allclose(got[off], P[off, 2] + BACKGROUND_REL_M, rtol=1e-6)
+    np.testing.assert_array_equal(got[~off], full(P)[~off])
+    scale = (P[:, 2] + 0.3) / P[:, 2]               # the same pixels, 0.3 m farther
+    far_pts = P * scale[:, None]
+    far = DepthLookup(np.where(obs.depth_m > 0, obs.depth_m + np.float32(0.3), 0.0)
+                      .astype(np.float32), 0, 0, obs.intrinsics, relative=True)
+    pairs = rng.integers(0, len(P), (500, 2))
+    np.testing.assert_allclose(far(far_pts)[pairs[:, 0]] - far(far_pts)[pairs[:, 1]],
+                               got[pairs[:, 0]] - got[pairs[:, 1]], atol=1e-5)
 
 
 def test_lazy_back_projection_gives_the_same_points(scene):

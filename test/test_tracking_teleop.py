@@ -46,6 +46,9 @@ class _Counting:
     def regress_fingers(self, *a, **kw):
         return self.reg.regress_fingers(*a, **kw)
 
+    def lookup(self, *a, **kw):
+        return self.reg.lookup(*a, **kw)
+
 
 def _track(tr, cam, times):
     out = []

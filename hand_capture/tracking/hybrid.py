@@ -593,7 +593,7 @@ class HybridTracker:
         # the features read depth in the hand's bounding box (off it: background, as off the
         # hand anywhere)
         r0, r1, c0, c1 = obs.box if obs.box is not None else (0, intr.height, 0, intr.width)
-        lookup = DepthLookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
+        lookup = self.regressor.lookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
         q0 = palm_init_pca(obs.points, self.frames)
         return lookup, self.regressor.palm_modes(self.frames, lookup, q0, n_modes)
 

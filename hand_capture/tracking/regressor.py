@@ -33,11 +33,14 @@ from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel
 from hand_capture.model.joints import root_angles_from_matrix, root_rotation_matrix
 from hand_capture.tracking.forest import ForestGroup, RegressionForest
 
-__all__ = ["BACKGROUND_M", "DepthLookup", "FeatureSet", "HandRegressor", "ModelFrames",
-           "PALM_KP", "FINGER_KP", "ik_fingers", "kabsch", "palm_init_pca"]
+__all__ = ["BACKGROUND_M", "BACKGROUND_REL_M", "DepthLookup", "FeatureSet", "HandRegressor",
+           "ModelFrames", "PALM_KP", "FINGER_KP", "ik_fingers", "kabsch", "palm_init_pca"]
 
 #: depth read off the hand or off the image [m]
 BACKGROUND_M = 2.0
+#: what a feature's point off the hand reads beyond the point's own depth, in a model
+#: trained with a relative background (``info["background"] == "relative"``) [m]
+BACKGROUND_REL_M = 1.0
 #: palm keypoints (wrist, thumb TM, index..little MCP) in KEYPOINT_NAMES order
 PALM_KP = np.array([0, 1, 5, 9, 13, 17])
 #: per finger (thumb..little) the three keypoints regressed by finger regression
@@ -135,6 +138,8 @@ class DepthLookup:
     u0: int                 # column of depth[:, 0] in the full image
     v0: int                 # row of depth[0, :]
     intr: Intrinsics
+    #: off the hand: the point's own depth + BACKGROUND_REL_M (True) or BACKGROUND_M
+    relative: bool = False
 
     def __call__(self, pts: np.ndarray) -> np.ndarray:
         z = np.maximum(pts[..., 2], 1e-3)
@@ -142,16 +147,22 @@ class DepthLookup:
         v = np.rint(self.intr.fy * pts[..., 1] / z + self.intr.cy).astype(np.int64) - self.v0
         # the image with background filled in and a one-pixel background border: a pixel off
         # the image reads the border (clipped index), a pixel off the hand the background
+        # (relative: marked -1 here, read as the point's depth + BACKGROUND_REL_M below, so
+        # that no feature depends on how far the hand is from the camera)
         img = getattr(self, "_padded", None)
         if img is None:
             h, w = self.depth.shape
-            img = np.full((h + 2, w + 2), BACKGROUND_M, np.float32)
-            img[1:-1, 1:-1] = np.where(self.depth > 0, self.depth, np.float32(BACKGROUND_M))
+            back = np.float32(-1.0 if self.relative else BACKGROUND_M)
+            img = np.full((h + 2, w + 2), back, np.float32)
+            img[1:-1, 1:-1] = np.where(self.depth > 0, self.depth, back)
             self._padded = img
         h, w = img.shape
         np.clip(u, -1, w - 2, out=u)
         np.clip(v, -1, h - 2, out=v)
-        return img[v + 1, u + 1]
+        d = img[v + 1, u + 1]
+        if self.relative:
+            d = np.where(d < 0, (pts[..., 2] + BACKGROUND_REL_M).astype(d.dtype), d)
+        return d
 
 
 @dataclass
@@ -261,6 +272,12 @@ class HandRegressor:
     @property
     def palm_stages(self) -> int:
         return len(self.palm_forests)
+
+    def lookup(self, depth: np.ndarray, u0: int, v0: int, intr: Intrinsics) -> DepthLookup:
+        """The :class:`DepthLookup` this model's features were trained with (a relative
+        background when ``info["background"]`` says so; older files: the constant)."""
+        return DepthLookup(depth, u0, v0, intr,
+                           relative=self.info.get("background") == "relative")
 
     @property
     def finger_stages(self) -> int:

@@ -291,7 +291,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
                   intrinsics: Intrinsics | None = None, log: Callable[[str], None] | None = None,
                   forearm_prob: float = 0.5, surface_mm: tuple[float, float] = (-1.0, 2.5),
                   max_tilt_deg: float = 60.0, towards_prob: float = TOWARDS_PROB,
-                  artifact_prob: float = ARTIFACT_PROB) -> HandRegressor:
+                  artifact_prob: float = ARTIFACT_PROB,
+                  relative_background: bool = True) -> HandRegressor:
     """Train the cascaded regressor from scratch, reproducibly from ``seed``.
 
     Args:
@@ -311,6 +312,9 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
         max_tilt_deg, towards_prob: the viewpoints of the training poses (:func:`random_pose`).
         artifact_prob: share of samples with a stereo camera's artifacts
             (:func:`render_samples`).
+        relative_background: a feature's point off the hand reads its own depth + 1 m
+            (:class:`~hand_capture.tracking.regressor.DepthLookup`; ``info["background"]``
+            "relative"), not a constant 2 m ("constant": the distance of the hand a cue).
 
     Returns:
         The trained :class:`HandRegressor`.
@@ -327,7 +331,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
                              surface_mm=surface_mm, max_tilt_deg=max_tilt_deg,
                              towards_prob=towards_prob, artifact_prob=artifact_prob)
     say(f"rendered {len(samples)} samples in {time.perf_counter() - t_start:.1f} s")
-    lookups = [DepthLookup(s.crop, s.u0, s.v0, intr) for s in samples]
+    lookups = [DepthLookup(s.crop, s.u0, s.v0, intr, relative=relative_background)
+               for s in samples]
     rest = ModelFrames(base).rest_vertices
     labels = base.vertex_labels
     q_true = np.array([s.pose for s in samples])
@@ -425,6 +430,7 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
                          "max_depth": str(max_depth), "forearm_prob": str(forearm_prob),
                          "surface_mm": f"{surface_mm[0]},{surface_mm[1]}",
                          "max_tilt_deg": str(max_tilt_deg), "towards_prob": str(towards_prob),
+                         "background": "relative" if relative_background else "constant",
                          "train_s": f"{time.perf_counter() - t_start:.0f}"})
     if out_path is not None:
         reg.save(out_path)
