@@ -13,7 +13,6 @@ from hand_capture.errors import ConfigError, InputError
 from hand_capture.model import HandModel, sample_shape
 from hand_capture.tracking import HandRegressor, HybridTracker, TrackerConfig
 from hand_capture.tracking.armseg import (
-    BACKGROUND_REL_M,
     ArmClassifier,
     default_arm_path,
     load_arm_classifier,
@@ -22,6 +21,7 @@ from hand_capture.tracking.armseg import (
 )
 from hand_capture.tracking.hybrid import default_model_path
 from hand_capture.tracking.preprocess import HandObservation, touches_border
+from hand_capture.tracking.regressor import BACKGROUND_REL_M
 from hand_capture.tracking.train import ARM_LABEL, HAND_LABEL, default_intrinsics, render_samples
 
 

@@ -11,7 +11,8 @@ depth images, the dissertation's pixel features of eq. II.15 without the shape i
 
 (offsets ``o`` in metres, so a feature probes the same metric neighbourhood at any distance
 and any focal length; ``o_2 = 0`` for half of them: the probe against the pixel itself).
-Off the segment a probe reads the pixel's own depth plus :data:`BACKGROUND_REL_M`, so no
+Off the segment a probe reads the pixel's own depth plus ``BACKGROUND_REL_M`` (the
+regressor's, :data:`~hand_capture.tracking.regressor.BACKGROUND_REL_M`), so no
 feature depends on how far the hand is (format 1 read a constant 2 m there: ``2 - d(x)``
 made the distance a cue, and a hand 0.2 m farther than the training renders was called arm
 on 85 % of its pixels); off the image it reads the image border (an arm running out of the
@@ -45,14 +46,13 @@ from scipy.spatial import cKDTree
 from hand_capture.cameras.base import Intrinsics
 from hand_capture.errors import InputError
 from hand_capture.tracking.forest import RegressionForest
+from hand_capture.tracking.regressor import BACKGROUND_REL_M
 
 __all__ = ["ArmClassifier", "default_arm_path", "load_arm_classifier", "remove_arm",
            "train_arm_classifier"]
 
 #: format version of the saved model (2: the background read relative to the pixel)
 FORMAT = 2
-#: what a probe off the segment reads, beyond the probed pixel's own depth [m]
-BACKGROUND_REL_M = 1.0
 
 
 def default_arm_path() -> Path:
@@ -64,7 +64,7 @@ def default_arm_path() -> Path:
 
 def _padded(depth: np.ndarray) -> np.ndarray:
     """The segment's depth with the background marked (-1 off the segment: read as the
-    probed pixel's depth + :data:`BACKGROUND_REL_M` by :func:`_probe_difference`)."""
+    probed pixel's depth + ``BACKGROUND_REL_M`` by :func:`_probe_difference`)."""
     return np.where(depth > 0, depth, np.float32(-1.0)).astype(np.float32)
 
 
