@@ -2,8 +2,8 @@
 analysis, never shipped).
 
 ``hand-suite bench tracking`` runs its validation sections (the suite's generator only:
-surface variants, collision capsules, stereo artifacts, forearm (also on the capsules and
-with a farther D435-like camera), table; nothing of
+surface variants, collision capsules, stereo artifacts, forearm (also on the capsules,
+with a farther D435-like camera and with a finer one nearer), table; nothing of
 :mod:`hand_capture.evaldata`) on four shapes x four clips, 16 sequences a family. A change
 that moves a family by a few tenths of a millimetre there can be one sequence falling into
 another basin: the 28th session measured changes of +-0.4 mm on 16 sequences that vanished
@@ -40,7 +40,7 @@ from hand_capture.tracking.regressor import HandRegressor
 
 #: the sections, by name: each returns the bench's figures for the product settings
 SECTIONS = ("surface", "capsule", "stereo", "forearm", "table", "capsule_forearm",
-            "far_forearm")
+            "far_forearm", "near_forearm")
 
 
 def _run(section: str, reg: HandRegressor, cfg: TrackerConfig) -> dict:
@@ -52,10 +52,11 @@ def _run(section: str, reg: HandRegressor, cfg: TrackerConfig) -> dict:
         return th.stereo_validation_section(reg, cfg, False)
     if section == "forearm":
         return th.forearm_validation_section(reg, cfg, False, product_only=True)
-    if section in ("capsule_forearm", "far_forearm"):
+    if section in ("capsule_forearm", "far_forearm", "near_forearm"):
         return th.forearm_validation_section(reg, cfg, False, product_only=True,
                                              capsules=section == "capsule_forearm",
-                                             far=section == "far_forearm")
+                                             far=section == "far_forearm",
+                                             near=section == "near_forearm")
     return th.table_validation_section(reg, cfg, False)
 
 

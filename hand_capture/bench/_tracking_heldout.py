@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hand_capture.bench import print_table
+from hand_capture.errors import ConfigError
 
 if TYPE_CHECKING:
     from hand_capture.cameras.base import Intrinsics
@@ -55,6 +56,12 @@ ARM_VAL_SEEDS = (21, 22, 23, 24)
 #: the far forearm validation family's camera (:func:`forearm_validation_section` ``far``):
 #: D435-like depth (640x480, 87 deg) 0.2 m behind the suite's camera
 FAR_CAMERA = {"width": 640, "height": 480, "hfov_deg": 87.0, "camera_position": (0.0, 0.0, -0.2)}
+#: the near forearm validation family's camera (``near``): a finer 640x480 depth image (70
+#: deg, fx 457 px) 0.15 m nearer the hand than the suite's camera (hand at a D405's
+#: distances, about 0.2-0.3 m), where a pixel covers 0.4-0.7 mm of the hand (the suite's
+#: 320x240 camera: 1.3-2.4 mm)
+NEAR_CAMERA = {"width": 640, "height": 480, "hfov_deg": 70.0,
+               "camera_position": (0.0, 0.0, 0.15)}
 #: the hard validation set's sleeve: its radius beyond the arm's and where it starts past the
 #: wrist, uniform ranges [m]
 SLEEVE_WIDER_M, SLEEVE_START_M = (0.01, 0.025), (0.04, 0.08)
@@ -760,8 +767,8 @@ def _track_both_paths(reg, base, cal, cfg, frames, kps, labels) -> tuple[object,
 
 
 def forearm_validation_section(reg, config, quick: bool, product_only: bool = False,
-                               smoke: bool = False, capsules: bool = False, far: bool = False
-                               ) -> dict:
+                               smoke: bool = False, capsules: bool = False, far: bool = False,
+                               near: bool = False) -> dict:
     """The tracker with a forearm in view on the suite's own generator (validation shapes
     :data:`ARM_VAL_SEEDS`; :func:`suite_forearm_sequence`), calibrated per shape: where
     forearm handling is tuned, beside the held-out figure it is reported on. Two paths:
@@ -775,14 +782,18 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
     hand drawn as the suite's collision capsules (:class:`CapsuleSurface`, calibrated on
     them; keys ``val_capsule_forearm*``, without the hard set); ``far``: a D435-like camera
     (640x480, 87 deg) 0.2 m farther than the suite's (keys ``val_far_forearm*``, without the
-    hard set)."""
+    hard set); ``near``: a finer camera 0.15 m nearer (:data:`NEAR_CAMERA`; keys
+    ``val_near_forearm*``, without the hard set)."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
 
     seeds, clips, n, step = _validation_plan(quick, smoke)
     surface = CapsuleSurface() if capsules else None
-    camera = FAR_CAMERA if far else None
-    fam = "val_capsule_forearm" if capsules else "val_far_forearm" if far else "val_forearm"
+    if capsules + far + near > 1:
+        raise ConfigError("forearm_validation_section: at most one of capsules, far, near")
+    camera = FAR_CAMERA if far else NEAR_CAMERA if near else None
+    fam = ("val_capsule_forearm" if capsules else "val_far_forearm" if far
+           else "val_near_forearm" if near else "val_forearm")
     base = HandModel()
     variants = {"product": config}
     if not product_only:
@@ -822,11 +833,12 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
                 "training renders' forearm"
                 + (", the hand drawn as its collision capsules" if capsules else "")
                 + (", a 640x480 87 deg camera 0.2 m farther" if far else "")
+                + (", a 640x480 70 deg camera 0.15 m nearer" if near else "")
                 + "): forearm handling is tuned here and reported on the held-out family; "
                 "first frame = every frame from a reset tracker",
                 ["forearm handling", "path", "frames", "mean mm", "median mm", "succ@20",
                  "seg arm %", "hand kept %", "cloud cut"], rows)
-    if not product_only and not capsules and not far:
+    if not product_only and not capsules and not far and not near:
         out.update(_hard_forearm_validation(reg, config, seeds, quick))
     if arm is not None:
         key = "val_arm_pixel_acc" if fam == "val_forearm" else f"{fam}_arm_pixel_acc"
@@ -1108,7 +1120,7 @@ def run_sections(reg, config, quick: bool, smoke: bool = False) -> dict:
     out.update(capsule_validation_section(reg, config, quick, smoke=smoke))
     out.update(stereo_validation_section(reg, config, quick, smoke=smoke))
     out.update(forearm_validation_section(reg, config, quick, smoke=smoke))
-    for kind in ("capsules", "far"):   # the product only: other hand surface, other camera
+    for kind in ("capsules", "far", "near"):   # the product only: other surface, cameras
         out.update(forearm_validation_section(reg, config, quick, product_only=True,
                                               smoke=smoke, **{kind: True}))
     out.update(table_validation_section(reg, config, quick, smoke=smoke))

@@ -167,6 +167,10 @@ class TrackerConfig:
     tau_max_mm: float = param(40.0, "largest tau the calibration may set [mm]", lo=0.1)
     depth_cap_mm: float = param(60.0, "per-pixel cap of |I_r - I| in E_d [mm]", lo=1.0)
     cost_downsample: int = param(2, "image downsampling of the E_d evaluation", lo=1, hi=8)
+    cost_footprint_mm: float = param(1.1, "least size of an E_d pixel on the hand [mm]: the "
+                                     "downsampling rises above cost_downsample where the "
+                                     "hand is near or the camera fine (icp.cost_grid); 0 = "
+                                     "cost_downsample always", lo=0.0, hi=10.0)
     cost_data_weight: float = param(1.0, "lambda_1 of the candidate cost (eq. II.20)", lo=0.0)
     cost_temporal_weight: float = param(0.0, "lambda_2 of the candidate cost (eq. II.20; "
                                         "mm per rad^2 / m^2 of pose change); 0 chosen on the "

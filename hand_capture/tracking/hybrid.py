@@ -78,7 +78,7 @@ from hand_capture.model import (
 from hand_capture.model.joints import root_rotation_matrix
 from hand_capture.tracking.armseg import ArmClassifier, load_arm_classifier, remove_arm
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.icp import ModelTracker, downsampled_depth, wrap_angles
+from hand_capture.tracking.icp import ModelTracker, cost_grid, downsampled_depth, wrap_angles
 from hand_capture.tracking.preprocess import (
     HandObservation,
     cut_forearm,
@@ -372,8 +372,7 @@ class HybridTracker:
             return TrackResult(pose.copy(), False, "no_hand", cfg.depth_cap_mm, 0.0,
                                self.last_good, 0, timing, obs, tau_mm=self.tau_mm), dropped, cloud
         pts = obs.subsample(cfg.max_points)
-        ds = cfg.cost_downsample
-        obs_ds = downsampled_depth(obs, ds)
+        obs_ds = downsampled_depth(obs, cost_grid(obs, cfg))
 
         pool: list[tuple[np.ndarray, np.ndarray]] = []  # (pose, regression reference)
         mode = cfg.mode
@@ -481,7 +480,7 @@ class HybridTracker:
             if cut2 and obs2.n_points != obs.n_points:
                 obs, cut = obs2, True
                 pts = obs.subsample(cfg.max_points)
-                obs_ds = downsampled_depth(obs, ds)
+                obs_ds = downsampled_depth(obs, cost_grid(obs, cfg))
                 q = self.icp.refine_batch([q], obs, cfg.icp_iterations,
                                           q_refs=[pool[best][1]], points=pts)[0]
                 c2 = self._costs([q], obs, obs_ds)[0]

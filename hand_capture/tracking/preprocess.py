@@ -99,6 +99,16 @@ class HandObservation:
                 self.points[:, 2])
 
     @property
+    def median_depth_m(self) -> float:
+        """Median depth of the hand pixels [m] (0 without any); computed once."""
+        z = getattr(self, "_median_z", None)
+        if z is None:
+            v = self.depth_m[self.mask] if self.mask.any() else np.zeros(0)
+            z = float(np.median(v)) if len(v) else 0.0
+            self._median_z = z
+        return z
+
+    @property
     def n_points(self) -> int:
         return len(self._vuz[0]) if self._points is None else len(self._points)
 
