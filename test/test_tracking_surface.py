@@ -209,6 +209,52 @@ def test_abduction_trial_uncrosses_two_fingers():
     assert np.array_equal(q1, spread) and c == c1
 
 
+def test_exchange_trial_mends_two_fingers_on_each_others_points():
+    """The index curled and the ring straight, fitted the other way round (the index
+    straight on the ring's points, the ring curled): one finger at a time cannot mend it,
+    since either change alone puts two fingers on the same points; ``exchange_trial``
+    (two fingers' flexions exchanged) finds the true pose at a lower cost. The true pose
+    is kept."""
+    from hand_capture.model import JOINT_INDEX
+
+    m = HandModel()
+    intr = default_intrinsics()
+    q_true = random_pose(np.random.default_rng(4), m)
+    for f in ("index", "middle", "ring", "little"):
+        q_true[JOINT_INDEX[f"{f}_mcp_abd"]] = 0.0
+        for j, a in zip(("mcp_flex", "pip_flex", "dip_flex"), (0.15, 0.15, 0.15),
+                        strict=True):
+            q_true[JOINT_INDEX[f"{f}_{j}"]] = a
+    for j, a in zip(("mcp_flex", "pip_flex", "dip_flex"), (1.2, 1.4, 0.9), strict=True):
+        q_true[JOINT_INDEX[f"index_{j}"]] = a
+    res = make_renderer("zbuffer").render([SurfaceVariant().mesh_fn(m)(q_true)], intr)
+    depth = np.rint(res.depth * 1000).astype(np.uint16)
+    wrong = q_true.copy()
+    for j in ("mcp_flex", "pip_flex", "dip_flex"):
+        a, b = JOINT_INDEX[f"index_{j}"], JOINT_INDEX[f"ring_{j}"]
+        wrong[a], wrong[b] = q_true[b], q_true[a]
+    tr = HybridTracker(m, TrackerConfig(), None)
+    tr.reset()
+    obs = segment_hand(depth, intr, tr.cfg)
+    obs_ds = obs.depth_m[::2, ::2]
+    pts = obs.subsample(160)
+
+    def err_mm(q: np.ndarray) -> float:
+        return float(np.linalg.norm(m.joint_positions(q) - m.joint_positions(q_true),
+                                    axis=1).max()) * 1e3
+
+    q0 = tr.icp.refine_batch([wrong], obs, 3, q_refs=[wrong], points=pts)[0]
+    c0 = tr._costs([q0], obs, obs_ds)[0]
+    assert err_mm(q0) > 30.0
+    q_swap, _ = tr._swap_fingers([q0], [c0], 0, obs, obs_ds, pts)
+    assert err_mm(q_swap) > 30.0            # one finger at a time cannot mend it
+    q, c = tr._exchange_trial(q0, c0, obs, obs_ds, pts)
+    assert c[0] < c0[0] and err_mm(q) < 15.0
+    c1 = tr._costs([q_true], obs, obs_ds)[0]
+    q1, c = tr._exchange_trial(q_true, c1, obs, obs_ds, pts)
+    assert np.array_equal(q1, q_true) and c == c1
+
+
 def test_tracker_yaml_lists_known_parameters_at_their_defaults():
     """config/tracker.yaml names only TrackerConfig / TrackerNodeConfig fields, each at the
     dataclass default (the file documents the defaults), and lists the surface settings."""

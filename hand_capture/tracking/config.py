@@ -193,6 +193,12 @@ class TrackerConfig:
                                   "of eq. II.20: two neighbouring fingers fitted to each "
                                   "other's points (crossed) are not mended one finger at a "
                                   "time")
+    exchange_trial: bool = param(True, "after the finger-wise selection two of the four "
+                                 "fingers may exchange their flexion angles (each pair "
+                                 "tried, the cheapest taken and refined when it lowers the "
+                                 "cost of eq. II.20): a straight finger fitted to another's "
+                                 "points, that one curled where the first is, is not mended "
+                                 "one finger at a time")
     # -- regression (II.4) ---------------------------------------------------------------
     regress_previous: bool = param(True, "step 2 also regresses the fingers on the previous "
                                    "pose's palm (after its palm-only iteration of step 3): "

@@ -105,6 +105,25 @@ _FINGER_ABD = np.array([i for i, n in enumerate(JOINT_NAMES)
                         if n.endswith("_mcp_abd") and not n.startswith("thumb")])
 
 
+#: the MCP, PIP and DIP flexion DoFs of each of the four fingers (not the thumb), for
+#: ``exchange_trial``: (4, 3)
+_FINGER_FLEX = np.array([[JOINT_NAMES.index(f"{f}_{j}_flex") for j in ("mcp", "pip", "dip")]
+                         for f in ("index", "middle", "ring", "little")])
+
+
+def _exchanged_flexions(q: np.ndarray) -> list[np.ndarray]:
+    """``q`` with the flexion angles of two of the four fingers exchanged, for each of the
+    six pairs, within the joint limits (``exchange_trial``)."""
+    out = []
+    for i in range(4):
+        for j in range(i + 1, 4):
+            t = q.copy()
+            a, b = _FINGER_FLEX[i], _FINGER_FLEX[j]
+            t[a], t[b] = q[b], q[a]
+            out.append(np.clip(t, JOINT_LIMITS[:, 0], JOINT_LIMITS[:, 1]))
+    return out
+
+
 def _finger_postures(q: np.ndarray, dofs: np.ndarray) -> list[np.ndarray]:
     """The straight and curled alternatives of one finger (``dofs`` of the pose ``q``):
     its flexion joints set to :data:`_POSTURES`, clipped to the joint limits."""
@@ -468,6 +487,11 @@ class HybridTracker:
             q, c = self._abduction_trial(pool[best][0], costs[best], obs, obs_ds, pts)
             pool[best], costs[best] = (q, q), c
             timing["selection"] += time.perf_counter() - t
+        if cfg.exchange_trial and refine:
+            t = time.perf_counter()
+            q, c = self._exchange_trial(pool[best][0], costs[best], obs, obs_ds, pts)
+            pool[best], costs[best] = (q, q), c
+            timing["selection"] += time.perf_counter() - t
         q = pool[best][0]
         e_d = costs[best][1]
         if whole is not None and refine:
@@ -554,6 +578,25 @@ class HybridTracker:
         trial[_FINGER_ABD] = 0.0
         return self._refined_if_cheaper(trial, self.cfg.icp_iterations, q, c, obs, obs_ds,
                                         pts)
+
+    def _exchange_trial(self, q: np.ndarray, c: tuple[float, float], obs: HandObservation,
+                        obs_ds: np.ndarray, pts: tuple[np.ndarray, np.ndarray]
+                        ) -> tuple[np.ndarray, tuple[float, float]]:
+        """``exchange_trial`` (an extension of step 5): the selected pose ``q`` (cost ``c``,
+        its ``(E_c, E_d)``) with two fingers' flexions exchanged, each of the six pairs;
+        the cheapest, when its E_c of eq. II.20 is lower than ``c``'s, taken, and refined as
+        a candidate of step 4 (``icp_iterations``) when that lowers it further. Diagnosed
+        on a far hand: the index fitted straight onto the ring's points and the ring curled
+        where the curled index is; the finger-wise selection changes one finger at a time,
+        and either change alone puts two fingers on the same points. Returns the pose and
+        its ``(E_c, E_d)``."""
+        trials = _exchanged_flexions(q)
+        tc = self._costs(trials, obs, obs_ds)
+        k = int(np.argmin([x[0] for x in tc]))
+        if tc[k][0] >= c[0]:
+            return q, c
+        return self._refined_if_cheaper(trials[k], self.cfg.icp_iterations, trials[k], tc[k],
+                                        obs, obs_ds, pts)
 
     def _smooth_ref(self) -> np.ndarray:
         """Reference of the smoothness term (eq. II.24) while tracking: the previous pose,
