@@ -160,6 +160,48 @@ def test_finger_postures_find_a_finger_no_candidate_has():
     assert c_off == c0 and err_off > 40.0
 
 
+def _finger_trial_scene(index_flex: tuple[float, float, float] | None = None):
+    """A reset tracker on a clean render of a palm-facing pose with the four fingers
+    straight-ish (abduction 0, flexions 0.15 rad), the index's MCP / PIP / DIP flexions
+    ``index_flex`` [rad] when given: ``(model, tracker, q_true, obs, obs_ds, points,
+    err_mm)``, ``err_mm(q)`` the largest keypoint distance from ``q_true`` [mm]."""
+    from hand_capture.model import JOINT_INDEX
+
+    m = HandModel()
+    q_true = random_pose(np.random.default_rng(4), m)
+    for f in ("index", "middle", "ring", "little"):
+        q_true[JOINT_INDEX[f"{f}_mcp_abd"]] = 0.0
+        for j in ("mcp_flex", "pip_flex", "dip_flex"):
+            q_true[JOINT_INDEX[f"{f}_{j}"]] = 0.15
+    for j, a in zip(("mcp_flex", "pip_flex", "dip_flex"), index_flex or (), strict=False):
+        q_true[JOINT_INDEX[f"index_{j}"]] = a
+    tr = HybridTracker(m, TrackerConfig(), None)
+    tr.reset()
+    obs, obs_ds = _trial_observation(m, q_true, tr.cfg)
+
+    def err_mm(q: np.ndarray) -> float:
+        return float(np.linalg.norm(m.joint_positions(q) - m.joint_positions(q_true),
+                                    axis=1).max()) * 1e3
+
+    return m, tr, q_true, obs, obs_ds, obs.subsample(160), err_mm
+
+
+def _trial_observation(m: HandModel, q: np.ndarray, cfg: TrackerConfig):
+    """The segmented clean render of pose ``q`` and its E_d image (step 2)."""
+    intr = default_intrinsics()
+    res = make_renderer("zbuffer").render([SurfaceVariant().mesh_fn(m)(q)], intr)
+    obs = segment_hand(np.rint(res.depth * 1000).astype(np.uint16), intr, cfg)
+    return obs, obs.depth_m[::2, ::2]
+
+
+def _local_minimum(tr: HybridTracker, start: np.ndarray, obs, obs_ds, pts):
+    """``start`` refined as the tracker would (3 Gauss-Newton iterations: its local
+    minimum), its ``(E_c, E_d)``, and the finger-wise selection's pose from there."""
+    q0 = tr.icp.refine_batch([start], obs, 3, q_refs=[start], points=pts)[0]
+    c0 = tr._costs([q0], obs, obs_ds)[0]
+    return q0, c0, tr._swap_fingers([q0], [c0], 0, obs, obs_ds, pts)[0]
+
+
 def test_abduction_trial_uncrosses_two_fingers():
     """The index and middle fingers crossed (each abducted 20 deg towards the other's
     place): the finger-wise selection, which keeps abduction and changes one finger at a
@@ -167,33 +209,12 @@ def test_abduction_trial_uncrosses_two_fingers():
     at a lower cost. A pose whose abduction is already right is kept."""
     from hand_capture.model import JOINT_INDEX
 
-    m = HandModel()
-    intr = default_intrinsics()
-    q_true = random_pose(np.random.default_rng(4), m)
-    for f in ("index", "middle", "ring", "little"):
-        q_true[JOINT_INDEX[f"{f}_mcp_abd"]] = 0.0
-        for j in ("mcp_flex", "pip_flex", "dip_flex"):
-            q_true[JOINT_INDEX[f"{f}_{j}"]] = 0.15
-    res = make_renderer("zbuffer").render([SurfaceVariant().mesh_fn(m)(q_true)], intr)
-    depth = np.rint(res.depth * 1000).astype(np.uint16)
+    m, tr, q_true, obs, obs_ds, pts, err_mm = _finger_trial_scene()
     crossed = q_true.copy()
     crossed[JOINT_INDEX["index_mcp_abd"]] = -0.35
     crossed[JOINT_INDEX["middle_mcp_abd"]] = 0.35
-    tr = HybridTracker(m, TrackerConfig(), None)
-    tr.reset()
-    obs = segment_hand(depth, intr, tr.cfg)
-    obs_ds = obs.depth_m[::2, ::2]
-    pts = obs.subsample(160)
-
-    def err_mm(q: np.ndarray) -> float:
-        return float(np.linalg.norm(m.joint_positions(q) - m.joint_positions(q_true),
-                                    axis=1).max()) * 1e3
-
-    # the crossed pose refined as the tracker would (its local minimum)
-    q0 = tr.icp.refine_batch([crossed], obs, 3, q_refs=[crossed], points=pts)[0]
-    c0 = tr._costs([q0], obs, obs_ds)[0]
+    q0, c0, q_swap = _local_minimum(tr, crossed, obs, obs_ds, pts)
     assert err_mm(q0) > 20.0
-    q_swap, _ = tr._swap_fingers([q0], [c0], 0, obs, obs_ds, pts)
     assert err_mm(q_swap) > 20.0            # one finger at a time cannot uncross them
     q, c = tr._abduction_trial(q0, c0, obs, obs_ds, pts)
     assert c[0] < c0[0] and err_mm(q) < 10.0
@@ -201,9 +222,7 @@ def test_abduction_trial_uncrosses_two_fingers():
     spread = q_true.copy()
     spread[JOINT_INDEX["index_mcp_abd"]] = 0.3
     spread[JOINT_INDEX["little_mcp_abd"]] = -0.3
-    res = make_renderer("zbuffer").render([SurfaceVariant().mesh_fn(m)(spread)], intr)
-    obs = segment_hand(np.rint(res.depth * 1000).astype(np.uint16), intr, tr.cfg)
-    obs_ds = obs.depth_m[::2, ::2]
+    obs, obs_ds = _trial_observation(m, spread, tr.cfg)
     c1 = tr._costs([spread], obs, obs_ds)[0]
     q1, c = tr._abduction_trial(spread, c1, obs, obs_ds, obs.subsample(160))
     assert np.array_equal(q1, spread) and c == c1
@@ -217,36 +236,13 @@ def test_exchange_trial_mends_two_fingers_on_each_others_points():
     is kept."""
     from hand_capture.model import JOINT_INDEX
 
-    m = HandModel()
-    intr = default_intrinsics()
-    q_true = random_pose(np.random.default_rng(4), m)
-    for f in ("index", "middle", "ring", "little"):
-        q_true[JOINT_INDEX[f"{f}_mcp_abd"]] = 0.0
-        for j, a in zip(("mcp_flex", "pip_flex", "dip_flex"), (0.15, 0.15, 0.15),
-                        strict=True):
-            q_true[JOINT_INDEX[f"{f}_{j}"]] = a
-    for j, a in zip(("mcp_flex", "pip_flex", "dip_flex"), (1.2, 1.4, 0.9), strict=True):
-        q_true[JOINT_INDEX[f"index_{j}"]] = a
-    res = make_renderer("zbuffer").render([SurfaceVariant().mesh_fn(m)(q_true)], intr)
-    depth = np.rint(res.depth * 1000).astype(np.uint16)
+    _, tr, q_true, obs, obs_ds, pts, err_mm = _finger_trial_scene((1.2, 1.4, 0.9))
     wrong = q_true.copy()
     for j in ("mcp_flex", "pip_flex", "dip_flex"):
         a, b = JOINT_INDEX[f"index_{j}"], JOINT_INDEX[f"ring_{j}"]
         wrong[a], wrong[b] = q_true[b], q_true[a]
-    tr = HybridTracker(m, TrackerConfig(), None)
-    tr.reset()
-    obs = segment_hand(depth, intr, tr.cfg)
-    obs_ds = obs.depth_m[::2, ::2]
-    pts = obs.subsample(160)
-
-    def err_mm(q: np.ndarray) -> float:
-        return float(np.linalg.norm(m.joint_positions(q) - m.joint_positions(q_true),
-                                    axis=1).max()) * 1e3
-
-    q0 = tr.icp.refine_batch([wrong], obs, 3, q_refs=[wrong], points=pts)[0]
-    c0 = tr._costs([q0], obs, obs_ds)[0]
+    q0, c0, q_swap = _local_minimum(tr, wrong, obs, obs_ds, pts)
     assert err_mm(q0) > 30.0
-    q_swap, _ = tr._swap_fingers([q0], [c0], 0, obs, obs_ds, pts)
     assert err_mm(q_swap) > 30.0            # one finger at a time cannot mend it
     q, c = tr._exchange_trial(q0, c0, obs, obs_ds, pts)
     assert c[0] < c0[0] and err_mm(q) < 15.0
