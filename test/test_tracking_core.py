@@ -260,8 +260,12 @@ def test_e_d_of_a_near_hand_counts_no_holes_between_splatted_vertices():
         for fp in (TrackerConfig().cost_footprint_mm, 0.0):
             cfg = TrackerConfig(cost_footprint_mm=fp)
             obs = segment_hand(f.depth, f.depth_intrinsics, cfg)
-            e_d[name, fp] = ModelTracker(c.model, cfg).depth_cost(f.pose, obs)
+            tr = ModelTracker(c.model, cfg)
+            e_d[name, fp] = tr.depth_cost(f.pose, obs)
             grid[name, fp] = cost_grid(obs, cfg)
+            if grid[name, fp] != 2:   # an image of another grid is refused, not misread
+                with pytest.raises(InputError, match="E_d grid"):
+                    tr.depth_cost(f.pose, obs, obs.depth_m[::2, ::2])
     fp = TrackerConfig().cost_footprint_mm
     assert grid["usual", fp] == grid["usual", 0.0] == TrackerConfig().cost_downsample
     assert e_d["usual", fp] == e_d["usual", 0.0]

@@ -42,6 +42,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from hand_capture.cameras.base import Intrinsics
+from hand_capture.errors import InputError
 from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.preprocess import HandObservation
@@ -648,9 +649,15 @@ class ModelTracker:
 
     def depth_costs(self, Q: np.ndarray, obs: HandObservation,
                     observed_ds: np.ndarray | None = None) -> np.ndarray:
-        """:meth:`depth_cost` of poses (B, 27) (one skinning pass for all)."""
+        """:meth:`depth_cost` of poses (B, 27) (one skinning pass for all). A given
+        ``observed_ds`` must be ``downsampled_depth(obs, cost_grid(obs, cfg))`` (the
+        models are rendered on that grid)."""
         ds = cost_grid(obs, self.cfg)
         o = observed_ds if observed_ds is not None else downsampled_depth(obs, ds)
+        if observed_ds is not None and observed_ds.shape != (
+                (obs.depth_m.shape[0] + ds - 1) // ds, (obs.depth_m.shape[1] + ds - 1) // ds):
+            raise InputError(f"depth_costs: observed_ds has shape {observed_ds.shape}, not "
+                             f"that of the E_d grid (step {ds}) of this observation")
         Q = np.array(Q, dtype=np.float64, ndmin=2)
         if not len(Q):
             return np.empty(0)
