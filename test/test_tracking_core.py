@@ -263,7 +263,7 @@ def test_e_d_of_a_near_hand_counts_no_holes_between_splatted_vertices():
             tr = ModelTracker(c.model, cfg)
             e_d[name, fp] = tr.depth_cost(f.pose, obs)
             grid[name, fp] = cost_grid(obs, cfg)
-            if grid[name, fp] != 2:   # an image of another grid is refused, not misread
+            if grid[name, fp] != cfg.cost_downsample:   # another grid's image: refused
                 with pytest.raises(InputError, match="E_d grid"):
                     tr.depth_cost(f.pose, obs, obs.depth_m[::2, ::2])
     fp = TrackerConfig().cost_footprint_mm

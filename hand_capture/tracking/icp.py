@@ -654,8 +654,7 @@ class ModelTracker:
         models are rendered on that grid)."""
         ds = cost_grid(obs, self.cfg)
         o = observed_ds if observed_ds is not None else downsampled_depth(obs, ds)
-        if observed_ds is not None and observed_ds.shape != (
-                (obs.depth_m.shape[0] + ds - 1) // ds, (obs.depth_m.shape[1] + ds - 1) // ds):
+        if observed_ds is not None and observed_ds.shape != _image_size(obs.intrinsics, ds):
             raise InputError(f"depth_costs: observed_ds has shape {observed_ds.shape}, not "
                              f"that of the E_d grid (step {ds}) of this observation")
         Q = np.array(Q, dtype=np.float64, ndmin=2)

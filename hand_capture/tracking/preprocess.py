@@ -103,8 +103,8 @@ class HandObservation:
         """Median depth of the hand pixels [m] (0 without any); computed once."""
         z = getattr(self, "_median_z", None)
         if z is None:
-            v = self.depth_m[self.mask] if self.mask.any() else np.zeros(0)
-            z = float(np.median(v)) if len(v) else 0.0
+            v = self.depth_m[self.mask]
+            z = float(np.median(v)) if v.size else 0.0
             self._median_z = z
         return z
 
