@@ -22,7 +22,13 @@ angles, matching the MJCF export exactly). MuJoCo models and scenes: ``hand_capt
 ``python -m hand_capture.model.mjcf OUT_DIR`` writes hand.xml and the scene files.
 """
 
-from hand_capture.model.hand import Capsule, FKResult, HandModel, segment_distance
+from hand_capture.model.hand import (
+    Capsule,
+    FKResult,
+    HandModel,
+    segment_closest,
+    segment_distance,
+)
 from hand_capture.model.joints import (
     ARTICULATED_JOINTS,
     FINGER_DOFS,
@@ -84,6 +90,7 @@ __all__ = [
     "pose_from_dict", "pose_from_names", "pose_to_dict", "quat_from_root_angles",
     "quat_to_matrix", "quat_wxyz_to_matrix", "rest_pose", "root_angles_from_matrix",
     "root_angles_from_quat",
-    "root_rotation_matrix", "sample_shape", "segment_distance", "validate_pose",
+    "root_rotation_matrix", "sample_shape", "segment_closest", "segment_distance",
+    "validate_pose",
     "vertex_normals", "within_limits",
 ]

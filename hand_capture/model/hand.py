@@ -109,9 +109,11 @@ def _cross_into(out: np.ndarray, a: np.ndarray, b: np.ndarray) -> None:
     out[..., 2, :] = a[..., 0, :] * b[..., 1, :] - a[..., 1, :] * b[..., 0, :]
 
 
-def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray
-                     ) -> np.ndarray:
-    """Distance between segments [p0, p1] and [q0, q1] (arrays (..., 3)), shape (...)."""
+def segment_closest(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest points of segments [p0, p1] and [q0, q1] (arrays (..., 3)): their parameters
+    ``s`` on the first and ``t`` on the second (0 at p0 / q0, 1 at p1 / q1) and the distance
+    between them, each of shape (...)."""
     d1 = p1 - p0
     d2 = q1 - q0
     r = p0 - q0
@@ -129,7 +131,13 @@ def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndar
                  np.where(t > 1.0, np.clip((b - c) / np.maximum(a, eps), 0.0, 1.0), s))
     cp = p0 + s[..., None] * d1
     cq = q0 + t_c[..., None] * d2
-    return np.linalg.norm(cp - cq, axis=-1)
+    return s, t_c, np.linalg.norm(cp - cq, axis=-1)
+
+
+def segment_distance(p0: np.ndarray, p1: np.ndarray, q0: np.ndarray, q1: np.ndarray
+                     ) -> np.ndarray:
+    """Distance between segments [p0, p1] and [q0, q1] (arrays (..., 3)), shape (...)."""
+    return segment_closest(p0, p1, q0, q1)[2]
 
 
 class HandModel:
