@@ -156,6 +156,10 @@ class TrackerConfig:
                                 hi=50)
     palm_iterations: int = param(1, "palm-only refinement iterations (steps 1 and 3)", lo=0,
                                  hi=50)
+    overlap_weight: float = param(100.0, "weight of the fingers' penetration residuals in the "
+                                  "Gauss-Newton energy (a term added to eq. II.21: one "
+                                  "residual [mm] per penetrating capsule pair of two of the "
+                                  "four fingers, hand_capture.tracking.overlap)", lo=0.0)
     max_step_rad: float = param(0.35, "largest angle change per GN step [rad]", lo=0.01,
                                 hi=3.2)
     # -- success test and candidate selection (II.5.1) -----------------------------------

@@ -25,6 +25,10 @@ Optional wrist stub (``wrist_optional``, :func:`optional_vertices`): the model-t
 where real data is forearm, sleeve, cut or nothing; a hand surface ending at the wrist
 otherwise pulls the whole model towards the fingers (and calibration shrinks it).
 
+Finger penetration (a departure from eq. II.21, ``overlap_weight`` > 0): one more residual
+per pair of penetrating capsules of two of the four fingers, their penetration depth [mm]
+(:mod:`hand_capture.tracking.overlap`); not in palm-only iterations.
+
 Units: the data residuals are in millimetres (so l1 = 1, l2 = 0.2 and l3 = 1000 of the
 dissertation weigh a millimetre against a radian); root translations in E_smooth are in
 millimetres too. A small Levenberg damping keeps the normal equations regular when a finger
@@ -45,6 +49,7 @@ from hand_capture.cameras.base import Intrinsics
 from hand_capture.errors import InputError
 from hand_capture.model import JOINT_LIMITS, N_DOF, HandModel
 from hand_capture.tracking.config import TrackerConfig
+from hand_capture.tracking.overlap import FingerOverlap
 from hand_capture.tracking.preprocess import HandObservation
 
 __all__ = ["Correspondences", "ModelTracker", "beyond_wrist", "cost_grid", "depth_error",
@@ -306,6 +311,8 @@ class ModelTracker:
     def set_model(self, model: HandModel) -> None:
         """Use another (e.g. calibrated) model."""
         self.model = model
+        #: the four fingers' capsule pairs (overlap_weight, cost_overlap_weight)
+        self.overlap = FingerOverlap(model)
         self.rest_normals = model.normals(model.rest_vertices)
         self.labels = model.vertex_labels
         self.optional = optional_vertices(model, self.cfg)
@@ -439,6 +446,11 @@ class ModelTracker:
             if cfg.robust_mm > 0:   # Huber IRLS weights per pair (module docstring)
                 w = w * huber_sqrt_weights(r, cfg.robust_mm) ** 2
             blocks.append((J, r, w))
+        if cfg.overlap_weight > 0 and not (n == 6 and dofs[0] == 0 and dofs[-1] == 5):
+            kp, jac = self.model.keypoints_and_jacobian(q, dofs=dofs)
+            r, J = self.overlap.residuals(kp, jac)
+            if len(r):
+                blocks.append((J, r, cfg.overlap_weight))
         return self._assemble(q, blocks, q_ref, dofs)
 
     def _assemble(self, q: np.ndarray, blocks: list, q_ref: np.ndarray | None,
@@ -515,6 +527,9 @@ class ModelTracker:
         front = np.einsum("vbi,vbi->vb", vn[:, :, 3:], vn[:, :, :3]) < 0.0   # facing (V_c, B)
         wd, wr = cfg.data_weight, cfg.reverse_weight
         tree = self._point_tree(points) if wr > 0 else None
+        # the fingers' penetration (hand_capture.tracking.overlap), not for the palm alone
+        ov = (self.model.keypoints_and_jacobian(Q, dofs=dofs)
+              if cfg.overlap_weight > 0 and not root else None)
         intr = obs.intrinsics
         out = Q.copy()
         pairs = []
@@ -576,6 +591,11 @@ class ModelTracker:
                     r *= sw
                 A = J.T @ J
                 g = J.T @ r
+            if ov is not None:
+                r_o, J_o = self.overlap.residuals(ov[0][b], ov[1][b])
+                if len(r_o):
+                    A += cfg.overlap_weight * (J_o.T @ J_o)
+                    g += cfg.overlap_weight * (J_o.T @ r_o)
             self._prior_terms(A, g, q, q_refs[b], dofs, dt)
             A.ravel()[dt.diag] += cfg.damping * (1.0 + A.ravel()[dt.diag])
             try:

@@ -1,0 +1,120 @@
+"""Penetration of the four fingers into each other (a departure from eq. II.21).
+
+Dissertation II.5 has no collision term: the depth data alone place the fingers. On hand
+surfaces other than the model's (issue #13's held-out family) two neighbouring fingers are
+often fitted into one another's points, at a lower E_d (eq. II.19) than the true pose's. The
+collision capsules (``HandModel.capsules``) of two different fingers of the four (index ..
+little) cannot overlap on a real hand, so the Gauss-Newton energy of eq. II.21 gets one
+residual per penetrating pair, ``r_i + r_j - d_ij`` [mm] weighted by ``overlap_weight``,
+with ``d_ij`` the distance of the two capsules' axis segments and its gradient
+``n^T (J_p - J_q)`` at their closest points (seed 002's collision term, eq. 4, in spirit,
+on capsules instead of meshes). The success test and the candidate cost (eq. II.19, II.20)
+stay as they are.
+
+The thumb and the palm are left out: in a pinch or an opposed thumb their capsules overlap in
+true poses. Every finger capsule's axis runs from a joint keypoint towards the next one (the
+distal one ends a tip radius short of the tip keypoint), so a point on it is a fixed blend of
+two keypoints of one bone, and its Jacobian the same blend of theirs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hand_capture.model import BONE_NAMES, N_DOF, N_KEYPOINTS, HandModel, segment_closest
+
+__all__ = ["FingerOverlap", "finger_overlap_pairs"]
+
+_LONG = ("index", "middle", "ring", "little")
+_MM = 1000.0
+#: axes closer than this cross [m]: their separating direction is taken from their middles
+_CROSSED_M = 1e-5
+
+
+def finger_overlap_pairs(model: HandModel) -> np.ndarray:
+    """Rows of ``model.capsule_pairs`` whose two capsules lie on two different fingers of
+    the four (not the thumb, not the palm): (P,) indices."""
+    finger = [BONE_NAMES[c.bone].split("_")[0] for c in model.capsules]
+    return np.array([k for k, (i, j) in enumerate(model.capsule_pairs)
+                     if finger[i] in _LONG and finger[j] in _LONG and finger[i] != finger[j]],
+                    dtype=np.int64)
+
+
+@dataclass
+class FingerOverlap:
+    """The four fingers' capsule pairs of one model, with each capsule's axis as a blend
+    of two keypoints (module docstring)."""
+
+    model: HandModel
+
+    def __post_init__(self) -> None:
+        m = self.model
+        rows = finger_overlap_pairs(m)
+        #: (P, 2) capsule indices of the pairs
+        self.pairs = m.capsule_pairs[rows]
+        caps = np.unique(self.pairs)
+        kp = m.joint_positions(np.zeros(N_DOF))
+        seg = m.capsule_segments(np.zeros(N_DOF))
+        self.radius = np.array([c.radius for c in m.capsules])       # (C,) [m]
+        # each capsule's axis: from keypoint a (its start) to a + f (keypoint b - a)
+        self.kp_a = np.zeros(len(m.capsules), np.int64)
+        self.kp_b = np.zeros(len(m.capsules), np.int64)
+        self.frac = np.ones(len(m.capsules))
+        for c in caps:
+            a = int(np.argmin(np.linalg.norm(kp - seg[c, 0], axis=1)))
+            b = a + 1
+            if b >= N_KEYPOINTS:
+                raise ValueError(f"capsule {c} does not start at a finger keypoint")
+            self.kp_a[c], self.kp_b[c] = a, b
+            self.frac[c] = (np.linalg.norm(seg[c, 1] - seg[c, 0])
+                            / np.linalg.norm(kp[b] - kp[a]))
+        #: (C,) the MCP keypoint of each capsule's finger (the first of its four)
+        self.mcp = np.where(self.kp_a > 0, 1 + 4 * ((self.kp_a - 1) // 4), 0)
+
+    def _axes(self, kp: np.ndarray, caps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Axis end points (..., K, 3) of capsules ``caps`` from keypoints (..., 21, 3)."""
+        a = kp[..., self.kp_a[caps], :]
+        return a, a + self.frac[caps, None] * (kp[..., self.kp_b[caps], :] - a)
+
+    def depth_mm(self, kp: np.ndarray) -> np.ndarray:
+        """Summed penetration depth [mm] of keypoints (B, 21, 3) (poses of this model)."""
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        p0, p1 = self._axes(kp, i)
+        q0, q1 = self._axes(kp, j)
+        d = segment_closest(p0, p1, q0, q1)[2]
+        pen = self.radius[i] + self.radius[j] - d
+        return np.maximum(pen, 0.0).sum(axis=-1) * _MM
+
+    def residuals(self, kp: np.ndarray, jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Penetration depths [mm] of the penetrating pairs of one pose and their Jacobian
+        rows: keypoints (21, 3), their Jacobian (21, 3, n) -> (k,), (k, n). Weighted by
+        ``overlap_weight`` in the Gauss-Newton energy."""
+        i, j = self.pairs[:, 0], self.pairs[:, 1]
+        p0, p1 = self._axes(kp, i)
+        q0, q1 = self._axes(kp, j)
+        s, t, d = segment_closest(p0, p1, q0, q1)
+        pen = self.radius[i] + self.radius[j] - d
+        hit = np.flatnonzero(pen > 0.0)
+        n_dof = jac.shape[-1]
+        if not len(hit):
+            return np.zeros(0), np.zeros((0, n_dof))
+        i, j, s, t, d = i[hit], j[hit], s[hit], t[hit], d[hit]
+        # where the axes cross (d = 0, e.g. two straight fingers in the palm's plane) d has
+        # no gradient: the axes' middles are pushed apart instead, each towards its own
+        # finger's side (from the other's MCP joint towards its own)
+        crossed = d <= _CROSSED_M
+        s, t = np.where(crossed, 0.5, s), np.where(crossed, 0.5, t)
+        p = p0[hit] + s[:, None] * (p1[hit] - p0[hit])
+        q = q0[hit] + t[:, None] * (q1[hit] - q0[hit])
+        sep = np.where(crossed[:, None], kp[self.mcp[i]] - kp[self.mcp[j]], p - q)
+        n = sep / np.maximum(np.linalg.norm(sep, axis=1), 1e-12)[:, None]   # (k, 3)
+
+        def point_jac(c: np.ndarray, u: np.ndarray) -> np.ndarray:      # (k, 3, n)
+            w = u * self.frac[c]
+            return ((1.0 - w)[:, None, None] * jac[self.kp_a[c]]
+                    + w[:, None, None] * jac[self.kp_b[c]])
+
+        dd = np.einsum("ki,kin->kn", n, point_jac(i, s) - point_jac(j, t))
+        return pen[hit] * _MM, -_MM * dd
