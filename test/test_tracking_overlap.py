@@ -48,10 +48,12 @@ def test_pairs_are_the_four_fingers_only():
     assert len(fingers) == 6   # every pair of the four
 
 
-@pytest.mark.parametrize("scale", [0.9, 1.1])
-def test_depth_is_the_models_capsule_penetration(scale):
-    """The keypoint blend gives the same capsules as the model's own (any shape)."""
-    m = HandModel(HandShape(global_scale=scale))
+@pytest.mark.parametrize("shape,side", [(HandShape(global_scale=0.9), "right"),
+                                        (HandShape(1.04, (0.3, 0, -0.2, 0, 0, 0.1)), "right"),
+                                        (HandShape(global_scale=1.1), "left")])
+def test_depth_is_the_models_capsule_penetration(shape, side):
+    """The keypoint blend gives the same capsules as the model's own (any shape, side)."""
+    m = HandModel(shape, side=side)
     o = FingerOverlap(m)
     Q = _random_poses(200, 1)
     ref = np.maximum(m.self_penetration(Q)[:, finger_overlap_pairs(m)], 0).sum(axis=1) * 1e3

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hand_capture.model import BONE_NAMES, N_DOF, N_KEYPOINTS, HandModel, segment_closest
+from hand_capture.errors import InputError
+from hand_capture.model import BONE_NAMES, N_DOF, HandModel, segment_closest
 
 __all__ = ["FingerOverlap", "finger_overlap_pairs"]
 
@@ -65,11 +66,12 @@ class FingerOverlap:
         for c in caps:
             a = int(np.argmin(np.linalg.norm(kp - seg[c, 0], axis=1)))
             b = a + 1
-            if b >= N_KEYPOINTS:
-                raise ValueError(f"capsule {c} does not start at a finger keypoint")
-            self.kp_a[c], self.kp_b[c] = a, b
-            self.frac[c] = (np.linalg.norm(seg[c, 1] - seg[c, 0])
-                            / np.linalg.norm(kp[b] - kp[a]))
+            f = float(np.linalg.norm(seg[c, 1] - seg[c, 0]) / np.linalg.norm(kp[b] - kp[a]))
+            on_axis = a % 4 and np.allclose(kp[a] + f * (kp[b] - kp[a]), seg[c, 1], atol=1e-6)
+            if not on_axis or not np.allclose(kp[a], seg[c, 0], atol=1e-6):
+                raise InputError(f"capsule {c} ({BONE_NAMES[m.capsules[c].bone]}) does not "
+                                 "run from a finger joint's keypoint towards the next one")
+            self.kp_a[c], self.kp_b[c], self.frac[c] = a, b, f
         #: (C,) the MCP keypoint of each capsule's finger (the first of its four)
         self.mcp = np.where(self.kp_a > 0, 1 + 4 * ((self.kp_a - 1) // 4), 0)
 
