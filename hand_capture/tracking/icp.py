@@ -430,7 +430,8 @@ class ModelTracker:
         """``(A, g, E)``: Gauss-Newton system ``A dq = -g`` over ``dofs`` and the energy.
 
         ``corr`` is one set of data pairs (weight ``data_weight``) or a list of
-        ``(Correspondences, weight)``."""
+        ``(Correspondences, weight)``; the fingers' penetration term (``overlap_weight``)
+        is added except for the palm alone, as in :meth:`step`."""
         cfg = self.cfg
         n = len(dofs)
         blocks = []
@@ -446,7 +447,7 @@ class ModelTracker:
             if cfg.robust_mm > 0:   # Huber IRLS weights per pair (module docstring)
                 w = w * huber_sqrt_weights(r, cfg.robust_mm) ** 2
             blocks.append((J, r, w))
-        if cfg.overlap_weight > 0 and not (n == 6 and dofs[0] == 0 and dofs[-1] == 5):
+        if cfg.overlap_weight > 0 and not self._dof_terms(dofs).root:
             kp, jac = self.model.keypoints_and_jacobian(q, dofs=dofs)
             r, J = self.overlap.residuals(kp, jac)
             if len(r):
