@@ -214,9 +214,10 @@ class TrackerConfig:
                                lo=1, hi=20)
     refine_top: int = param(2, "candidates fully refined after screening (step 4)", lo=1,
                             hi=32)
-    acquire_modes: int = param(6, "palm modes of step 1 on a frame without a tracked previous "
-                               "pose (the first frame, after a loss; hybrid mode): a wider "
-                               "search where no previous pose carries the fit; 0 = n_modes",
+    acquire_modes: int = param(6, "palm modes of step 1 on a frame without a tracked "
+                               "previous pose (the first frame, after a loss; hybrid mode): "
+                               "a wider search where no previous pose carries the fit (at "
+                               "most: the regressor's leaves may hold fewer); 0 = n_modes",
                                lo=0, hi=16)
     acquire_refine_top: int = param(6, "candidates refined in step 4 on such a frame; "
                                     "0 = refine_top", lo=0, hi=32)
