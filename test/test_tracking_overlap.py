@@ -78,7 +78,7 @@ def test_residual_jacobian_matches_finite_differences():
     eps = 1e-6
     for q in Q:
         kp, jac = m.keypoints_and_jacobian(q)
-        r, J = o.residuals(kp, jac)
+        r, J = o.residuals(kp[None], jac[None])[0]
         assert np.isclose(r.sum(), o.depth_mm(kp[None])[0])
         num = np.array([(o.depth_mm(m.joint_positions(q + eps * e)[None])[0]
                          - o.depth_mm(m.joint_positions(q - eps * e)[None])[0]) / (2 * eps)
@@ -149,7 +149,7 @@ def test_axes_that_cross_are_pushed_back_to_their_own_sides():
     i_abd, m_abd = JOINT_INDEX["index_mcp_abd"], JOINT_INDEX["middle_mcp_abd"]
     q[i_abd], q[m_abd] = JOINT_LIMITS[i_abd, 0], JOINT_LIMITS[m_abd, 1]
     kp, jac = m.keypoints_and_jacobian(q)
-    r, J = o.residuals(kp, jac)
+    r, J = o.residuals(kp[None], jac[None])[0]
     k = int(np.argmax(r))
     assert r[k] > 10.0
     # the crossing pair's residual falls when the index swings back (+) and the middle

@@ -311,7 +311,7 @@ class ModelTracker:
     def set_model(self, model: HandModel) -> None:
         """Use another (e.g. calibrated) model."""
         self.model = model
-        #: the four fingers' capsule pairs (overlap_weight, cost_overlap_weight)
+        #: the four fingers' capsule pairs (overlap_weight)
         self.overlap = FingerOverlap(model)
         self.rest_normals = model.normals(model.rest_vertices)
         self.labels = model.vertex_labels
@@ -448,8 +448,8 @@ class ModelTracker:
                 w = w * huber_sqrt_weights(r, cfg.robust_mm) ** 2
             blocks.append((J, r, w))
         if cfg.overlap_weight > 0 and not self._dof_terms(dofs).root:
-            kp, jac = self.model.keypoints_and_jacobian(q, dofs=dofs)
-            r, J = self.overlap.residuals(kp, jac)
+            kp, jac = self.model.keypoints_and_jacobian(q[None], dofs=dofs)
+            r, J = self.overlap.residuals(kp, jac)[0]
             if len(r):
                 blocks.append((J, r, cfg.overlap_weight))
         return self._assemble(q, blocks, q_ref, dofs)
@@ -529,7 +529,7 @@ class ModelTracker:
         wd, wr = cfg.data_weight, cfg.reverse_weight
         tree = self._point_tree(points) if wr > 0 else None
         # the fingers' penetration (hand_capture.tracking.overlap), not for the palm alone
-        ov = (self.model.keypoints_and_jacobian(Q, dofs=dofs)
+        ov = (self.overlap.residuals(*self.model.keypoints_and_jacobian(Q, dofs=dofs))
               if cfg.overlap_weight > 0 and not root else None)
         intr = obs.intrinsics
         out = Q.copy()
@@ -593,7 +593,7 @@ class ModelTracker:
                 A = J.T @ J
                 g = J.T @ r
             if ov is not None:
-                r_o, J_o = self.overlap.residuals(ov[0][b], ov[1][b])
+                r_o, J_o = ov[b]
                 if len(r_o):
                     A += cfg.overlap_weight * (J_o.T @ J_o)
                     g += cfg.overlap_weight * (J_o.T @ r_o)

@@ -80,29 +80,44 @@ class FingerOverlap:
         a = kp[..., self.kp_a[caps], :]
         return a, a + self.frac[caps, None] * (kp[..., self.kp_b[caps], :] - a)
 
-    def depth_mm(self, kp: np.ndarray) -> np.ndarray:
-        """Summed penetration depth [mm] of keypoints (B, 21, 3) (poses of this model)."""
-        i, j = self.pairs[:, 0], self.pairs[:, 1]
-        p0, p1 = self._axes(kp, i)
-        q0, q1 = self._axes(kp, j)
-        d = segment_closest(p0, p1, q0, q1)[2]
-        pen = self.radius[i] + self.radius[j] - d
-        return np.maximum(pen, 0.0).sum(axis=-1) * _MM
-
-    def residuals(self, kp: np.ndarray, jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Penetration depths [mm] of the penetrating pairs of one pose and their Jacobian
-        rows: keypoints (21, 3), their Jacobian (21, 3, n) -> (k,), (k, n). Weighted by
-        ``overlap_weight`` in the Gauss-Newton energy."""
+    def _closest(self, kp: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Of every pair, for keypoints (..., 21, 3): the two axes' end points
+        ``p0, p1, q0, q1`` (..., P, 3), their closest points' parameters ``s, t`` and
+        distance ``d`` (..., P), and the penetration depth ``r_i + r_j - d`` [m]."""
         i, j = self.pairs[:, 0], self.pairs[:, 1]
         p0, p1 = self._axes(kp, i)
         q0, q1 = self._axes(kp, j)
         s, t, d = segment_closest(p0, p1, q0, q1)
-        pen = self.radius[i] + self.radius[j] - d
-        hit = np.flatnonzero(pen > 0.0)
+        return p0, p1, q0, q1, s, t, d, self.radius[i] + self.radius[j] - d
+
+    def depth_mm(self, kp: np.ndarray) -> np.ndarray:
+        """Summed penetration depth [mm] of keypoints (B, 21, 3) (poses of this model)."""
+        return np.maximum(self._closest(kp)[-1], 0.0).sum(axis=-1) * _MM
+
+    def residuals(self, kp: np.ndarray, jac: np.ndarray
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Penetration depths [mm] of the penetrating pairs of each pose and their Jacobian
+        rows: keypoints (B, 21, 3), their Jacobian (B, 21, 3, n) -> per pose (k,), (k, n)
+        (the pairs of all poses found at once). Weighted by ``overlap_weight`` in the
+        Gauss-Newton energy."""
+        p0, p1, q0, q1, s, t, d, pen = self._closest(kp)
         n_dof = jac.shape[-1]
-        if not len(hit):
-            return np.zeros(0), np.zeros((0, n_dof))
-        i, j, s, t, d = i[hit], j[hit], s[hit], t[hit], d[hit]
+        out = []
+        for b in range(len(kp)):
+            hit = np.flatnonzero(pen[b] > 0.0)
+            if not len(hit):
+                out.append((np.zeros(0), np.zeros((0, n_dof))))
+                continue
+            out.append(self._rows(kp[b], jac[b], hit, p0[b], p1[b], q0[b], q1[b], s[b][hit],
+                                  t[b][hit], d[b][hit], pen[b][hit]))
+        return out
+
+    def _rows(self, kp: np.ndarray, jac: np.ndarray, hit: np.ndarray, p0: np.ndarray,
+              p1: np.ndarray, q0: np.ndarray, q1: np.ndarray, s: np.ndarray, t: np.ndarray,
+              d: np.ndarray, pen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`residuals` of one pose's penetrating pairs ``hit`` (rows of
+        :attr:`pairs`; ``s, t, d, pen`` already taken at them)."""
+        i, j = self.pairs[hit, 0], self.pairs[hit, 1]
         # where the axes cross (d = 0, e.g. two straight fingers in the palm's plane) d has
         # no gradient: the axes' middles are pushed apart instead, each towards its own
         # finger's side (from the other's MCP joint towards its own)
@@ -119,4 +134,4 @@ class FingerOverlap:
                     + w[:, None, None] * jac[self.kp_b[c]])
 
         dd = np.einsum("ki,kin->kn", n, point_jac(i, s) - point_jac(j, t))
-        return pen[hit] * _MM, -_MM * dd
+        return pen * _MM, -_MM * dd
