@@ -1,7 +1,8 @@
 """The wider search on frames without a tracked previous pose (``acquire_modes``,
-``acquire_refine_top``): the first frame and every frame after a loss ask the regressor for
-more palm modes and refine more candidates; tracked frames keep the product's
-``n_modes`` / ``refine_top``; the ablation modes are untouched."""
+``acquire_refine_top``, ``acquire_icp_iterations``): the first frame and every frame after a
+loss ask the regressor for more palm modes and refine more candidates, each for more
+Gauss-Newton iterations; tracked frames keep the product's ``n_modes`` / ``refine_top`` /
+``icp_iterations``; the ablation modes are untouched."""
 
 from __future__ import annotations
 
@@ -91,8 +92,44 @@ def test_zero_keeps_the_tracking_numbers_and_the_ablations_are_untouched(regress
     assert spy.asked == [TrackerConfig().n_modes] * 2
 
 
+class _Iterations:
+    """Records the Gauss-Newton iterations of every full (not palm-only) refinement."""
+
+    def __init__(self, icp) -> None:
+        self.icp, self.calls = icp, []
+        self._refine = icp.refine_batch
+        icp.refine_batch = self
+
+    def __call__(self, Q, obs, iterations, *a, palm_only=False, **kw):
+        if not palm_only:
+            self.calls.append((len(Q), iterations))
+        return self._refine(Q, obs, iterations, *a, palm_only=palm_only, **kw)
+
+
+def test_candidates_of_a_frame_without_a_tracked_pose_get_more_iterations(regressor, cam,
+                                                                          frames):
+    cfg = TrackerConfig()
+    assert cfg.acquire_icp_iterations > cfg.icp_iterations
+    tr = HybridTracker(cam.model, cfg, regressor)
+    spy = _Iterations(tr.icp)
+    r0 = tr.process(frames[0].depth, frames[0].depth_intrinsics)
+    # step 4 on the first frame: all its candidates in one batch, acquire_icp_iterations
+    assert spy.calls[0] == (r0.n_candidates, cfg.acquire_icp_iterations)
+    n = len(spy.calls)
+    r1 = tr.process(frames[1].depth, frames[1].depth_intrinsics)
+    assert r1.status == "tracking"
+    assert spy.calls[n] == (cfg.refine_top, cfg.icp_iterations)
+    # 0: the tracking number on every frame
+    tr = HybridTracker(cam.model, dataclasses.replace(cfg, acquire_icp_iterations=0),
+                       regressor)
+    spy = _Iterations(tr.icp)
+    tr.process(frames[0].depth, frames[0].depth_intrinsics)
+    assert spy.calls[0][1] == cfg.icp_iterations
+
+
 def test_the_settings_are_range_checked():
-    for bad in ({"acquire_modes": 17}, {"acquire_modes": -1}, {"acquire_refine_top": 33}):
+    for bad in ({"acquire_modes": 17}, {"acquire_modes": -1}, {"acquire_refine_top": 33},
+                {"acquire_icp_iterations": -1}, {"acquire_icp_iterations": 51}):
         with pytest.raises(ConfigError):
             TrackerConfig(**bad)
 

@@ -221,6 +221,10 @@ class TrackerConfig:
                                lo=0, hi=16)
     acquire_refine_top: int = param(6, "candidates refined in step 4 on such a frame; "
                                     "0 = refine_top", lo=0, hi=32)
+    acquire_icp_iterations: int = param(12, "Gauss-Newton iterations of each candidate of "
+                                        "step 4 on such a frame (its candidates start far "
+                                        "from the hand: no previous pose); 0 = "
+                                        "icp_iterations", lo=0, hi=50)
     regress_every: int = param(1, "run the regression (steps 1-2) every n-th frame while the "
                                "previous frame tracked successfully (eq. II.19); frames in "
                                "between refine the previous pose only; after a failure it "

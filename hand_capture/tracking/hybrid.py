@@ -462,8 +462,11 @@ class HybridTracker:
             track = self.delta and self.prev is not None
             ref = self._smooth_ref() if track else None
             refs = [ref if track else pool[i][1] for i in order]
-            refined = list(self.icp.refine_batch([pool[i][0] for i in order], obs,
-                                                 cfg.icp_iterations, q_refs=refs, points=pts))
+            # a frame without a tracked previous pose: its candidates start far off
+            its = (cfg.acquire_icp_iterations or cfg.icp_iterations) if acquire else \
+                cfg.icp_iterations
+            refined = list(self.icp.refine_batch([pool[i][0] for i in order], obs, its,
+                                                 q_refs=refs, points=pts))
             timing["icp"] += time.perf_counter() - t
             t = time.perf_counter()
             # (pose, cost) of each refined candidate as screened, for keep_unrefined
