@@ -274,7 +274,7 @@ def test_a_lost_frame_with_clutter_touching_the_hand_is_retried_at_the_other_end
     # frames keep the wrong end (with it: 99 / 72 / 57 / 33 mm without the retry, 99 / 56 /
     # 57 / 33 with it), so the retry is measured under the narrower search
     narrow = {"finger_swap": False, "split_retry": False, "acquire_modes": 0,
-              "acquire_refine_top": 0}
+              "acquire_refine_top": 0, "acquire_icp_iterations": 0}
     for name, cfg in (("retry", TrackerConfig(flip_retry=True, **narrow)),
                       ("no retry", TrackerConfig(**narrow))):
         tracker = HybridTracker(true, cfg, reg)

@@ -48,7 +48,9 @@ the fingers on the previous pose's palm (``regress_previous``: a finger tracked 
 the palm is right gets a regressed alternative on the palm the tracker holds); a frame
 without a tracked previous pose (the first, any after a loss) searches wider, with
 ``acquire_modes`` palm modes in step 1 and ``acquire_refine_top`` candidates refined in
-step 4 (no previous pose carries the fit there, and a wrong start is kept for many frames);
+step 4, each for ``acquire_icp_iterations`` Gauss-Newton iterations (no previous pose
+carries the fit there, the regressed candidates start far off, and a wrong start is kept
+for many frames);
 step 4 keeps a screened candidate as it was when its refinement raised its cost
 (``keep_unrefined``: while tracking, the smoothness term of eq. II.24 holds every candidate
 near the previous pose, so a regressed candidate that rightly leaves a wrong previous pose
