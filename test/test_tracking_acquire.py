@@ -96,7 +96,7 @@ class _Iterations:
     """Records the Gauss-Newton iterations of every full (not palm-only) refinement."""
 
     def __init__(self, icp) -> None:
-        self.icp, self.calls = icp, []
+        self.calls: list[tuple[int, int]] = []
         self._refine = icp.refine_batch
         icp.refine_batch = self
 

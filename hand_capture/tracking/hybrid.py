@@ -411,10 +411,13 @@ class HybridTracker:
             regress = False
         palms: list[np.ndarray] = []
         # no tracked previous pose (the first frame, after a loss): the wider search of
-        # acquire_modes / acquire_refine_top
+        # acquire_modes / acquire_refine_top, each candidate refined acquire_icp_iterations
+        # (they start far off)
         acquire = mode == "hybrid" and not tracking
         n_modes = (cfg.acquire_modes or cfg.n_modes) if acquire else cfg.n_modes
         top = (cfg.acquire_refine_top or cfg.refine_top) if acquire else cfg.refine_top
+        its = ((cfg.acquire_icp_iterations or cfg.icp_iterations) if acquire
+               else cfg.icp_iterations)
         if regress:  # step 1: palm modes
             t = time.perf_counter()
             lookup, palms = self._palm_modes(obs, intr, n_modes)
@@ -464,9 +467,6 @@ class HybridTracker:
             track = self.delta and self.prev is not None
             ref = self._smooth_ref() if track else None
             refs = [ref if track else pool[i][1] for i in order]
-            # a frame without a tracked previous pose: its candidates start far off
-            its = (cfg.acquire_icp_iterations or cfg.icp_iterations) if acquire else \
-                cfg.icp_iterations
             refined = list(self.icp.refine_batch([pool[i][0] for i in order], obs, its,
                                                  q_refs=refs, points=pts))
             timing["icp"] += time.perf_counter() - t
