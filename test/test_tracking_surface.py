@@ -14,15 +14,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hand_capture.bench._tracking_heldout import SurfaceVariant
+from hand_capture.bench._tracking_heldout import SurfaceVariant, suite_forearm_sequence
 from hand_capture.cameras.render import make_renderer
 from hand_capture.model import HandModel, HandShape
 from hand_capture.tracking.calibration import calibrate, render_calibration_frames
 from hand_capture.tracking.config import TrackerConfig
 from hand_capture.tracking.hybrid import HybridTracker
-from hand_capture.tracking.icp import ModelTracker, optional_vertices
-from hand_capture.tracking.preprocess import segment_hand
-from hand_capture.tracking.train import default_intrinsics, random_pose
+from hand_capture.tracking.icp import ModelTracker, depth_error, optional_vertices
+from hand_capture.tracking.preprocess import cut_forearm, segment_hand
+from hand_capture.tracking.train import default_intrinsics, forearm_mesh, random_pose
 
 OFF = TrackerConfig(wrist_optional=False)
 
@@ -94,6 +94,120 @@ def test_calibration_keeps_the_size_of_a_hand_ending_at_the_wrist(scale):
                  / np.asarray(true.bone_lengths) - 1.0)
     assert float(err.mean()) < 0.04          # 1-2.5 % (before: 11-13 %, the hand shrank)
     assert abs(res.shape.global_scale / scale - 1.0) < 0.05
+
+
+def _depth(model: HandModel, q: np.ndarray, stub_m: float) -> np.ndarray:
+    """Exact depth (uint16 mm) of ``model`` in pose ``q``, its mesh kept ``stub_m`` [m]
+    past the wrist (0.036: the whole template)."""
+    res = make_renderer("zbuffer").render([SurfaceVariant(stub_m=stub_m).mesh_fn(model)(q)],
+                                          default_intrinsics())
+    return np.rint(res.depth * 1000).astype(np.uint16)
+
+
+def test_depth_error_leaves_out_optional_pixels_only_one_image_has():
+    r = np.array([[0.40, 0.40, 0.50, 0.50]], np.float32)
+    o = np.array([[0.41, 0.0, 0.50, 0.0]], np.float32)
+    opt = np.array([[False, False, True, True]])
+    # union of 4 pixels: 10 mm, the cap, 0, the cap
+    assert depth_error(r, o, 60.0) == pytest.approx(130.0 / 4)
+    # the optional pixel without data leaves the union; with data it is compared
+    assert depth_error(r, o, 60.0, opt) == pytest.approx(70.0 / 3)
+    # data where the model is not still counts the cap
+    r2 = np.array([[0.40, 0.0, 0.50, 0.50]], np.float32)
+    o2 = np.array([[0.41, 0.45, 0.0, 0.0]], np.float32)
+    assert depth_error(r2, o2, 60.0, opt) == pytest.approx(70.0 / 2)
+    # ... but not where it is optional data (the arm); optional data under the model is
+    # compared
+    data_opt = np.array([[True, True, False, False]])
+    assert depth_error(r2, o2, 60.0, None, data_opt) == pytest.approx(130.0 / 3)
+    assert depth_error(r2, o2, 60.0, opt, data_opt) == pytest.approx(10.0 / 1)
+
+
+def test_e_d_with_the_stub_optional_on_a_hand_ending_at_the_wrist():
+    """E_d (eq. II.19) with ``stub_optional``: a hand ending at the wrist scores at its true
+    pose about as a hand with the template's stub does, and a pose slid 15 mm towards the
+    fingers (the stub hidden in the palm's data) loses more against it; where the stub has
+    data almost nothing changes."""
+    m = HandModel()
+    rng = np.random.default_rng(3)
+    tr = ModelTracker(m, TrackerConfig())
+    on_true, full_true = [], []
+    for _ in range(4):
+        q = random_pose(rng, m)
+        kp = m.joint_positions(q)
+        slid = q.copy()
+        slid[:3] += 0.015 * (kp[9] - kp[0]) / np.linalg.norm(kp[9] - kp[0])
+        Q = np.array([q, slid])
+        cut = segment_hand(_depth(m, q, 0.0), default_intrinsics(), TrackerConfig())
+        off, on = tr.depth_costs(Q, cut), tr.depth_costs(Q, cut, stub_optional=True)
+        assert on[0] < off[0] - 3.0                          # mm; about 3-8
+        assert on[1] - on[0] > off[1] - off[0] + 2.0         # the slide loses more
+        whole = segment_hand(_depth(m, q, 0.036), default_intrinsics(), TrackerConfig())
+        w_off, w_on = tr.depth_costs(Q, whole), tr.depth_costs(Q, whole, stub_optional=True)
+        assert np.all(np.abs(w_on - w_off) < 1.2)            # the stub's pixels have data
+        on_true.append(on[0])
+        full_true.append(w_off[0])
+    assert np.mean(on_true) < np.mean(full_true) + 1.5
+
+
+def test_e_d_with_the_arm_optional_on_a_forearm_wider_than_the_wrist():
+    """E_d (eq. II.19) with ``arm_optional``: the arm a forearm cut leaves (36 mm past the
+    wrist) is wider than the model's wrist; those data pixels past each pose's wrist no
+    longer cost the cap, so the true pose scores lower, and still below the poses slid 15
+    mm towards the arm or the fingers."""
+    m = HandModel()
+    cfg = TrackerConfig()
+    rng = np.random.default_rng(3)
+    tr, hy = ModelTracker(m, cfg), HybridTracker(m, cfg, None)
+    margins = {False: [], True: []}
+    for _ in range(5):
+        q = random_pose(rng, m)
+        res = make_renderer("zbuffer").render(
+            [SurfaceVariant().mesh_fn(m)(q), forearm_mesh(m, q, 0.04, 0.3)],
+            default_intrinsics())
+        obs = segment_hand(np.rint(res.depth * 1000).astype(np.uint16), default_intrinsics(),
+                           cfg)
+        obs, cut = cut_forearm(obs, cfg, 1.0, hy._wrist_of(q))
+        assert cut
+        kp = m.joint_positions(q)
+        axis = (kp[0] - kp[9]) / np.linalg.norm(kp[0] - kp[9])
+        Q = np.array([q, q, q])
+        Q[1, :3] += 0.015 * axis
+        Q[2, :3] -= 0.015 * axis
+        off, on = tr.depth_costs(Q, obs), tr.depth_costs(Q, obs, arm_optional=True)
+        assert on[0] < off[0] - 1.5                     # mm; 2.3-7.8
+        assert on[0] < on[1:].min()
+        margins[False].append(off[1:].min() - off[0])
+        margins[True].append(on[1:].min() - on[0])
+    assert np.mean(margins[True]) > np.mean(margins[False]) + 1.5   # about 2.5
+
+
+def test_the_tracker_leaves_the_stub_or_the_arm_out_of_e_d_by_the_forearm_cut():
+    """``cost_stub_optional`` / ``cost_arm_optional``: every E_d of a frame without a
+    forearm cut leaves the stub out where no data lies; every E_d of a frame whose forearm
+    was cut (the cut leaves the stub's length of arm) the arm past the pose's wrist where
+    the model is not; with the settings off E_d is eq. II.19's."""
+    _, intr, arm_frames, _, _ = suite_forearm_sequence(21, "pinch", 1, 6)
+    m = HandModel()
+    rng = np.random.default_rng(5)
+    alone = _depth(m, random_pose(rng, m), 0.0)
+    for on in (True, False):
+        tr = HybridTracker(m, TrackerConfig(cost_stub_optional=on, cost_arm_optional=on),
+                           None)
+        seen = []
+        costs = tr.icp.depth_costs
+
+        def spy(*a, seen=seen, costs=costs, **k):
+            seen.append((k.get("stub_optional", False), k.get("arm_optional", False)))
+            return costs(*a, **k)
+
+        tr.icp.depth_costs = spy
+        tr.process(alone, default_intrinsics())
+        assert seen and set(seen) == {(on, False)}
+        seen.clear()
+        tr.reset()
+        tr.process(*arm_frames[0])
+        assert seen and set(seen) == {(False, on)}
 
 
 def test_finger_swap_combines_the_right_fingers_of_two_candidates():

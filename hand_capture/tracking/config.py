@@ -175,6 +175,18 @@ class TrackerConfig:
                                      "downsampling rises above cost_downsample where the "
                                      "hand is near or the camera fine (icp.cost_grid); 0 = "
                                      "cost_downsample always", lo=0.0, hi=10.0)
+    cost_stub_optional: bool = param(True, "on a frame whose segment had no forearm cut "
+                                     "off: in E_d (eq. II.19, II.20) a pixel where the "
+                                     "model's optional wrist stub (wrist_optional) is the "
+                                     "rendered surface and no data lies counts for nothing "
+                                     "(a hand ending at the wrist; where data lies it is "
+                                     "compared)")
+    cost_arm_optional: bool = param(True, "on a frame whose forearm was cut off: in E_d "
+                                    "(eq. II.19, II.20) a data pixel past the pose's wrist "
+                                    "(its side of the plane through the wrist keypoint, "
+                                    "normal to the middle MCP - wrist direction) where the "
+                                    "model renders nothing counts for nothing (the arm the "
+                                    "cut left, wider than the model's wrist)")
     cost_data_weight: float = param(1.0, "lambda_1 of the candidate cost (eq. II.20)", lo=0.0)
     cost_temporal_weight: float = param(0.0, "lambda_2 of the candidate cost (eq. II.20; "
                                         "mm per rad^2 / m^2 of pose change); 0 chosen on the "

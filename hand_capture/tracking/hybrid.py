@@ -221,6 +221,9 @@ class HybridTracker:
         self.icp = ModelTracker(model, self.cfg)
         self.frames = ModelFrames(model)
         self.fit_residual_mm: float | None = None
+        #: this frame's E_d leaves the wrist stub out where no data lies (no forearm cut)
+        self._stub_free = False
+        self._arm_free = False
         self.reset()
 
     @property
@@ -385,6 +388,9 @@ class HybridTracker:
             obs, cut_g = cut_forearm(obs, cfg, scale, plane, flip)
             cut = cut or cut_g
             cloud = cut_g and plane is None
+        # the hand may end at the wrist where no forearm was cut off (cost_stub_optional)
+        self._stub_free = cfg.cost_stub_optional and not cut
+        self._arm_free = cfg.cost_arm_optional and cut
         timing["preprocess"] = time.perf_counter() - t0
         self.frame_count += 1
         if not obs.found:
@@ -684,7 +690,8 @@ class HybridTracker:
     def _costs(self, qs: list[np.ndarray], obs: HandObservation, obs_ds: np.ndarray
                ) -> list[tuple[float, float]]:
         """(E_c of eq. II.20, E_d of eq. II.19) of every pose."""
-        e_ds = self.icp.depth_costs(np.array(qs), obs, obs_ds)
+        e_ds = self.icp.depth_costs(np.array(qs), obs, obs_ds, stub_optional=self._stub_free,
+                                    arm_optional=self._arm_free)
         out = []
         for q, e_d in zip(qs, e_ds, strict=True):
             e_s = 0.0

@@ -115,8 +115,31 @@ def _render_windows(Vs: np.ndarray, intr: Intrinsics, ds: int,
                     ) -> Iterator[tuple[np.ndarray, int, int]]:
     """:func:`_render_window` of every pose's vertices ``Vs`` (B, V, 3), in order: the
     pixels of all poses are computed together (the same numbers as one pose at a time)."""
-    for u, w, z in _vertex_pixels(Vs, intr, ds):
+    for u, w, z, _ in _vertex_pixels(Vs, intr, ds):
         yield _splat_window(u, w, z, *_image_size(intr, ds), box)
+
+
+def _render_windows_optional(Vs: np.ndarray, optional: np.ndarray, intr: Intrinsics,
+                             ds: int, box: tuple[int, int, int, int] | None
+                             ) -> Iterator[tuple[np.ndarray, int, int, np.ndarray]]:
+    """:func:`_render_windows` with, per window, where the vertices ``optional`` (V,) bool
+    are the rendered surface: ``(image, row0, col0, optional_pixels)``. The optional
+    vertices are splatted alone on the same window (closed the same way); a pixel is
+    theirs where their depth is the rendered one."""
+    H, W = _image_size(intr, ds)
+    for u, w, z, keep in _vertex_pixels(Vs, intr, ds):
+        win, r0, c0 = _splat_window(u, w, z, H, W, box)
+        opt = optional if keep is None else optional[keep]
+        mine = np.zeros(win.shape, bool)
+        if opt.any() and win.size:
+            h, wd = win.shape
+            buf = np.full(h * wd, _FAR, np.float32)
+            np.minimum.at(buf, (w[opt] - r0) * wd + (u[opt] - c0), z[opt])
+            buf = buf.reshape(h, wd)
+            occ = cv2.morphologyEx((buf < _FAR).astype(np.uint8), cv2.MORPH_CLOSE, _K3) > 0
+            buf = np.where(buf < _FAR, buf, cv2.erode(buf, _K3))
+            mine = occ & (win > 0) & (buf <= win + np.float32(1e-6))
+        yield win, r0, c0, mine
 
 
 def _image_size(intr: Intrinsics, ds: int) -> tuple[int, int]:
@@ -125,10 +148,11 @@ def _image_size(intr: Intrinsics, ds: int) -> tuple[int, int]:
 
 
 def _vertex_pixels(Vs: np.ndarray, intr: Intrinsics, ds: int
-                   ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                   ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]]:
     """Per pose of ``Vs`` (B, N, 3): the nearest pixels (column ``u``, row ``w``, int64) at
-    ``1/ds`` resolution of its points in front of the camera and inside the image, and
-    their depths ``z`` (float32) [m]; all poses' points projected together."""
+    ``1/ds`` resolution of its points in front of the camera and inside the image, their
+    depths ``z`` (float32) [m] and which of the N points those are ((N,) bool; None: all);
+    all poses' points projected together."""
     H, W = _image_size(intr, ds)
     Z = Vs[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):   # dropped below: z <= 1 mm, NaN
@@ -139,9 +163,11 @@ def _vertex_pixels(Vs: np.ndarray, intr: Intrinsics, ds: int
     out = []
     for b in range(len(Vs)):
         u, w, z = U[b], R[b], Z32[b]
+        keep = None
         if not ok[b].all():
-            u, w, z = u[ok[b]], w[ok[b]], z[ok[b]]
-        out.append((u.astype(np.int64), w.astype(np.int64), z))
+            keep = ok[b]
+            u, w, z = u[keep], w[keep], z[keep]
+        out.append((u.astype(np.int64), w.astype(np.int64), z, keep))
     return out
 
 
@@ -201,14 +227,22 @@ def downsampled_depth(obs: HandObservation, ds: int) -> np.ndarray:
     return np.ascontiguousarray(obs.depth_m[::ds, ::ds])
 
 
-def depth_error(rendered_m: np.ndarray, observed_m: np.ndarray, cap_mm: float) -> float:
+def depth_error(rendered_m: np.ndarray, observed_m: np.ndarray, cap_mm: float,
+                optional: np.ndarray | None = None,
+                data_optional: np.ndarray | None = None) -> float:
     """E_d of eq. II.19: sum |I_r - I| over the union of both silhouettes / its size [mm].
 
     The per-pixel difference is capped at ``cap_mm`` (a pixel covered by one image only
-    counts the cap). An empty union (no hand, no model) gives ``cap_mm``.
+    counts the cap). An empty union (no hand, no model) gives ``cap_mm``. ``optional``
+    (bool, the images' shape): rendered pixels that count only where ``observed_m`` has
+    data (the optional wrist stub, ``cost_stub_optional``).
     """
     r = rendered_m
     o = observed_m
+    if optional is not None:
+        r = np.where(optional & (o <= 0), np.float32(0.0), r)
+    if data_optional is not None:
+        o = np.where(data_optional & (r <= 0), np.float32(0.0), o)
     union = (r > 0) | (o > 0)
     n = int(np.count_nonzero(union))
     if n == 0:
@@ -334,6 +368,7 @@ class ModelTracker:
         self._tree_cache: tuple[np.ndarray, cKDTree] | None = None
         self._dof_cache: dict[bytes, _DofTerms] = {}
         self._box_cache: tuple[np.ndarray, tuple | None] | None = None
+        self._points_cache: tuple[np.ndarray, np.ndarray] | None = None
 
     # ----------------------------------------------------------------------------- geometry
     def posed(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -669,10 +704,13 @@ class ModelTracker:
         return float(self.depth_costs(np.asarray(q)[None], obs, observed_ds)[0])
 
     def depth_costs(self, Q: np.ndarray, obs: HandObservation,
-                    observed_ds: np.ndarray | None = None) -> np.ndarray:
+                    observed_ds: np.ndarray | None = None, *, stub_optional: bool = False,
+                    arm_optional: bool = False) -> np.ndarray:
         """:meth:`depth_cost` of poses (B, 27) (one skinning pass for all). A given
         ``observed_ds`` must be ``downsampled_depth(obs, cost_grid(obs, cfg))`` (the
-        models are rendered on that grid)."""
+        models are rendered on that grid). ``stub_optional``: the pixels where the optional
+        wrist stub (:func:`optional_vertices`) is the rendered surface count only where
+        data lies (a hand ending at the wrist; ``cost_stub_optional``)."""
         ds = cost_grid(obs, self.cfg)
         o = observed_ds if observed_ds is not None else downsampled_depth(obs, ds)
         if observed_ds is not None and observed_ds.shape != _image_size(obs.intrinsics, ds):
@@ -681,20 +719,46 @@ class ModelTracker:
         Q = np.array(Q, dtype=np.float64, ndmin=2)
         if not len(Q):
             return np.empty(0)
-        return self._window_errors(
-            _render_windows(self.model.vertices(Q), obs.intrinsics, ds, self._observed_box(o)),
-            o)
+        box = self._observed_box(o)
+        V = self.model.vertices(Q)
+        arm = None
+        if arm_optional:   # each pose's wrist keypoint and its direction away from the hand
+            kp = self.model.joint_positions(Q)                       # (B, 21, 3)
+            arm = (self._observed_points(o, obs.intrinsics, ds), kp[:, 0], kp[:, 0] - kp[:, 9])
+        if stub_optional and self.optional.any():
+            wins = _render_windows_optional(V, self.optional, obs.intrinsics, ds, box)
+        else:
+            wins = _render_windows(V, obs.intrinsics, ds, box)
+        return self._window_errors(wins, o, arm)
 
-    def _window_errors(self, wins: Iterable[tuple[np.ndarray, int, int]], o: np.ndarray
+    def _window_errors(self, wins: Iterable[tuple], o: np.ndarray, arm: tuple | None = None
                        ) -> np.ndarray:
-        """E_d of eq. II.19 of each rendered window ``(image, row0, col0)`` against the
-        observed image ``o`` (both silhouettes lie inside the window, so E_d over it is E_d
-        over the image)."""
+        """E_d of eq. II.19 of each rendered window ``(image, row0, col0[, optional])``
+        against the observed image ``o`` (both silhouettes lie inside the window, so E_d
+        over it is E_d over the image)."""
         out = []
-        for r, r0, c0 in wins:
+        for b, (r, r0, c0, *opt) in enumerate(wins):
             ob = o[r0:r0 + r.shape[0], c0:c0 + r.shape[1]]
-            out.append(depth_error(r[:ob.shape[0], :ob.shape[1]], ob, self.cfg.depth_cap_mm))
+            h, w = ob.shape
+            free = None
+            if arm is not None:   # the data past pose b's wrist, towards the arm
+                P = arm[0][r0:r0 + h, c0:c0 + w]
+                free = (ob > 0) & (((P - arm[1][b]) @ arm[2][b]) > 0)
+            out.append(depth_error(r[:h, :w], ob, self.cfg.depth_cap_mm,
+                                   opt[0][:h, :w] if opt else None, free))
         return np.array(out)
+
+    def _observed_points(self, o: np.ndarray, intr: Intrinsics, ds: int) -> np.ndarray:
+        """(H, W, 3) the 3D points [m] of the E_d grid's observed depths ``o`` (kept while
+        the same array is passed); zero depth gives the camera centre."""
+        c = self._points_cache
+        if c is None or c[0] is not o:
+            rr, cc = np.mgrid[0:o.shape[0], 0:o.shape[1]]
+            P = np.stack([(cc * ds - intr.cx) / intr.fx * o, (rr * ds - intr.cy) / intr.fy * o,
+                          o], axis=-1)
+            c = (o, P)
+            self._points_cache = c
+        return c[1]
 
     def _observed_box(self, o: np.ndarray) -> tuple[int, int, int, int] | None:
         """Rows / columns (r0, r1, c0, c1) holding the hand pixels of ``o`` (kept while the
