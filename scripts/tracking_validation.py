@@ -11,7 +11,9 @@ on 64. This script runs the same sections on other shapes of the same generator 
 64 sequences a family), with ``--config`` overrides of the product settings, saves every
 sequence's mean keypoint error and success@20 mm (``--out``), and with ``--against`` a file of
 another run on the same shapes prints the paired difference per family (mean +- its standard
-error, and how many sequences got better / worse by over 0.3 mm).
+error, and how many sequences got better / worse by over 0.3 mm). One section is the
+script's alone (not run by the bench, not in the default set): ``stereo_forearm``, the
+forearm family with a stereo camera's artifacts on its frames.
 
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --out base.json
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --config acquire_modes=0 \\
@@ -40,7 +42,9 @@ from hand_capture.tracking.regressor import HandRegressor
 
 #: the sections, by name: each returns the bench's figures for the product settings
 SECTIONS = ("surface", "capsule", "stereo", "forearm", "table", "capsule_forearm",
-            "far_forearm", "near_forearm")
+            "far_forearm", "near_forearm", "stereo_forearm")
+#: the bench's sections (run when ``--sections`` is not given)
+BENCH_SECTIONS = SECTIONS[:-1]
 
 
 def _run(section: str, reg: HandRegressor, cfg: TrackerConfig) -> dict:
@@ -52,11 +56,12 @@ def _run(section: str, reg: HandRegressor, cfg: TrackerConfig) -> dict:
         return th.stereo_validation_section(reg, cfg, False)
     if section == "forearm":
         return th.forearm_validation_section(reg, cfg, False, product_only=True)
-    if section in ("capsule_forearm", "far_forearm", "near_forearm"):
+    if section in ("capsule_forearm", "far_forearm", "near_forearm", "stereo_forearm"):
         return th.forearm_validation_section(reg, cfg, False, product_only=True,
                                              capsules=section == "capsule_forearm",
                                              far=section == "far_forearm",
-                                             near=section == "near_forearm")
+                                             near=section == "near_forearm",
+                                             stereo=section == "stereo_forearm")
     return th.table_validation_section(reg, cfg, False)
 
 
@@ -81,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--shapes", type=int, nargs=2, default=(25, 40), metavar=("FIRST", "LAST"),
                     help="shape seeds FIRST..LAST of the suite's generator (default 25 40)")
-    ap.add_argument("--sections", nargs="+", default=list(SECTIONS), choices=SECTIONS)
+    ap.add_argument("--sections", nargs="+", default=list(BENCH_SECTIONS), choices=SECTIONS)
     ap.add_argument("--config", action="append", default=[], metavar="KEY=VALUE",
                     help="TrackerConfig override (repeatable)")
     ap.add_argument("--regressor", type=Path, default=None,

@@ -40,3 +40,15 @@ def test_one_shape_writes_its_sequences_and_compares_paired(tv, tmp_path, capsys
 def test_a_bad_override_is_refused(tv, capsys):
     assert tv.main(["--config", "no_such_key=1"]) == 2
     assert "valid keys" in capsys.readouterr().err
+
+
+def test_the_stereo_forearm_family_is_the_scripts_alone(tv):
+    """``stereo_forearm`` (the forearm family with a stereo camera's artifacts) is a choice
+    of the script, not a bench section, and combines with no other camera or surface."""
+    from hand_capture.bench import _tracking_heldout as th
+    from hand_capture.errors import ConfigError
+    from hand_capture.tracking.config import TrackerConfig
+
+    assert "stereo_forearm" in tv.SECTIONS and "stereo_forearm" not in tv.BENCH_SECTIONS
+    with pytest.raises(ConfigError, match="at most one"):
+        th.forearm_validation_section(None, TrackerConfig(), False, far=True, stereo=True)

@@ -768,7 +768,7 @@ def _track_both_paths(reg, base, cal, cfg, frames, kps, labels) -> tuple[object,
 
 def forearm_validation_section(reg, config, quick: bool, product_only: bool = False,
                                smoke: bool = False, capsules: bool = False, far: bool = False,
-                               near: bool = False) -> dict:
+                               near: bool = False, stereo: bool = False) -> dict:
     """The tracker with a forearm in view on the suite's own generator (validation shapes
     :data:`ARM_VAL_SEEDS`; :func:`suite_forearm_sequence`), calibrated per shape: where
     forearm handling is tuned, beside the held-out figure it is reported on. Two paths:
@@ -783,17 +783,21 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
     them; keys ``val_capsule_forearm*``, without the hard set); ``far``: a D435-like camera
     (640x480, 87 deg) 0.2 m farther than the suite's (keys ``val_far_forearm*``, without the
     hard set); ``near``: a finer camera 0.15 m nearer (:data:`NEAR_CAMERA`; keys
-    ``val_near_forearm*``, without the hard set)."""
+    ``val_near_forearm*``, without the hard set); ``stereo``: the frames with a stereo
+    camera's artifacts (:func:`with_artifacts`; calibrated on the clean frames; keys
+    ``val_stereo_forearm*``, without the hard set)."""
     from hand_capture.bench.tracking import _summary
     from hand_capture.model import HandModel
 
     seeds, clips, n, step = _validation_plan(quick, smoke)
     surface = CapsuleSurface() if capsules else None
-    if capsules + far + near > 1:
-        raise ConfigError("forearm_validation_section: at most one of capsules, far, near")
+    if capsules + far + near + stereo > 1:
+        raise ConfigError("forearm_validation_section: at most one of capsules, far, near, "
+                          "stereo")
     camera = FAR_CAMERA if far else NEAR_CAMERA if near else None
     fam = ("val_capsule_forearm" if capsules else "val_far_forearm" if far
-           else "val_near_forearm" if near else "val_forearm")
+           else "val_near_forearm" if near else "val_stereo_forearm" if stereo
+           else "val_forearm")
     base = HandModel()
     variants = {"product": config}
     if not product_only:
@@ -805,6 +809,8 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
         for clip in clips:
             true, intr, frames, kps, labels = suite_forearm_sequence(
                 seed, clip, n, step, surface=surface, camera=camera)
+            if stereo:
+                frames = with_artifacts(frames, 9000 + 100 * seed + len(clip))
             cal = _suite_calibration(true, intr, seed, base, surface)
             for name, cfg in variants.items():
                 tracker, scores = _track_both_paths(reg, base, cal, cfg, frames, kps, labels)
@@ -834,11 +840,12 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
                 + (", the hand drawn as its collision capsules" if capsules else "")
                 + (", a 640x480 87 deg camera 0.2 m farther" if far else "")
                 + (", a 640x480 70 deg camera 0.15 m nearer" if near else "")
+                + (", a stereo camera's artifacts" if stereo else "")
                 + "): forearm handling is tuned here and reported on the held-out family; "
                 "first frame = every frame from a reset tracker",
                 ["forearm handling", "path", "frames", "mean mm", "median mm", "succ@20",
                  "seg arm %", "hand kept %", "cloud cut"], rows)
-    if not product_only and not capsules and not far and not near:
+    if not product_only and not capsules and not far and not near and not stereo:
         out.update(_hard_forearm_validation(reg, config, seeds, quick))
     if arm is not None:
         key = "val_arm_pixel_acc" if fam == "val_forearm" else f"{fam}_arm_pixel_acc"
