@@ -54,7 +54,10 @@ for many frames);
 step 4 keeps a screened candidate as it was when its refinement raised its cost
 (``keep_unrefined``: while tracking, the smoothness term of eq. II.24 holds every candidate
 near the previous pose, so a regressed candidate that rightly leaves a wrong previous pose
-comes out of the refinement worse than it went in).
+comes out of the refinement worse than it went in); E_d of eq. II.19 / II.20 past the
+wrist counts the model's wrist stub only where data lies on a frame without a forearm cut
+off, and the arm past each pose's wrist only where the model is on a frame with one
+(``cost_stub_optional``, ``cost_arm_optional``; ``ModelTracker.depth_costs``).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -221,7 +224,8 @@ class HybridTracker:
         self.icp = ModelTracker(model, self.cfg)
         self.frames = ModelFrames(model)
         self.fit_residual_mm: float | None = None
-        #: this frame's E_d leaves the wrist stub out where no data lies (no forearm cut)
+        #: this frame's E_d leaves the wrist stub out where no data lies (no forearm cut),
+        #: or the data past each pose's wrist where the model is not (a forearm cut)
         self._stub_free = False
         self._arm_free = False
         self.reset()
@@ -388,7 +392,9 @@ class HybridTracker:
             obs, cut_g = cut_forearm(obs, cfg, scale, plane, flip)
             cut = cut or cut_g
             cloud = cut_g and plane is None
-        # the hand may end at the wrist where no forearm was cut off (cost_stub_optional)
+        # E_d past the wrist: the hand may end there where no forearm was cut off
+        # (cost_stub_optional); where one was, the arm the cut left is not the model's
+        # (cost_arm_optional)
         self._stub_free = cfg.cost_stub_optional and not cut
         self._arm_free = cfg.cost_arm_optional and cut
         timing["preprocess"] = time.perf_counter() - t0

@@ -25,6 +25,11 @@ Optional wrist stub (``wrist_optional``, :func:`optional_vertices`): the model-t
 where real data is forearm, sleeve, cut or nothing; a hand surface ending at the wrist
 otherwise pulls the whole model towards the fingers (and calibration shrinks it).
 
+E_d past the wrist (a departure from eq. II.19, :meth:`ModelTracker.depth_costs`
+``stub_optional`` / ``arm_optional``, chosen per frame by the hybrid tracker): without a
+forearm cut off, the stub's rendered pixels without data leave the union; with one, the data
+past the pose's wrist that the model does not cover leaves it.
+
 Finger penetration (a departure from eq. II.21, ``overlap_weight`` > 0): one more residual
 per pair of penetrating capsules of two of the four fingers, their penetration depth [mm]
 (:mod:`hand_capture.tracking.overlap`); not in palm-only iterations.
@@ -235,7 +240,9 @@ def depth_error(rendered_m: np.ndarray, observed_m: np.ndarray, cap_mm: float,
     The per-pixel difference is capped at ``cap_mm`` (a pixel covered by one image only
     counts the cap). An empty union (no hand, no model) gives ``cap_mm``. ``optional``
     (bool, the images' shape): rendered pixels that count only where ``observed_m`` has
-    data (the optional wrist stub, ``cost_stub_optional``).
+    data (the optional wrist stub, ``cost_stub_optional``); ``data_optional``: observed
+    pixels that count only where ``rendered_m`` has the model (the arm past the pose's
+    wrist, ``cost_arm_optional``).
     """
     r = rendered_m
     o = observed_m
@@ -710,7 +717,10 @@ class ModelTracker:
         ``observed_ds`` must be ``downsampled_depth(obs, cost_grid(obs, cfg))`` (the
         models are rendered on that grid). ``stub_optional``: the pixels where the optional
         wrist stub (:func:`optional_vertices`) is the rendered surface count only where
-        data lies (a hand ending at the wrist; ``cost_stub_optional``)."""
+        data lies (a hand ending at the wrist; ``cost_stub_optional``). ``arm_optional``:
+        the data pixels past each pose's wrist (the side of the plane through its wrist
+        keypoint, normal to the middle MCP -> wrist direction, that holds the arm) count
+        only where the model is (the arm a forearm cut leaves; ``cost_arm_optional``)."""
         ds = cost_grid(obs, self.cfg)
         o = observed_ds if observed_ds is not None else downsampled_depth(obs, ds)
         if observed_ds is not None and observed_ds.shape != _image_size(obs.intrinsics, ds):
