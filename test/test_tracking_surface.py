@@ -27,9 +27,10 @@ from hand_capture.tracking.train import default_intrinsics, forearm_mesh, random
 OFF = TrackerConfig(wrist_optional=False)
 
 
-def _stubless_depth(model: HandModel, q: np.ndarray) -> np.ndarray:
-    """Exact depth (uint16 mm) of ``model`` in pose ``q`` with its mesh cut at the wrist."""
-    res = make_renderer("zbuffer").render([SurfaceVariant(stub_m=0.0).mesh_fn(model)(q)],
+def _depth(model: HandModel, q: np.ndarray, stub_m: float) -> np.ndarray:
+    """Exact depth (uint16 mm) of ``model`` in pose ``q``, its mesh kept ``stub_m`` [m]
+    past the wrist (0.036: the whole template)."""
+    res = make_renderer("zbuffer").render([SurfaceVariant(stub_m=stub_m).mesh_fn(model)(q)],
                                           default_intrinsics())
     return np.rint(res.depth * 1000).astype(np.uint16)
 
@@ -52,7 +53,7 @@ def test_no_model_to_data_pairs_from_the_stub():
     m = HandModel()
     rng = np.random.default_rng(3)
     q = random_pose(rng, m)
-    obs = segment_hand(_stubless_depth(m, q), default_intrinsics(), TrackerConfig())
+    obs = segment_hand(_depth(m, q, 0.0), default_intrinsics(), TrackerConfig())
     pts, _ = obs.subsample(160)
     for cfg, stub_pairs in ((TrackerConfig(), False), (OFF, True)):
         tr = ModelTracker(m, cfg)
@@ -72,7 +73,7 @@ def test_start_at_truth_does_not_drift_on_a_hand_ending_at_the_wrist():
         d = []
         for _ in range(3):
             q0 = random_pose(rng, m)
-            depth = _stubless_depth(m, q0)
+            depth = _depth(m, q0, 0.0)
             q = q0
             for _ in range(5):   # ICP alone, started at the true pose and the true shape
                 tr.reset(q)
@@ -94,14 +95,6 @@ def test_calibration_keeps_the_size_of_a_hand_ending_at_the_wrist(scale):
                  / np.asarray(true.bone_lengths) - 1.0)
     assert float(err.mean()) < 0.04          # 1-2.5 % (before: 11-13 %, the hand shrank)
     assert abs(res.shape.global_scale / scale - 1.0) < 0.05
-
-
-def _depth(model: HandModel, q: np.ndarray, stub_m: float) -> np.ndarray:
-    """Exact depth (uint16 mm) of ``model`` in pose ``q``, its mesh kept ``stub_m`` [m]
-    past the wrist (0.036: the whole template)."""
-    res = make_renderer("zbuffer").render([SurfaceVariant(stub_m=stub_m).mesh_fn(model)(q)],
-                                          default_intrinsics())
-    return np.rint(res.depth * 1000).astype(np.uint16)
 
 
 def test_depth_error_leaves_out_optional_pixels_only_one_image_has():

@@ -129,21 +129,18 @@ def _render_windows_optional(Vs: np.ndarray, optional: np.ndarray, intr: Intrins
                              ) -> Iterator[tuple[np.ndarray, int, int, np.ndarray]]:
     """:func:`_render_windows` with, per window, where the vertices ``optional`` (V,) bool
     are the rendered surface: ``(image, row0, col0, optional_pixels)``. The optional
-    vertices are splatted alone on the same window (closed the same way); a pixel is
-    theirs where their depth is the rendered one."""
+    vertices are splatted alone (:func:`_splat_window`, inside the whole window); a pixel
+    is theirs where their depth is the rendered one."""
     H, W = _image_size(intr, ds)
     for u, w, z, keep in _vertex_pixels(Vs, intr, ds):
         win, r0, c0 = _splat_window(u, w, z, H, W, box)
         opt = optional if keep is None else optional[keep]
         mine = np.zeros(win.shape, bool)
         if opt.any() and win.size:
-            h, wd = win.shape
-            buf = np.full(h * wd, _FAR, np.float32)
-            np.minimum.at(buf, (w[opt] - r0) * wd + (u[opt] - c0), z[opt])
-            buf = buf.reshape(h, wd)
-            occ = cv2.morphologyEx((buf < _FAR).astype(np.uint8), cv2.MORPH_CLOSE, _K3) > 0
-            buf = np.where(buf < _FAR, buf, cv2.erode(buf, _K3))
-            mine = occ & (win > 0) & (buf <= win + np.float32(1e-6))
+            sw, s0, t0 = _splat_window(u[opt], w[opt], z[opt], H, W, None)
+            part = win[s0 - r0:s0 - r0 + sw.shape[0], t0 - c0:t0 - c0 + sw.shape[1]]
+            mine[s0 - r0:s0 - r0 + sw.shape[0], t0 - c0:t0 - c0 + sw.shape[1]] = (
+                (sw > 0) & (part > 0) & (sw <= part + np.float32(1e-6)))
         yield win, r0, c0, mine
 
 
