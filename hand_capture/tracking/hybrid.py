@@ -296,7 +296,7 @@ class HybridTracker:
 
     # ------------------------------------------------------------------------------ frame
     _STATE = ("prev", "delta", "last_good", "frame_count", "_since_regression", "_prev_cost",
-              "_deferred", "_carry")
+              "_deferred", "_carry", "_stub_free", "_arm_free")
 
     def process(self, depth: np.ndarray, intr: Intrinsics) -> TrackResult:
         """Track one depth frame (uint16 mm or float m).
