@@ -727,11 +727,13 @@ class ModelTracker:
         if not len(Q):
             return np.empty(0)
         box = self._observed_box(o)
-        V = self.model.vertices(Q)
         arm = None
         if arm_optional:   # each pose's wrist keypoint and its direction away from the hand
-            kp = self.model.joint_positions(Q)                       # (B, 21, 3)
+            fk = self.model.forward(Q)   # vertices and keypoints from one FK pass
+            V, kp = fk.vertices, fk.joint_positions                  # (B, V, 3), (B, 21, 3)
             arm = (self._observed_points(o, obs.intrinsics, ds), kp[:, 0], kp[:, 0] - kp[:, 9])
+        else:
+            V = self.model.vertices(Q)
         if stub_optional and self.optional.any():
             wins = _render_windows_optional(V, self.optional, obs.intrinsics, ds, box)
         else:
