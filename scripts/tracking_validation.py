@@ -11,9 +11,11 @@ on 64. This script runs the same sections on other shapes of the same generator 
 64 sequences a family), with ``--config`` overrides of the product settings, saves every
 sequence's mean keypoint error and success@20 mm (``--out``), and with ``--against`` a file of
 another run on the same shapes prints the paired difference per family (mean +- its standard
-error, and how many sequences got better / worse by over 0.3 mm). One section is the
+error, and how many sequences got better / worse by over 0.3 mm). Two sections are the
 script's alone (not run by the bench, not in the default set): ``stereo_forearm``, the
-forearm family with a stereo camera's artifacts on its frames.
+forearm family with a stereo camera's artifacts on its frames, and ``spread``, the surface
+and capsule families' finger counting and fist with the fingers spread (the suite's motions
+never spread them).
 
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --out base.json
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --config acquire_modes=0 \\
@@ -42,12 +44,41 @@ from hand_capture.tracking.regressor import HandRegressor
 
 #: the sections, by name: each returns the bench's figures for the product settings
 SECTIONS = ("surface", "capsule", "stereo", "forearm", "table", "capsule_forearm",
-            "far_forearm", "near_forearm", "stereo_forearm")
+            "far_forearm", "near_forearm", "stereo_forearm", "spread")
 #: the bench's sections (run when ``--sections`` is not given)
-BENCH_SECTIONS = SECTIONS[:-1]
+BENCH_SECTIONS = SECTIONS[:-2]
+
+
+def _spread_section(reg: HandRegressor, cfg: TrackerConfig) -> dict:
+    """The surface and capsule validation families with the fingers spread (the script's
+    alone): finger counting and fist, each sequence's spread 8-20 deg
+    (:func:`~hand_capture.bench._tracking_heldout.spread_fingers`), tracked through."""
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    seeds, _, n, step = th._validation_plan(False)
+    base = HandModel()
+    errs = []
+    for seed in seeds:
+        for clip in ("finger_counting", "fist"):
+            spread = float(np.random.default_rng(seed * 31 + len(clip)).uniform(8.0, 20.0))
+            for surface in (th.validation_surface(seed, clip), th.CapsuleSurface()):
+                _, _, frames, kps, _, calf = th.suite_surface_sequence(
+                    seed, clip, n, step, surface, spread_deg=spread)
+                tr = HybridTracker(base, cfg, reg)
+                tr.set_calibration(th.bench_calibrate(calf, model=base, config=cfg))
+                errs.append(th._score(tr, frames, kps)["errs"])
+    e = np.concatenate(errs)
+    fig = {"val_spread_mean_mm": float(e.mean()),
+           "val_spread_success_20mm": float((e.max(axis=1) < 20.0).mean())}
+    print(f"spread fingers ({len(errs)} sequences): {fig['val_spread_mean_mm']:.3f} mm, "
+          f"success@20 {fig['val_spread_success_20mm']:.3f}")
+    return fig
 
 
 def _run(section: str, reg: HandRegressor, cfg: TrackerConfig) -> dict:
+    if section == "spread":
+        return _spread_section(reg, cfg)
     if section == "surface":
         return th.surface_validation_section(reg, cfg, False, variants={"product": ("", cfg)})
     if section == "capsule":

@@ -52,3 +52,44 @@ def test_the_stereo_forearm_family_is_the_scripts_alone(tv):
     assert "stereo_forearm" in tv.SECTIONS and "stereo_forearm" not in tv.BENCH_SECTIONS
     with pytest.raises(ConfigError, match="at most one"):
         th.forearm_validation_section(None, TrackerConfig(), False, far=True, stereo=True)
+
+
+def test_spread_fingers_spreads_open_fingers_and_leaves_curled_ones():
+    """The spread validation motions (``spread_fingers``): open fingers' tips move away from
+    the middle fingertip, within the joint limits; a finger curled at 1.2 rad of MCP
+    flexion keeps its abduction; no spread leaves the pose as it is."""
+    import numpy as np
+
+    from hand_capture.bench._tracking_heldout import spread_fingers
+    from hand_capture.model import JOINT_INDEX, JOINT_LIMITS, HandModel
+
+    m = HandModel()
+    q = np.zeros(27)
+    q[JOINT_INDEX["little_mcp_flex"]] = 1.2
+    s = spread_fingers(q, 15.0)
+    assert np.array_equal(spread_fingers(q, 0.0), q)
+    kp0, kp = m.joint_positions(q), m.joint_positions(s)
+    for tip in (8, 16):   # index, ring: farther from the middle fingertip (12)
+        assert (np.linalg.norm(kp[tip] - kp[12]) - np.linalg.norm(kp0[tip] - kp0[12])) > 0.01
+    assert s[JOINT_INDEX["little_mcp_abd"]] == 0.0
+    assert np.all(s >= JOINT_LIMITS[:, 0]) and np.all(s <= JOINT_LIMITS[:, 1])
+    wide = spread_fingers(np.zeros(27), 40.0)   # clipped into the limits
+    assert wide[JOINT_INDEX["ring_mcp_abd"]] == JOINT_LIMITS[JOINT_INDEX["ring_mcp_abd"], 0]
+
+
+def test_the_spread_family_is_the_scripts_alone(tv, monkeypatch):
+    """``spread`` (the surface and capsule families with the fingers spread) is a choice of
+    the script, not a bench section; it renders its sequences with a spread."""
+    from hand_capture.bench import _tracking_heldout as th
+
+    assert "spread" in tv.SECTIONS and "spread" not in tv.BENCH_SECTIONS
+    spreads = []
+
+    def fake_sequence(seed, clip, n, step, surface, spread_deg=0.0):
+        spreads.append(spread_deg)
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(th, "suite_surface_sequence", fake_sequence)
+    with pytest.raises(RuntimeError, match="stop"):
+        tv._spread_section(None, None)
+    assert len(spreads) == 1 and 8.0 <= spreads[0] <= 20.0

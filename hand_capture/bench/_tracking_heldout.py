@@ -482,16 +482,37 @@ class CapsuleSurface:
         return fn
 
 
+#: the long fingers' share of a spread (:func:`spread_fingers`): MCP abduction away from
+#: the middle finger is + for the index, - for the ring and the little finger
+_SPREAD = (("index", 1.0), ("ring", -1.0), ("little", -1.6))
+
+
+def spread_fingers(pose: np.ndarray, spread_deg: float) -> np.ndarray:
+    """``pose`` (27,) with the long fingers spread apart from the middle finger: each MCP
+    abduction moved by ``spread_deg`` [deg] times its share (index 1, ring 1, little 1.6),
+    faded out as the finger curls (none from 1.2 rad of MCP flexion), clipped into the joint
+    limits. The suite's motions keep every abduction at zero; a real open hand spreads."""
+    from hand_capture.model import JOINT_INDEX, JOINT_LIMITS
+
+    q = np.array(pose, dtype=float)
+    for f, share in _SPREAD:
+        i = JOINT_INDEX[f"{f}_mcp_abd"]
+        open_ = float(np.clip(1.0 - q[JOINT_INDEX[f"{f}_mcp_flex"]] / 1.2, 0.0, 1.0))
+        q[i] = np.clip(q[i] + math.radians(spread_deg) * share * open_, *JOINT_LIMITS[i])
+    return q
+
+
 def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
                            variant: SurfaceVariant | CapsuleSurface,
-                           fingers: np.ndarray | None = None
+                           fingers: np.ndarray | None = None, spread_deg: float = 0.0
                            ) -> tuple[HandModel, Intrinsics, list, list, list, list]:
     """A sequence of the suite's generator (the synthetic camera's shape ``seed``, motion
     ``clip``, rasteriser and noise model, 320x240) with the hand's surface replaced by
     ``variant``; ``fingers`` (n, 21) [rad], when given, replaces the clip's finger joint
-    angles frame by frame (the wrist keeps the clip's path). Returns ``(model, intrinsics,
-    frames, keypoints, poses, calibration frames)`` (the calibration poses rendered with the
-    same surface and noise)."""
+    angles frame by frame (the wrist keeps the clip's path); ``spread_deg`` spreads the
+    fingers (:func:`spread_fingers`). Returns ``(model, intrinsics, frames, keypoints,
+    poses, calibration frames)`` (the calibration poses rendered with the same surface and
+    noise)."""
     from hand_capture.cameras.render import make_renderer
     from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
     from hand_capture.tracking.calibration import render_calibration_frames
@@ -509,6 +530,8 @@ def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
         if fingers is not None:
             pose = pose.copy()
             pose[6:] = fingers[k]
+        if spread_deg:
+            pose = spread_fingers(pose, spread_deg)
         poses.append(pose)
         res = renderer.render([mesh(pose)], cam.intrinsics)
         frames.append((cam.noise.apply_mm(res.depth, res.cos_incidence, cam.intrinsics, rng),
