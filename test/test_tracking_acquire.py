@@ -129,7 +129,35 @@ def test_candidates_of_a_frame_without_a_tracked_pose_get_more_iterations(regres
 
 def test_the_settings_are_range_checked():
     for bad in ({"acquire_modes": 17}, {"acquire_modes": -1}, {"acquire_refine_top": 33},
-                {"acquire_icp_iterations": -1}, {"acquire_icp_iterations": 51}):
+                {"acquire_icp_iterations": -1}, {"acquire_icp_iterations": 51},
+                {"acquire_above_tau": -0.1}, {"acquire_above_tau": 1.5}):
         with pytest.raises(ConfigError):
             TrackerConfig(**bad)
 
+
+
+def test_a_doubtful_tracked_frame_searches_as_one_without_a_tracked_pose(regressor, cam,
+                                                                         frames):
+    """``acquire_above_tau``: while tracking, a frame whose previous E_d was above that
+    share of tau asks for acquire_modes palms and refines acquire_refine_top candidates for
+    acquire_icp_iterations, the previous pose among them; below it (or 0, off) the tracked
+    frame keeps the product's numbers."""
+    cfg = dataclasses.replace(TrackerConfig(), acquire_above_tau=0.01)   # every frame doubtful
+    spy = _Modes(regressor)
+    tr = HybridTracker(cam.model, cfg, spy)
+    calls = _Iterations(tr.icp)
+    res = []
+    for f in frames:   # step 4 of each frame: its first full refinement
+        n = len(calls.calls)
+        res.append(tr.process(f.depth, f.depth_intrinsics))
+        assert calls.calls[n] == (res[-1].n_candidates, cfg.acquire_icp_iterations)
+    assert all(r.success for r in res) and res[1].status == "tracking"
+    assert spy.asked == [cfg.acquire_modes] * 3
+    assert [r.n_candidates for r in res[1:]] == [res[0].n_candidates] * 2
+    # a share no fit reaches: the tracking numbers
+    spy = _Modes(regressor)
+    tr = HybridTracker(cam.model, dataclasses.replace(cfg, acquire_above_tau=1.0), spy)
+    res = _run(tr, frames)
+    assert res[0].cost < tr.tau_mm
+    assert spy.asked == [cfg.acquire_modes, cfg.n_modes, cfg.n_modes]
+    assert TrackerConfig().acquire_above_tau > 0.0   # the product's setting: on

@@ -237,6 +237,12 @@ class TrackerConfig:
                                         "step 4 on such a frame (its candidates start far "
                                         "from the hand: no previous pose); 0 = "
                                         "icp_iterations", lo=0, hi=50)
+    acquire_above_tau: float = param(0.8, "while tracking, a frame whose previous E_d was "
+                                     "above this share of tau (eq. II.19) searches as one "
+                                     "without a tracked pose (acquire_*, candidates refined "
+                                     "without the smoothness term; the previous pose stays "
+                                     "a candidate): a wrong acquisition that passes eq. "
+                                     "II.19 is searched again; 0 = off", lo=0.0, hi=1.0)
     regress_every: int = param(1, "run the regression (steps 1-2) every n-th frame while the "
                                "previous frame tracked successfully (eq. II.19); frames in "
                                "between refine the previous pose only; after a failure it "

@@ -50,7 +50,10 @@ without a tracked previous pose (the first, any after a loss) searches wider, wi
 ``acquire_modes`` palm modes in step 1 and ``acquire_refine_top`` candidates refined in
 step 4, each for ``acquire_icp_iterations`` Gauss-Newton iterations (no previous pose
 carries the fit there, the regressed candidates start far off, and a wrong start is kept
-for many frames);
+for many frames), and so does a tracked frame whose previous E_d was above
+``acquire_above_tau`` of tau (a wrong acquisition that still passes eq. II.19; its
+candidates are refined without the smoothness term, which would hold them at the pose in
+doubt, and that pose stays among them);
 step 4 keeps a screened candidate as it was when its refinement raised its cost
 (``keep_unrefined``: while tracking, the smoothness term of eq. II.24 holds every candidate
 near the previous pose, so a regressed candidate that rightly leaves a wrong previous pose
@@ -422,10 +425,13 @@ class HybridTracker:
         if defer:  # tracking: after this frame's pose is out (run_deferred)
             regress = False
         palms: list[np.ndarray] = []
-        # no tracked previous pose (the first frame, after a loss): the wider search of
-        # acquire_modes / acquire_refine_top, each candidate refined acquire_icp_iterations
-        # (they start far off)
-        acquire = mode == "hybrid" and not tracking
+        # no tracked previous pose (the first frame, after a loss), or a tracked one in
+        # doubt (its E_d above acquire_above_tau of tau): the wider search of acquire_modes
+        # / acquire_refine_top, each candidate refined acquire_icp_iterations (they start
+        # far off)
+        acquire = mode == "hybrid" and (not tracking or 0.0 < cfg.acquire_above_tau
+                                        and self._prev_cost > cfg.acquire_above_tau
+                                        * self.tau_mm)
         n_modes = (cfg.acquire_modes or cfg.n_modes) if acquire else cfg.n_modes
         top = (cfg.acquire_refine_top or cfg.refine_top) if acquire else cfg.refine_top
         its = ((cfg.acquire_icp_iterations or cfg.icp_iterations) if acquire
@@ -476,7 +482,7 @@ class HybridTracker:
             order = np.arange(len(pool)) if costs is None else \
                 np.argsort([c[0] for c in costs])[:top]
             t = time.perf_counter()
-            track = self.delta and self.prev is not None
+            track = self.delta and self.prev is not None and not acquire
             ref = self._smooth_ref() if track else None
             refs = [ref if track else pool[i][1] for i in order]
             refined = list(self.icp.refine_batch([pool[i][0] for i in order], obs, its,
