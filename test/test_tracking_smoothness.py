@@ -2,7 +2,9 @@
 weight (50) a reference at the previous pose holds a fast-moving hand back; the previous
 pose moved on at the last frame's velocity does not (issue 13). Step 4's ``keep_unrefined``
 (a screened candidate kept when its refinement, pulled to the reference, costs more) lets the
-regressed candidates through as well; the reference's own effect is measured without it."""
+regressed candidates through as well, and so does ``acquire_above_tau`` (a frame after a
+doubtful fit refines its candidates without the smoothness term); the reference's own effect
+is measured without either."""
 
 from __future__ import annotations
 
@@ -35,7 +37,7 @@ def _mean_err_mm(sweep, predict: str, keep_unrefined: bool = False) -> float:
     """The product's hybrid tracker over the sweep: mean keypoint error [mm]."""
     m, reg, frames = sweep
     cfg = dataclasses.replace(TrackerConfig(), smooth_predict=predict,
-                              keep_unrefined=keep_unrefined)
+                              keep_unrefined=keep_unrefined, acquire_above_tau=0.0)
     tr = HybridTracker(m, cfg, reg)
     errs = [np.linalg.norm(m.joint_positions(tr.process(f.depth, f.depth_intrinsics).pose)
                            - m.joint_positions(f.pose), axis=1).mean() for f in frames]
