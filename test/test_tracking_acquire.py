@@ -135,7 +135,6 @@ def test_the_settings_are_range_checked():
             TrackerConfig(**bad)
 
 
-
 def test_a_doubtful_tracked_frame_searches_as_one_without_a_tracked_pose(regressor, cam,
                                                                          frames):
     """``acquire_above_tau``: while tracking, a frame whose previous E_d was above that

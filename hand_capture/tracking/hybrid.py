@@ -429,9 +429,9 @@ class HybridTracker:
         # doubt (its E_d above acquire_above_tau of tau): the wider search of acquire_modes
         # / acquire_refine_top, each candidate refined acquire_icp_iterations (they start
         # far off)
-        acquire = mode == "hybrid" and (not tracking or 0.0 < cfg.acquire_above_tau
-                                        and self._prev_cost > cfg.acquire_above_tau
-                                        * self.tau_mm)
+        doubtful = tracking and 0.0 < cfg.acquire_above_tau \
+            and self._prev_cost > cfg.acquire_above_tau * self.tau_mm
+        acquire = mode == "hybrid" and (not tracking or doubtful)
         n_modes = (cfg.acquire_modes or cfg.n_modes) if acquire else cfg.n_modes
         top = (cfg.acquire_refine_top or cfg.refine_top) if acquire else cfg.refine_top
         its = ((cfg.acquire_icp_iterations or cfg.icp_iterations) if acquire
