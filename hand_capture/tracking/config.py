@@ -27,6 +27,12 @@ class TrackerConfig:
     jump_m: float = param(0.02, "depth step between neighbouring pixels that separates "
                           "surfaces when growing [m]", lo=0.001, hi=0.5)
     min_hand_pixels: int = param(60, "fewer hand pixels than this = no hand in view", lo=1)
+    track_roi_m: float = param(0.1, "while tracking (the previous frame passed eq. II.19), "
+                               "segment only within this margin of the ball around the "
+                               "previous pose's keypoints (their centroid, radius their "
+                               "farthest): something nearer the camera elsewhere is not "
+                               "taken for the hand; the whole image when nothing is found "
+                               "there; 0 = off [m]", lo=0.0, hi=2.0)
     wrist_cut_m: float = param(0.0, "drop points farther than this from the cloud centroid; "
                                "0 = no wrist cut [m]", lo=0.0, hi=1.0)
     forearm_cut: bool = param(True, "remove the forearm from the segmented hand "

@@ -32,7 +32,12 @@ the frame is tracked from the previous pose and published first, then
 :meth:`HybridTracker.run_deferred` runs steps 1-2 on the same frame and keeps its best
 candidate for the next frame's pool when it fits that frame better than the tracked pose.
 
-Departures for real hands (issue 13): the pixels a per-pixel classifier calls arm are
+Departures for real hands (issue 13): while a hand is tracked, step 1's segment is the
+depth band's component holding most pixels near the previous pose's bones, the band started
+at the hand when something nearer the camera elsewhere would leave it behind
+(``track_roi_m``, :func:`~hand_capture.tracking.preprocess.segment_hand`'s ``roi``; the
+dissertation takes the nearest object for the hand, so another hand or an object coming
+nearer the camera took over the tracking); the pixels a per-pixel classifier calls arm are
 dropped first (``armseg.remove_arm``, trained on the suite's renders with forearms), then
 the forearm is cut off the segment (``preprocess.cut_forearm``: at the previous pose's wrist
 while tracking, else from the cloud's shape; after a cloud-only cut the selected pose's
@@ -98,6 +103,14 @@ from hand_capture.tracking.regressor import DepthLookup, HandRegressor, ModelFra
 __all__ = ["HybridTracker", "TrackResult", "default_model_path", "STAGES"]
 
 STAGES = ("preprocess", "regression", "icp", "selection")
+
+
+#: the hand's bones as keypoint pairs (KEYPOINT_NAMES order: wrist, then per finger its root
+#: to its tip), with the knuckle line across the palm, for ``track_roi_m``: (23, 2)
+_SKELETON = np.array([(0, 1), (1, 2), (2, 3), (3, 4)]
+                     + [(a, b) for f in range(5, 21, 4)
+                        for a, b in ((0, f), (f, f + 1), (f + 1, f + 2), (f + 2, f + 3))]
+                     + [(5, 9), (9, 13), (13, 17)])
 
 
 #: flexion angles of the straight and the curled posture of ``finger_postures`` [rad], by
@@ -262,6 +275,14 @@ class HybridTracker:
         e_d = getattr(result, "depth_residual_mm", float("nan"))
         self.fit_residual_mm = float(e_d) if np.isfinite(e_d) else None
 
+    def _segment_roi(self) -> tuple[np.ndarray, float] | None:
+        """Where the hand is looked for while the previous frame tracked (``track_roi_m``):
+        ``(the previous pose's bones (B, 2, 3) [m], track_roi_m)``; else None."""
+        if self.cfg.track_roi_m <= 0 or not (self.delta and self.prev is not None):
+            return None
+        kp = self.model.joint_positions(self.prev)
+        return kp[_SKELETON], self.cfg.track_roi_m
+
     def _wrist_plane(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The previous pose's wrist [m] and its forearm direction (unit, middle MCP to
         wrist), while the previous frame tracked (eq. II.19); else None."""
@@ -323,7 +344,11 @@ class HybridTracker:
         cfg = self.cfg
         before = {k: getattr(self, k) for k in self._STATE}
         t0 = time.perf_counter()
-        seg = segment_hand(depth, intr, cfg)   # the same segment for every attempt
+        # the same segment for every attempt; while tracking, near the previous hand
+        roi = self._segment_roi()
+        seg = segment_hand(depth, intr, cfg, roi)
+        if roi is not None and not seg.found:   # nothing near it: the whole image
+            seg = segment_hand(depth, intr, cfg)
         t_seg = time.perf_counter() - t0
         r, dropped, cloud = self._process(seg, intr, self.arm)
         r.timing["preprocess"] += t_seg

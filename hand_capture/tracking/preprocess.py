@@ -19,7 +19,8 @@ from hand_capture.cameras.base import Intrinsics
 from hand_capture.errors import InputError
 from hand_capture.tracking.config import TrackerConfig
 
-__all__ = ["HandObservation", "cut_forearm", "drop_background_plane", "segment_hand"]
+__all__ = ["HandObservation", "cut_forearm", "drop_background_plane", "near_segments_mask",
+           "segment_hand"]
 
 
 class HandObservation:
@@ -236,8 +237,8 @@ def fill_gaps(d: np.ndarray, cfg: TrackerConfig) -> np.ndarray:
     return d
 
 
-def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None = None
-                 ) -> HandObservation:
+def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None = None,
+                 roi: tuple[np.ndarray, float] | None = None) -> HandObservation:
     """Segment the hand (nearest connected component in a depth band) and back-project it.
 
     Args:
@@ -245,6 +246,11 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
         intr: pinhole of the image.
         cfg: thresholds (near_m, far_m, band_m, min_hand_pixels, wrist_cut_m).
             The forearm is removed separately (:func:`cut_forearm`).
+        roi: ``(segments (B, 2, 3) [m], radius [m])``, a tracked hand's bones: the depth
+            band starts at the nearest pixel near them (:func:`near_segments_mask`) and
+            the component holding most such pixels is the hand, so that something nearer
+            the camera elsewhere in view is not taken for it (the component is kept whole,
+            forearm included); None: the nearest pixel and component in the whole image.
 
     Returns:
         A :class:`HandObservation`; ``found`` is False when no hand is in view.
@@ -258,32 +264,61 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     n_valid = int(np.count_nonzero(valid))
     if n_valid < cfg.min_hand_pixels:
         return _empty(d.shape, intr)
+    near = None
+    if roi is not None:
+        near = valid & near_segments_mask(d, intr, *roi)
+        if int(np.count_nonzero(near)) < cfg.min_hand_pixels:
+            return _empty(d.shape, intr)
     z0 = _low_depth(d[valid])
-    band = valid & (d <= z0 + cfg.band_m)
-    fill = max(cfg.fill_band_px, cfg.fill_hole_px)
-    if fill > 0:   # a stereo camera's short gaps, around the band only (fill_gaps)
+    # the tracked hand's near end: a tenth of the pixels near it may be something else
+    # (deeper only widens the band)
+    z0_hand = float(np.percentile(d[near], 10)) if near is not None else z0
+    n_near = int(np.count_nonzero(near)) if near is not None else 0
+    for again in (False, True):
+        band = valid & (d <= z0 + cfg.band_m)
+        fill = max(cfg.fill_band_px, cfg.fill_hole_px)
+        if fill > 0:   # a stereo camera's short gaps, around the band only (fill_gaps)
+            rows = np.flatnonzero(band.any(axis=1))
+            cols = np.flatnonzero(band.any(axis=0))
+            r0, r1 = max(int(rows[0]) - fill, 0), int(rows[-1]) + fill + 1
+            c0, c1 = max(int(cols[0]) - fill, 0), int(cols[-1]) + fill + 1
+            fill_gaps(d[r0:r1, c0:c1], cfg)
+            valid = (d > cfg.near_m) & (d < cfg.far_m)
+            band = valid & (d <= z0 + cfg.band_m)
+        # components of the band, labelled in its bounding box only (same components, same
+        # raster order of the labels as on the whole image)
         rows = np.flatnonzero(band.any(axis=1))
         cols = np.flatnonzero(band.any(axis=0))
-        r0, r1 = max(int(rows[0]) - fill, 0), int(rows[-1]) + fill + 1
-        c0, c1 = max(int(cols[0]) - fill, 0), int(cols[-1]) + fill + 1
-        fill_gaps(d[r0:r1, c0:c1], cfg)
-        valid = (d > cfg.near_m) & (d < cfg.far_m)
-        band = valid & (d <= z0 + cfg.band_m)
-    # components of the band, labelled in its bounding box only (same components, same
-    # raster order of the labels as on the whole image)
-    rows = np.flatnonzero(band.any(axis=1))
-    cols = np.flatnonzero(band.any(axis=0))
-    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-    band_b = band[r0:r1, c0:c1]
-    d_b = d[r0:r1, c0:c1]
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(band_b.astype(np.uint8),
-                                                        connectivity=8)
-    if n <= 1:
-        return _empty(d.shape, intr)
-    best = _nearest_label(lab, stats, band_b & (d_b <= z0 + 0.01))
+        r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+        band_b = band[r0:r1, c0:c1]
+        d_b = d[r0:r1, c0:c1]
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(band_b.astype(np.uint8),
+                                                            connectivity=8)
+        if n <= 1:
+            return _empty(d.shape, intr)
+        votes = band_b & (d_b <= z0 + 0.01)   # the nearest pixels
+        if near is None:
+            break
+        # a tracked hand: the component holding most pixels near it, so that something
+        # nearer the camera elsewhere is not taken for it; when the nearer thing leaves
+        # half the hand behind the band or is not in the hand's component (its forearm
+        # is), the band starts at the hand's own nearest pixel
+        hand = band_b & near[r0:r1, c0:c1]
+        if not again and z0_hand > z0 + 0.01 and (
+                np.count_nonzero(hand) < 0.5 * n_near
+                or not np.any(lab[votes] == _nearest_label(lab, stats, hand))):
+            z0 = z0_hand
+            continue
+        votes = hand if hand.any() else votes
+        break
+    best = _nearest_label(lab, stats, votes)
     if int(stats[best, cv2.CC_STAT_AREA]) < cfg.min_hand_pixels:
         return _empty(d.shape, intr)
     mask_b = lab == best
+    if near is not None:   # what touches the tracked hand in the image only
+        mask_b = _drop_far_pieces(mask_b, d_b, near[r0:r1, c0:c1], cfg)
+        if int(np.count_nonzero(mask_b)) < cfg.min_hand_pixels:
+            return _empty(d.shape, intr)
     mask = np.zeros(d.shape, bool)
     mask[r0:r1, c0:c1] = mask_b
     if cfg.grow_m > 0 and _touches_border(mask_b, r0, c0, d.shape):
@@ -312,6 +347,84 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     obs = HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
     obs.background_plane = keep is not None
     return obs
+
+
+def near_segments_mask(d: np.ndarray, intr: Intrinsics, segments: np.ndarray, radius: float,
+                       step: int = 4) -> np.ndarray:
+    """Pixels of depth image ``d`` (H, W) [m] near the 3D line segments ``segments``
+    (B, 2, 3) [m, optical frame] (a hand's bones): within ``radius`` [m] of a segment's
+    projection in the image and of its depth (each third of a segment drawn at its mean
+    depth, give or take the radius and 15 mm); where segments overlap in the image the
+    nearer one's depth counts. Drawn on a grid of ``step`` pixels (the region is coarse:
+    a radius of centimetres). (H, W) bool."""
+    h, w = d.shape
+    out = np.zeros((h, w), bool)
+    seg = np.asarray(segments, float)
+    r = float(radius)
+    if not (np.all(np.isfinite(seg)) and np.isfinite(r) and r > 0):
+        return out
+    # each segment in three pieces (a depth that follows a bone pointing at the camera)
+    t = np.array([0.0, 1.0 / 3.0, 2.0 / 3.0, 1.0])[None, :, None]
+    pts = seg[:, :1] + t * (seg[:, 1:] - seg[:, :1])                    # (B, 4, 3)
+    seg = np.stack([pts[:, :-1], pts[:, 1:]], axis=2).reshape(-1, 2, 3)
+    seg = seg[seg[:, :, 2].min(axis=1) > 1e-3]
+    if not len(seg):
+        return out
+    hs, ws = -(-h // step), -(-w // step)
+    zimg = np.zeros((hs, ws), np.float32)
+    f = max(intr.fx, intr.fy) / step
+    seg = seg[np.argsort(-seg[:, :, 2].mean(axis=1))]      # far first: the nearer overwrite
+    uv = np.clip(np.rint(np.stack([intr.cx + intr.fx * seg[..., 0] / seg[..., 2],
+                                   intr.cy + intr.fy * seg[..., 1] / seg[..., 2]], axis=-1)
+                         / step), -1e5, 1e5).astype(np.int64).tolist()      # (S, 2, 2)
+    thick = np.clip(np.rint(2.0 * r * f / seg[:, :, 2].min(axis=1)), 1, 32000)
+    for (pa, pb), k, z in zip(uv, thick.astype(np.int64).tolist(),
+                              seg[:, :, 2].mean(axis=1).tolist(), strict=True):
+        cv2.line(zimg, pa, pb, z, k)
+    rows, cols = np.flatnonzero(zimg.any(axis=1)), np.flatnonzero(zimg.any(axis=0))
+    if not len(rows):
+        return out
+    r0, r1 = int(rows[0]) * step, min((int(rows[-1]) + 1) * step, h)
+    c0, c1 = int(cols[0]) * step, min((int(cols[-1]) + 1) * step, w)
+    z = np.repeat(np.repeat(zimg[r0 // step:-(-r1 // step), c0 // step:-(-c1 // step)], step,
+                            axis=0), step, axis=1)[:r1 - r0, :c1 - c0]
+    out[r0:r1, c0:c1] = (z > 0) & (np.abs(d[r0:r1, c0:c1] - z) <= np.float32(r + 0.015))
+    return out
+
+
+def _drop_far_pieces(mask: np.ndarray, d: np.ndarray, near: np.ndarray, cfg: TrackerConfig
+                     ) -> np.ndarray:
+    """The segment ``mask`` (H, W) bool of depth ``d`` [m] without the large pieces in front
+    of a tracked hand: split along depth steps of ``cfg.jump_m`` (as
+    :func:`split_surfaces`), a piece of at least ``cfg.split_share`` of the segment with
+    under a fifth of its pixels ``near`` the hand (:func:`near_segments_mask`) whose median
+    depth is nearer than that of the piece most near the hand is dropped with the step
+    pixels beside it (an object in front of the hand that touches it in the image, not
+    along its surface)."""
+    edge = _depth_steps(d, cfg.jump_m, mask)
+    n, lab = cv2.connectedComponents((mask & ~edge).astype(np.uint8), connectivity=4)
+    if n <= 2:
+        return mask
+    size = np.bincount(lab.ravel(), minlength=n)
+    size[0] = 0
+    large = size >= cfg.split_share * int(np.count_nonzero(mask))
+    large[0] = False
+    if large.sum() < 2:
+        return mask
+    share = np.bincount(lab[near & mask], minlength=n) / np.maximum(size, 1)
+    share[~large] = -1.0
+    hand = int(np.argmax(share))
+    inside = lab > 0
+    depth = np.full(n, np.inf)
+    for k in np.flatnonzero(large):
+        depth[k] = float(np.median(d[inside & (lab == k)]))
+    drop = large & (share < 0.2) & (depth < depth[hand])
+    drop[hand] = False
+    if not drop.any():
+        return mask
+    gone = cv2.dilate(np.isin(lab, np.flatnonzero(drop)).astype(np.uint8),
+                      np.ones((3, 3), np.uint8)) > 0
+    return mask & ~gone
 
 
 def _low_depth(z: np.ndarray) -> float:
