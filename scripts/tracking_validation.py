@@ -44,7 +44,7 @@ from hand_capture.tracking.regressor import HandRegressor
 
 #: the sections, by name: each returns the bench's figures for the product settings
 SECTIONS = ("surface", "capsule", "stereo", "forearm", "table", "capsule_forearm",
-            "far_forearm", "near_forearm", "stereo_forearm", "spread")
+            "far_forearm", "near_forearm", "distractor", "stereo_forearm", "spread")
 #: the bench's sections (run when ``--sections`` is not given)
 BENCH_SECTIONS = SECTIONS[:-2]
 
@@ -93,6 +93,8 @@ def _run(section: str, reg: HandRegressor, cfg: TrackerConfig) -> dict:
                                              far=section == "far_forearm",
                                              near=section == "near_forearm",
                                              stereo=section == "stereo_forearm")
+    if section == "distractor":
+        return th.distractor_validation_section(reg, cfg, False)
     return th.table_validation_section(reg, cfg, False)
 
 

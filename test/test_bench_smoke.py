@@ -88,7 +88,8 @@ BENCHES: dict[str, tuple[tuple[str, ...], tuple[pytest.MarkDecorator, ...]]] = {
                   "val_table_seg_table_pct", "val_capsule_forearm_mean_mm",
                   "val_far_forearm_mean_mm", "val_far_forearm_first_mean_mm",
                   "val_far_forearm_arm_pixel_acc", "val_near_forearm_mean_mm",
-                  "val_near_forearm_first_mean_mm", "val_near_forearm_arm_pixel_acc"), ()),
+                  "val_near_forearm_first_mean_mm", "val_near_forearm_arm_pixel_acc",
+                  "val_distractor_mean_mm", "val_distractor_no_roi_mean_mm"), ()),
 }
 
 
@@ -118,12 +119,16 @@ def _check_tracking(figures: dict, text: str) -> None:
     # the table behind the hand: the segment's share on it, with and without the removal
     for key in ("val_table", "val_table_no_plane"):
         assert 0.0 <= figures[f"{key}_seg_table_pct"] <= 100.0
+    # a box nearer the camera than the hand: the segment's share on it, both ways
+    for key in ("val_distractor", "val_distractor_no_roi"):
+        assert 0.0 <= figures[f"{key}_seg_on_box_pct"] <= 100.0
     # the forearm validation on the collision capsules and with a farther or nearer camera
     assert 0.5 < figures["val_far_forearm_arm_pixel_acc"] <= 1.0
     assert 0.5 < figures["val_near_forearm_arm_pixel_acc"] <= 1.0
     for title in ("forearm frames", "classifier + cut", "held-out family", "d435_640",
                   "bone-length", "surface-tolerance settings", "a table behind the hand",
-                  "drawn as its collision capsules", "0.2 m farther", "0.15 m nearer"):
+                  "drawn as its collision capsules", "0.2 m farther", "0.15 m nearer",
+                  "nearer the camera than the hand"):
         assert title in text, title
 
 

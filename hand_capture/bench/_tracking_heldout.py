@@ -146,26 +146,47 @@ def arm_pixel_counts(arm, frames, labels, config) -> tuple[int, int]:
     return right, total
 
 
-def _score(tracker, frames, truth, labels=None) -> dict:
+def _score(tracker, frames, truth, labels=None, on_result=None) -> dict:
     """Track a sequence; with ``labels`` also the segment quality per frame
     (:func:`segment_quality`) and which cut made it (``plane``: the frame followed a
-    tracked one, so the forearm was cut at the previous wrist; else the cloud's shape)."""
+    tracked one, so the forearm was cut at the previous wrist; else the cloud's shape);
+    ``on_result(i, r)``, when given, sees every frame's result too."""
     from hand_capture.bench.tracking import _run_mode, _summary
 
     seg: list[tuple[float, float, bool]] = []
     last = [False]
 
-    def on_result(i: int, r) -> None:
-        o = r.observation
-        px = o.pixels if o is not None and o.found else np.zeros((0, 2))
-        seg.append((*segment_quality(px, labels[i], frames[i][0]), last[0]))
-        last[0] = bool(r.success)
+    def each(i: int, r) -> None:
+        if labels is not None:
+            o = r.observation
+            px = o.pixels if o is not None and o.found else np.zeros((0, 2))
+            seg.append((*segment_quality(px, labels[i], frames[i][0]), last[0]))
+            last[0] = bool(r.success)
+        if on_result is not None:
+            on_result(i, r)
 
     e, w, c, fl, _, _ = _run_mode(tracker, frames, truth,
-                                  on_result=None if labels is None else on_result)
+                                  on_result=None if labels is None and on_result is None
+                                  else each)
     s = _summary(e)
     s.update(errs=e, cpu=c, wall=w, flags=fl, seg=np.array(seg).reshape(-1, 3))
     return s
+
+
+def heldout_case(k: int, cam: str, clutter: bool, seed: int, arm: bool, n: int, step: int):
+    """The held-out sequence of case ``k`` (camera, clutter, ``seed`` with the forearm's
+    offset already added; with a forearm bare arm and sleeve alternate, so each camera gets
+    both), its calibration frames (one set for every setting calibrated on it) and the
+    template's calibration from them: ``(HeldoutSequence, frames, CalibrationResult)``."""
+    from hand_capture.evaldata import calibration_frames, make_sequence
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.calibration import CALIBRATION_POSES
+
+    seq = make_sequence(seed, n, cam, forearm=arm, clutter=clutter, step=step,
+                        sleeve=bool((k + k // 2) % 2))
+    calf = calibration_frames(seq.model, seq.surface, list(CALIBRATION_POSES.values()), cam,
+                              np.random.default_rng(seed))
+    return seq, calf, bench_calibrate(calf, model=HandModel())
 
 
 def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
@@ -173,9 +194,8 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
     """Track the held-out family without and with a forearm (see the module doc);
     ``cases`` / ``frames`` ((count, step)) override the quick / full choice."""
     from hand_capture.bench.tracking import _summary
-    from hand_capture.evaldata import calibration_frames, make_sequence
+    from hand_capture.evaldata import make_sequence
     from hand_capture.model import HandModel
-    from hand_capture.tracking.calibration import CALIBRATION_POSES
     from hand_capture.tracking.hybrid import HybridTracker
 
     cases = cases or (HELDOUT_QUICK if quick else HELDOUT)
@@ -193,14 +213,8 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
         for k, (cam, clutter, seed) in enumerate(cases):
             seed = seed + (100 if arm else 0)
             t0 = time.perf_counter()
-            # with a forearm: bare arm and sleeve alternate (each camera gets both)
-            seq = make_sequence(seed, n, cam, forearm=arm, clutter=clutter, step=step,
-                                sleeve=bool((k + k // 2) % 2))
+            seq, calf, cal = heldout_case(k, cam, clutter, seed, arm, n, step)
             t_render = (time.perf_counter() - t0) / n
-            # one set of calibration frames for the product and each setting below
-            calf = calibration_frames(seq.model, seq.surface, list(CALIBRATION_POSES.values()),
-                                      cam, np.random.default_rng(seed))
-            cal = bench_calibrate(calf, model=base)
             model = base.with_shape(cal.shape)
             tracker = HybridTracker(base, config, reg)
             tracker.set_calibration(cal)   # as the node: the shape, and tau from the fit
@@ -316,7 +330,7 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
 def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bool = False,
                            clutter: bool = False, sleeve: bool = False, table: bool = False,
                            surface: SurfaceVariant | CapsuleSurface | None = None,
-                           camera: dict | None = None
+                           camera: dict | None = None, distractor: bool = False
                            ) -> tuple[HandModel, Intrinsics, list, list, list]:
     """A sequence of the suite's own generator with a forearm in view: the synthetic
     camera's shape ``seed`` and motion ``clip`` (its mesh, rasteriser and noise model,
@@ -331,7 +345,12 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
     (10-25 mm over the arm's radius) over the forearm from 40-80 mm past the wrist;
     ``table`` a plane filling the view (a table or a wall) 50-120 mm behind the first frame's
     farthest keypoint, tilted up to 10 deg about both image axes, which the forearm runs
-    into (as an arm resting on a table joins it). ``surface`` replaces the hand's surface
+    into (as an arm resting on a table joins it). ``distractor`` a box (50-90 mm) nearer the
+    camera than the hand (its far face 50-120 mm in front of the nearest keypoint), beside
+    it and not touching it (70-100 mm from the middle MCP across the hand's axis, plus half
+    the box), which slides into view over four frames a third into the sequence and then
+    moves with the hand (another hand or a held object; the hand is then no longer the
+    nearest thing in view). ``surface`` replaces the hand's surface
     (:class:`SurfaceVariant`, :class:`CapsuleSurface`; None: the template mesh); ``camera``
     overrides fields of the synthetic camera's config (e.g. ``width``, ``height``,
     ``hfov_deg``, ``camera_position``; after ``close``'s).
@@ -375,10 +394,25 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
         extra_meshes = [Mesh(tv @ rot.T + centre, tf, 254)]
     else:
         extra_meshes = []
+    if distractor:   # drawn last: the other variants' draws stay the same
+        d_size = rng.uniform(0.05, 0.09, 3)
+        d_side = float(rng.choice([-1.0, 1.0]))
+        d_lateral = rng.uniform(0.07, 0.1) + 0.5 * float(d_size[:2].max())
+        d_nearer = rng.uniform(0.05, 0.12) + 0.5 * float(d_size[2])
+        d_in = len(idx) // 3
+        d_mesh = box(d_size)
     for k, i in enumerate(idx):
         t = i / 30.0
         pose = cam.truth_pose(t)
         meshes, _ = cam.scene_meshes(t, pose)
+        if distractor:
+            kp = cam.model.joint_positions(pose)
+            side = np.cross(kp[9] - kp[0], [0.0, 0.0, 1.0])
+            side *= d_side / max(float(np.linalg.norm(side)), 1e-9)
+            out = 0.6 * float(np.clip(1.0 - (k - d_in) / 4.0, 0.0, 1.0))  # out of view first
+            c = kp[9] + side * (d_lateral + out)
+            c[2] = kp[:, 2].min() - d_nearer
+            meshes.append(Mesh(d_mesh[0] + c, d_mesh[1], 254, closed=True))
         if hand_mesh is not None:
             meshes[0] = hand_mesh(pose)
         arm = forearm_mesh(cam.model, pose, radius, length, bend, label=255)
@@ -931,6 +965,59 @@ def table_validation_section(reg, config, quick: bool, smoke: bool = False) -> d
     return out
 
 
+def distractor_validation_section(reg, config, quick: bool, smoke: bool = False) -> dict:
+    """Something nearer the camera than the hand, beside it (the forearm validation
+    sequences with :func:`suite_forearm_sequence` ``distractor``: a box that enters the view
+    a third into each sequence): the product against ``track_roi_m`` 0 (the segment from
+    the nearest pixel in view) in the same run, each calibrated per shape and tracked
+    through; also the share of frames whose segment lies mostly on the box."""
+    from hand_capture.bench.tracking import _run_mode, _summary
+    from hand_capture.model import HandModel
+    from hand_capture.tracking.hybrid import HybridTracker
+
+    seeds, clips, n, step = _validation_plan(quick, smoke)
+    variants = {"product": ("val_distractor", config),
+                "nearest in view": ("val_distractor_no_roi",
+                                    dataclasses.replace(config, track_roi_m=0.0))}
+    base = HandModel()
+    res: dict[str, list] = {name: [] for name in variants}
+    for seed in seeds:
+        for clip in clips:
+            true, intr, frames, kps, labels = suite_forearm_sequence(seed, clip, n, step,
+                                                                     distractor=True)
+            cal = _suite_calibration(true, intr, seed, base)
+            for name, (_, cfg) in variants.items():
+                tracker = HybridTracker(base, cfg, reg)
+                tracker.set_calibration(cal)
+                on_box: list[bool] = []
+
+                def on_result(i: int, r, on_box=on_box, labels=labels) -> None:
+                    o = r.observation
+                    px = o.pixels if o is not None and o.found else np.zeros((0, 2))
+                    lab = labels[i][px[:, 1].astype(np.int64), px[:, 0].astype(np.int64)]
+                    on_box.append(bool(len(lab)) and float(np.mean(lab == 4)) > 0.5)
+
+                if cfg is config:   # the product (per sequence in the validation script)
+                    e = _score(tracker, frames, kps, on_result=on_result)["errs"]
+                else:
+                    e = _run_mode(tracker, frames, kps, on_result=on_result)[0]
+                res[name].append((e, np.array(on_box)))
+    rows, out = [], {}
+    for name, parts in res.items():
+        sm = _summary(np.concatenate([p[0] for p in parts]))
+        box_pct = 100.0 * float(np.mean(np.concatenate([p[1] for p in parts])))
+        rows.append([name, sm["mean"], sm["median"], sm["s20"], box_pct])
+        key = variants[name][0]
+        out.update({f"{key}_mean_mm": sm["mean"], f"{key}_success_20mm": sm["s20"],
+                    f"{key}_seg_on_box_pct": box_pct})
+    print_table(f"a box nearer the camera than the hand, beside it (the forearm validation "
+                f"sequences, shapes {seeds}, the box in view from a third into each): "
+                "segment near the tracked hand (track_roi_m) against the nearest pixel in "
+                "view, tracked through",
+                ["segmentation", "mean mm", "median mm", "succ@20", "seg on box %"], rows)
+    return out
+
+
 def _hard_forearm_validation(reg, config, seeds: tuple[int, ...], quick: bool) -> dict:
     """The arm classifier's failure case on the suite's generator (issue 13): a close-range
     wide camera, a sleeve over the forearm and a box sliding in until it touches the hand
@@ -1154,6 +1241,7 @@ def run_sections(reg, config, quick: bool, smoke: bool = False) -> dict:
         out.update(forearm_validation_section(reg, config, quick, product_only=True,
                                               smoke=smoke, **{kind: True}))
     out.update(table_validation_section(reg, config, quick, smoke=smoke))
+    out.update(distractor_validation_section(reg, config, quick, smoke=smoke))
     out.update(calibration_section(quick, scales=(1.15,) if smoke else None))
     out.update(split_section(reg, config, quick, smoke))
     out.update(resolution_section(reg, config, quick))
