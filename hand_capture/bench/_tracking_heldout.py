@@ -912,28 +912,25 @@ def forearm_validation_section(reg, config, quick: bool, product_only: bool = Fa
     return out
 
 
-def table_validation_section(reg, config, quick: bool, smoke: bool = False) -> dict:
-    """A table (or wall) behind the hand on the suite's generator (the forearm validation
-    sequences with :func:`suite_forearm_sequence` ``table``): the product against
-    ``plane_removal`` off in the same run, each calibrated per shape and tracked through;
-    also the segment against the true labels (share of the segment on the table, share of
-    the hand kept)."""
-    from hand_capture.bench.tracking import _run_mode, _summary
+def _clutter_shares(reg, variants: dict, quick: bool, smoke: bool, **scene) -> dict:
+    """The forearm validation sequences with ``scene`` (:func:`suite_forearm_sequence`
+    keywords: a table, a distractor), each calibrated per shape and tracked through by every
+    variant (``name -> (key, config)``; the first is the product, scored per sequence by
+    :func:`_score` for the validation script): ``name -> [(errors (n, 21) [mm], share of
+    each frame's segment on the clutter (label 4), share of the hand's pixels kept)]``."""
+    from hand_capture.bench.tracking import _run_mode
     from hand_capture.model import HandModel
     from hand_capture.tracking.hybrid import HybridTracker
 
     seeds, clips, n, step = _validation_plan(quick, smoke)
-    variants = {"product": ("val_table", config),
-                "no plane removal": ("val_table_no_plane",
-                                     dataclasses.replace(config, plane_removal=False))}
     base = HandModel()
     res: dict[str, list] = {name: [] for name in variants}
     for seed in seeds:
         for clip in clips:
             true, intr, frames, kps, labels = suite_forearm_sequence(seed, clip, n, step,
-                                                                     table=True)
+                                                                     **scene)
             cal = _suite_calibration(true, intr, seed, base)
-            for name, (_, cfg) in variants.items():
+            for k, (name, (_, cfg)) in enumerate(variants.items()):
                 tracker = HybridTracker(base, cfg, reg)
                 tracker.set_calibration(cal)
                 seg: list[tuple[float, float]] = []
@@ -945,9 +942,26 @@ def table_validation_section(reg, config, quick: bool, smoke: bool = False) -> d
                     seg.append((float(np.mean(lab == 4)) if len(lab) else 0.0,
                                 segment_quality(px, labels[i], frames[i][0])[1]))
 
-                e = _run_mode(tracker, frames, kps, on_result=on_result)[0]
-                table, kept = np.array(seg).T
-                res[name].append((e, table, kept))
+                e = (_score(tracker, frames, kps, on_result=on_result)["errs"] if k == 0
+                     else _run_mode(tracker, frames, kps, on_result=on_result)[0])
+                clutter, kept = np.array(seg).reshape(-1, 2).T
+                res[name].append((e, clutter, kept))
+    return res
+
+
+def table_validation_section(reg, config, quick: bool, smoke: bool = False) -> dict:
+    """A table (or wall) behind the hand on the suite's generator (the forearm validation
+    sequences with :func:`suite_forearm_sequence` ``table``): the product against
+    ``plane_removal`` off in the same run, each calibrated per shape and tracked through;
+    also the segment against the true labels (share of the segment on the table, share of
+    the hand kept)."""
+    from hand_capture.bench.tracking import _summary
+
+    seeds = _validation_plan(quick, smoke)[0]
+    variants = {"product": ("val_table", config),
+                "no plane removal": ("val_table_no_plane",
+                                     dataclasses.replace(config, plane_removal=False))}
+    res = _clutter_shares(reg, variants, quick, smoke, table=True)
     rows, out = [], {}
     for name, parts in res.items():
         sm = _summary(np.concatenate([p[0] for p in parts]))
@@ -971,41 +985,17 @@ def distractor_validation_section(reg, config, quick: bool, smoke: bool = False)
     a third into each sequence): the product against ``track_roi_m`` 0 (the segment from
     the nearest pixel in view) in the same run, each calibrated per shape and tracked
     through; also the share of frames whose segment lies mostly on the box."""
-    from hand_capture.bench.tracking import _run_mode, _summary
-    from hand_capture.model import HandModel
-    from hand_capture.tracking.hybrid import HybridTracker
+    from hand_capture.bench.tracking import _summary
 
-    seeds, clips, n, step = _validation_plan(quick, smoke)
+    seeds = _validation_plan(quick, smoke)[0]
     variants = {"product": ("val_distractor", config),
                 "nearest in view": ("val_distractor_no_roi",
                                     dataclasses.replace(config, track_roi_m=0.0))}
-    base = HandModel()
-    res: dict[str, list] = {name: [] for name in variants}
-    for seed in seeds:
-        for clip in clips:
-            true, intr, frames, kps, labels = suite_forearm_sequence(seed, clip, n, step,
-                                                                     distractor=True)
-            cal = _suite_calibration(true, intr, seed, base)
-            for name, (_, cfg) in variants.items():
-                tracker = HybridTracker(base, cfg, reg)
-                tracker.set_calibration(cal)
-                on_box: list[bool] = []
-
-                def on_result(i: int, r, on_box=on_box, labels=labels) -> None:
-                    o = r.observation
-                    px = o.pixels if o is not None and o.found else np.zeros((0, 2))
-                    lab = labels[i][px[:, 1].astype(np.int64), px[:, 0].astype(np.int64)]
-                    on_box.append(bool(len(lab)) and float(np.mean(lab == 4)) > 0.5)
-
-                if cfg is config:   # the product (per sequence in the validation script)
-                    e = _score(tracker, frames, kps, on_result=on_result)["errs"]
-                else:
-                    e = _run_mode(tracker, frames, kps, on_result=on_result)[0]
-                res[name].append((e, np.array(on_box)))
+    res = _clutter_shares(reg, variants, quick, smoke, distractor=True)
     rows, out = [], {}
     for name, parts in res.items():
         sm = _summary(np.concatenate([p[0] for p in parts]))
-        box_pct = 100.0 * float(np.mean(np.concatenate([p[1] for p in parts])))
+        box_pct = 100.0 * float(np.mean(np.concatenate([p[1] for p in parts]) > 0.5))
         rows.append([name, sm["mean"], sm["median"], sm["s20"], box_pct])
         key = variants[name][0]
         out.update({f"{key}_mean_mm": sm["mean"], f"{key}_success_20mm": sm["s20"],
