@@ -3,7 +3,8 @@ analysis, never shipped).
 
 ``hand-suite bench tracking`` runs its validation sections (the suite's generator only:
 surface variants, collision capsules, stereo artifacts, forearm (also on the capsules,
-with a farther D435-like camera and with a finer one nearer), table; nothing of
+with a farther D435-like camera and with a finer one nearer), table, a box nearer the camera
+than the hand (distractor); nothing of
 :mod:`hand_capture.evaldata`) on four shapes x four clips, 16 sequences a family. A change
 that moves a family by a few tenths of a millimetre there can be one sequence falling into
 another basin: the 28th session measured changes of +-0.4 mm on 16 sequences that vanished
