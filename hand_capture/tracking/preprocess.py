@@ -264,16 +264,16 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
     n_valid = int(np.count_nonzero(valid))
     if n_valid < cfg.min_hand_pixels:
         return _empty(d.shape, intr)
-    near = None
+    near, n_near = None, 0
     if roi is not None:
         near = valid & near_segments_mask(d, intr, *roi)
-        if int(np.count_nonzero(near)) < cfg.min_hand_pixels:
+        n_near = int(np.count_nonzero(near))
+        if n_near < cfg.min_hand_pixels:
             return _empty(d.shape, intr)
     z0 = _low_depth(d[valid])
     # the tracked hand's near end: a tenth of the pixels near it may be something else
     # (deeper only widens the band)
     z0_hand = float(np.percentile(d[near], 10)) if near is not None else z0
-    n_near = int(np.count_nonzero(near)) if near is not None else 0
     for again in (False, True):
         band = valid & (d <= z0 + cfg.band_m)
         fill = max(cfg.fill_band_px, cfg.fill_hole_px)
@@ -401,30 +401,45 @@ def _drop_far_pieces(mask: np.ndarray, d: np.ndarray, near: np.ndarray, cfg: Tra
     depth is nearer than that of the piece most near the hand is dropped with the step
     pixels beside it (an object in front of the hand that touches it in the image, not
     along its surface)."""
-    edge = _depth_steps(d, cfg.jump_m, mask)
-    n, lab = cv2.connectedComponents((mask & ~edge).astype(np.uint8), connectivity=4)
-    if n <= 2:
+    pieces = _large_pieces(mask, d, cfg.jump_m, cfg.split_share)
+    if pieces is None:
         return mask
-    size = np.bincount(lab.ravel(), minlength=n)
-    size[0] = 0
-    large = size >= cfg.split_share * int(np.count_nonzero(mask))
-    large[0] = False
-    if large.sum() < 2:
-        return mask
-    share = np.bincount(lab[near & mask], minlength=n) / np.maximum(size, 1)
+    lab, size, large = pieces
+    share = np.bincount(lab[near & mask], minlength=len(size)) / np.maximum(size, 1)
     share[~large] = -1.0
     hand = int(np.argmax(share))
-    inside = lab > 0
-    depth = np.full(n, np.inf)
+    depth = np.full(len(size), np.inf)
     for k in np.flatnonzero(large):
-        depth[k] = float(np.median(d[inside & (lab == k)]))
+        depth[k] = float(np.median(d[lab == k]))
     drop = large & (share < 0.2) & (depth < depth[hand])
     drop[hand] = False
     if not drop.any():
         return mask
-    gone = cv2.dilate(np.isin(lab, np.flatnonzero(drop)).astype(np.uint8),
+    return mask & ~_with_steps(lab, drop)
+
+
+def _large_pieces(mask: np.ndarray, d: np.ndarray, jump_m: float, share: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The segment ``mask`` (H, W) bool of depth ``d`` [m] split where 4-neighbours step
+    more than ``jump_m`` in depth: ``(labels (H, W) (0: a step pixel or off the segment),
+    pixels per label, whether each label is a large piece (at least ``share`` of the
+    segment))``; None unless there are two large pieces or more."""
+    edge = _depth_steps(d, jump_m, mask)
+    n, lab = cv2.connectedComponents((mask & ~edge).astype(np.uint8), connectivity=4)
+    if n <= 2:
+        return None
+    size = np.bincount(lab.ravel(), minlength=n)
+    size[0] = 0
+    large = size >= share * int(np.count_nonzero(mask))
+    large[0] = False
+    return (lab, size, large) if large.sum() >= 2 else None
+
+
+def _with_steps(lab: np.ndarray, drop: np.ndarray) -> np.ndarray:
+    """The pixels of the pieces ``drop`` (bool per label of ``lab``) with the step pixels
+    beside them: (H, W) bool."""
+    return cv2.dilate(np.isin(lab, np.flatnonzero(drop)).astype(np.uint8),
                       np.ones((3, 3), np.uint8)) > 0
-    return mask & ~gone
 
 
 def _low_depth(z: np.ndarray) -> float:
@@ -632,19 +647,14 @@ def split_surfaces(obs: HandObservation, jump_m: float, drop_share: float,
         return None
     v, u, z = obs.vuz
     r0, r1, c0, c1 = obs.box
-    m = obs.mask[r0:r1, c0:c1]
-    edge = _depth_steps(obs.depth_m[r0:r1, c0:c1], jump_m, m)
-    n, lab = cv2.connectedComponents((m & ~edge).astype(np.uint8), connectivity=4)
-    if n <= 2:
+    pieces = _large_pieces(obs.mask[r0:r1, c0:c1], obs.depth_m[r0:r1, c0:c1], jump_m,
+                           drop_share)
+    if pieces is None:
         return None
-    size = np.bincount(lab.ravel(), minlength=n)
-    size[0] = 0
+    lab, _, large = pieces
+    n = len(large)
     lv, lu = v - r0, u - c0
     lp = lab[lv, lu]     # 0: a step pixel, in no piece
-    large = size >= drop_share * len(z)
-    large[0] = False
-    if large.sum() < 2:
-        return None
     # the anchor: the large piece reaching nearest the camera (a small piece in front, such
     # as a finger, is kept whatever its depth)
     nearest = np.full(n, np.inf)
@@ -652,9 +662,7 @@ def split_surfaces(obs: HandObservation, jump_m: float, drop_share: float,
     nearest[~large] = np.inf
     drop = large.copy()
     drop[int(np.argmin(nearest))] = False
-    gone = cv2.dilate(np.isin(lab, np.flatnonzero(drop)).astype(np.uint8),
-                      np.ones((3, 3), np.uint8)) > 0
-    return _keep(obs, ~gone[lv, lu], min_pixels)
+    return _keep(obs, ~_with_steps(lab, drop)[lv, lu], min_pixels)
 
 
 def depth_normals(obs: HandObservation) -> np.ndarray:
