@@ -375,11 +375,31 @@ def test_missing_or_wrong_servo_fails_configure_with_names() -> None:
         with pytest.raises(ServoError, match=r"no answer to ping from ID\(s\) 2 \(index_curl"):
             b.configure()
         assert b.state is BridgeState.CLOSED and not b.bus.is_open
+    with BusEmulator({1: "XL330-M288", 2: "XL330-M288", 3: "XM430-W350"}) as emu:
+        emu.set_bad_crc(2, -1)  # every answer corrupted: missing, named with the reason
+        b = ServoBridge(BridgeConfig(servo_map="generic_3dof", port=emu.port_name,
+                                     packet_timeout_ms=20.0), smap)
+        with pytest.raises(ServoError, match=r"no answer to ping from ID\(s\) 2 \(index_curl"):
+            b.configure()
     with BusEmulator({1: "XL330-M288", 2: "XC330-M288", 3: "XM430-W350"}) as emu:
         b = ServoBridge(BridgeConfig(servo_map="generic_3dof", port=emu.port_name), smap)
         with pytest.raises(ServoError, match="wrong model: 2 .* XC330-M288, map says "
                                              "XL330-M288"):
             b.configure()
+
+
+def test_one_lost_ping_answer_does_not_fail_configure() -> None:
+    """A corrupted status packet at start-up is retried, not reported as a missing servo."""
+    smap = load_servo_map("generic_3dof")
+    with BusEmulator({1: "XL330-M288", 2: "XL330-M288", 3: "XM430-W350"}) as emu:
+        emu.set_bad_crc(2, 2)  # the first two answers of servo 2 are corrupted
+        b = ServoBridge(BridgeConfig(servo_map="generic_3dof", port=emu.port_name,
+                                     packet_timeout_ms=20.0), smap)
+        try:
+            b.configure()
+            assert b.state is BridgeState.INACTIVE
+        finally:
+            b.close()
 
 
 def test_torque_off_when_an_exception_leaves_the_context(clock) -> None:

@@ -68,6 +68,10 @@ _EMULATOR_SWITCH_INTERVAL_S = 2e-4  # GIL switch interval with the in-process em
 #: over 20 ms five cycles in a row and put the bridge in its ERROR state, and over 100 ms once
 #: (load average 10, the test suite at nice 10).
 _EMULATOR_MIN_PACKET_TIMEOUT_MS = 500.0
+#: Pings a servo gets before configure calls it missing: one lost or corrupted status packet
+#: (noise on the bus at power-up, or the emulator thread starved on a loaded host, seen once
+#: with five processes on two cores) must not fail the whole configure.
+_PING_TRIES = 3
 
 #: Layout of the state block read every cycle, Present Current(126) .. Present Temperature(146).
 _STATE_DTYPE = np.dtype({
@@ -313,7 +317,10 @@ class ServoBridge:
         bus = self._bus()
         missing, wrong = [], []
         for s in self.map.servos:
-            model, why = bus.ping(s.id)
+            for _ in range(_PING_TRIES):
+                model, why = bus.ping(s.id)
+                if model is not None:
+                    break
             if model is None:
                 missing.append(f"{s.id} ({s.name}: {why})")
             elif model != s.model.model_number:
