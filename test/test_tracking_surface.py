@@ -175,6 +175,33 @@ def test_e_d_with_the_arm_optional_on_a_forearm_wider_than_the_wrist():
     assert np.mean(margins[True]) > np.mean(margins[False]) + 1.5   # about 2.5
 
 
+def test_the_arm_left_out_of_e_d_can_end_past_the_wrist():
+    """``depth_costs(arm_free_m=...)`` (the fallback's comparison, ``fallback_arm_free_m``):
+    the data ``arm_optional`` leaves out of E_d ends that far past the pose's wrist. On what
+    a forearm cut leaves (36 mm past the wrist) 0.08 m changes nothing; on a whole forearm
+    (0.3 m, no cut) the arm beyond it counts again, so a pose cannot leave another
+    surface's pixels out just by pointing its wrist at them."""
+    m = HandModel()
+    rng = np.random.default_rng(4)
+    hy, tr = HybridTracker(m, TrackerConfig(), None), ModelTracker(m, TrackerConfig())
+    for _ in range(3):
+        q = random_pose(rng, m)
+        res = make_renderer("zbuffer").render(
+            [SurfaceVariant().mesh_fn(m)(q), forearm_mesh(m, q, 0.04, 0.3)],
+            default_intrinsics())
+        whole = segment_hand(np.rint(res.depth * 1000).astype(np.uint16),
+                             default_intrinsics(), TrackerConfig())
+        cut, done = cut_forearm(whole, TrackerConfig(), 1.0, hy._wrist_of(q))
+        assert done
+        on_cut = [tr.depth_costs(q[None], cut, arm_optional=True, arm_free_m=f)[0]
+                  for f in (0.0, 0.08)]
+        assert on_cut[0] == pytest.approx(on_cut[1], abs=0.05)             # mm
+        on_whole = [tr.depth_costs(q[None], whole, arm_optional=True, arm_free_m=f)[0]
+                    for f in (0.0, 0.08)]
+        assert on_whole[0] == pytest.approx(on_cut[0], abs=1.0)   # the whole arm left out
+        assert on_whole[1] > on_whole[0] + 10.0                   # the arm past 8 cm counts
+
+
 def test_the_tracker_leaves_the_stub_or_the_arm_out_of_e_d_by_the_forearm_cut():
     """``cost_stub_optional`` / ``cost_arm_optional``: every E_d of a frame without a
     forearm cut leaves the stub out where no data lies; every E_d of a frame whose forearm

@@ -46,6 +46,13 @@ class TrackerConfig:
                                "eq. II.19, run it again on the forearm cut alone and keep the "
                                "result of lower E_d (the classifier cannot do worse than the "
                                "cut on a lost frame)")
+    fallback_union: bool = param(True, "on a frame without a tracked pose, arm_fallback's "
+                                 "result replaces the classifier's only when its E_d is lower "
+                                 "on its own segment and on the union of both segments")
+    fallback_arm_free_m: float = param(0.08, "in that comparison, cost_arm_optional leaves "
+                                       "out the data past a pose's wrist only up to this far "
+                                       "beyond its wrist plane [m, at template size]; 0 = all "
+                                       "of it", lo=0.0, hi=1.0)
     flip_retry: bool = param(False, "when a frame whose forearm was cut from the cloud's shape "
                              "fails eq. II.19, run it again with the cloud's other end taken "
                              "for the arm and keep the result of lower E_d")

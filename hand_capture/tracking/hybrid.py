@@ -385,7 +385,15 @@ class HybridTracker:
             cloud = cloud or cloud2
             # a split retry counts only when it passes eq. II.19: a fit to what is left
             # of a segment that still fails is no better evidence than the whole one
-            if r2.cost < best.cost and (r2.success or not split):
+            better = r2.cost < best.cost
+            if (better and cfg.fallback_union and untracked and arm is None and not flip
+                    and not split and best.observation is not None
+                    and best.observation.found and r2.observation is not None
+                    and r2.observation.found):
+                # without a tracked pose the two fits saw different segments: the retry
+                # must also win on the pixels of both (fallback_union)
+                better = self._union_cost(r2, best) < self._union_cost(best, r2)
+            if better and (r2.success or not split):
                 best = r2
             else:
                 best.timing = r2.timing
@@ -723,6 +731,24 @@ class HybridTracker:
             self._carry = cands[best]
         timing["selection"] += time.perf_counter() - t
         return timing
+
+    def _union_cost(self, r: TrackResult, other: TrackResult) -> float:
+        """E_d (eq. II.19) of ``r``'s pose [mm] on the union of both results' segments
+        (``fallback_union``), the arm past its wrist left out only up to
+        ``fallback_arm_free_m`` beyond the wrist plane when either segment had a forearm
+        cut off."""
+        a, b = r.observation, other.observation
+        mask = a.mask | b.mask
+        depth = np.where(a.mask, a.depth_m, np.where(b.mask, b.depth_m, 0.0))
+        v, u = np.nonzero(mask)
+        obs = HandObservation.from_pixels(depth, mask, v, u, depth[v, u].astype(np.float64),
+                                          a.intrinsics, (int(v.min()), int(v.max()) + 1,
+                                                         int(u.min()), int(u.max()) + 1))
+        free_m = self.cfg.fallback_arm_free_m * self.model.shape.global_scale
+        return float(self.icp.depth_costs(r.pose[None], obs,
+                                          arm_optional=self.cfg.cost_arm_optional
+                                          and (r.forearm_cut or other.forearm_cut),
+                                          arm_free_m=free_m)[0])
 
     def _costs(self, qs: list[np.ndarray], obs: HandObservation, obs_ds: np.ndarray
                ) -> list[tuple[float, float]]:

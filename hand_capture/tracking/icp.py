@@ -709,7 +709,7 @@ class ModelTracker:
 
     def depth_costs(self, Q: np.ndarray, obs: HandObservation,
                     observed_ds: np.ndarray | None = None, *, stub_optional: bool = False,
-                    arm_optional: bool = False) -> np.ndarray:
+                    arm_optional: bool = False, arm_free_m: float = 0.0) -> np.ndarray:
         """:meth:`depth_cost` of poses (B, 27) (one skinning pass for all). A given
         ``observed_ds`` must be ``downsampled_depth(obs, cost_grid(obs, cfg))`` (the
         models are rendered on that grid). ``stub_optional``: the pixels where the optional
@@ -717,7 +717,8 @@ class ModelTracker:
         data lies (a hand ending at the wrist; ``cost_stub_optional``). ``arm_optional``:
         the data pixels past each pose's wrist (the side of the plane through its wrist
         keypoint, normal to the middle MCP -> wrist direction, that holds the arm) count
-        only where the model is (the arm a forearm cut leaves; ``cost_arm_optional``)."""
+        only where the model is (the arm a forearm cut leaves; ``cost_arm_optional``), up
+        to ``arm_free_m`` [m] past the wrist plane when that is positive."""
         ds = cost_grid(obs, self.cfg)
         o = observed_ds if observed_ds is not None else downsampled_depth(obs, ds)
         if observed_ds is not None and observed_ds.shape != _image_size(obs.intrinsics, ds):
@@ -731,7 +732,9 @@ class ModelTracker:
         if arm_optional:   # each pose's wrist keypoint and its direction away from the hand
             fk = self.model.forward(Q)   # vertices and keypoints from one FK pass
             V, kp = fk.vertices, fk.joint_positions                  # (B, V, 3), (B, 21, 3)
-            arm = (self._observed_points(o, obs.intrinsics, ds), kp[:, 0], kp[:, 0] - kp[:, 9])
+            d = kp[:, 0] - kp[:, 9]                                      # (B, 3)
+            d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+            arm = (self._observed_points(o, obs.intrinsics, ds), kp[:, 0], d, arm_free_m)
         else:
             V = self.model.vertices(Q)
         if stub_optional and self.optional.any():
@@ -752,7 +755,10 @@ class ModelTracker:
             free = None
             if arm is not None:   # the data past pose b's wrist, towards the arm
                 P = arm[0][r0:r0 + h, c0:c0 + w]
-                free = (ob > 0) & (((P - arm[1][b]) @ arm[2][b]) > 0)
+                past = (P - arm[1][b]) @ arm[2][b]   # [m] beyond the wrist plane
+                free = (ob > 0) & (past > 0)
+                if arm[3] > 0:
+                    free &= past < arm[3]
             out.append(depth_error(r[:h, :w], ob, self.cfg.depth_cap_mm,
                                    opt[0][:h, :w] if opt else None, free))
         return np.array(out)
