@@ -97,6 +97,7 @@ from hand_capture.tracking.preprocess import (
     cut_forearm,
     segment_hand,
     split_surfaces,
+    union_observation,
 )
 from hand_capture.tracking.regressor import DepthLookup, HandRegressor, ModelFrames, palm_init_pca
 
@@ -392,7 +393,8 @@ class HybridTracker:
                     and r2.observation.found):
                 # without a tracked pose the two fits saw different segments: the retry
                 # must also win on the pixels of both (fallback_union)
-                better = self._union_cost(r2, best) < self._union_cost(best, r2)
+                c_best, c_retry = self._union_costs(best, r2)
+                better = c_retry < c_best
             if better and (r2.success or not split):
                 best = r2
             else:
@@ -732,23 +734,17 @@ class HybridTracker:
         timing["selection"] += time.perf_counter() - t
         return timing
 
-    def _union_cost(self, r: TrackResult, other: TrackResult) -> float:
-        """E_d (eq. II.19) of ``r``'s pose [mm] on the union of both results' segments
-        (``fallback_union``), the arm past its wrist left out only up to
-        ``fallback_arm_free_m`` beyond the wrist plane when either segment had a forearm
+    def _union_costs(self, a: TrackResult, b: TrackResult) -> tuple[float, float]:
+        """E_d (eq. II.19) of both results' poses [mm] on the union of their segments
+        (``fallback_union``), the arm past each pose's wrist left out only up to
+        ``fallback_arm_free_m`` beyond its wrist plane when either segment had a forearm
         cut off."""
-        a, b = r.observation, other.observation
-        mask = a.mask | b.mask
-        depth = np.where(a.mask, a.depth_m, np.where(b.mask, b.depth_m, 0.0))
-        v, u = np.nonzero(mask)
-        obs = HandObservation.from_pixels(depth, mask, v, u, depth[v, u].astype(np.float64),
-                                          a.intrinsics, (int(v.min()), int(v.max()) + 1,
-                                                         int(u.min()), int(u.max()) + 1))
+        obs = union_observation(a.observation, b.observation)
         free_m = self.cfg.fallback_arm_free_m * self.model.shape.global_scale
-        return float(self.icp.depth_costs(r.pose[None], obs,
-                                          arm_optional=self.cfg.cost_arm_optional
-                                          and (r.forearm_cut or other.forearm_cut),
-                                          arm_free_m=free_m)[0])
+        c = self.icp.depth_costs(np.array([a.pose, b.pose]), obs,
+                                 arm_optional=self.cfg.cost_arm_optional
+                                 and (a.forearm_cut or b.forearm_cut), arm_free_m=free_m)
+        return float(c[0]), float(c[1])
 
     def _costs(self, qs: list[np.ndarray], obs: HandObservation, obs_ds: np.ndarray
                ) -> list[tuple[float, float]]:

@@ -689,6 +689,17 @@ def depth_normals(obs: HandObservation) -> np.ndarray:
     return n
 
 
+def union_observation(a: HandObservation, b: HandObservation) -> HandObservation:
+    """The pixels of two segments of one frame (both found) as one observation, the depth
+    of ``a`` where both have a pixel (they read the same image)."""
+    mask = a.mask | b.mask
+    depth = np.where(a.mask, a.depth_m, np.where(b.mask, b.depth_m, 0.0))
+    v, u = np.nonzero(mask)
+    box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
+    return HandObservation.from_pixels(depth, mask, v, u, depth[v, u].astype(np.float64),
+                                       a.intrinsics, box)
+
+
 def _keep(obs: HandObservation, keep: np.ndarray, min_pixels: int) -> HandObservation | None:
     """The observation restricted to the points ``keep`` (bool over its points); None when
     fewer than ``min_pixels`` remain."""
