@@ -343,8 +343,7 @@ def segment_hand(depth: np.ndarray, intr: Intrinsics, cfg: TrackerConfig | None 
             return _empty(d.shape, intr)
     depth_hand = np.zeros(d.shape, np.float32)   # the hand's depth, 0 elsewhere
     depth_hand[v, u] = d[v, u]
-    box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
-    obs = HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, box)
+    obs = HandObservation.from_pixels(depth_hand, mask, v, u, z, intr, _pixel_box(v, u))
     obs.background_plane = keep is not None
     return obs
 
@@ -689,15 +688,20 @@ def depth_normals(obs: HandObservation) -> np.ndarray:
     return n
 
 
+def _pixel_box(v: np.ndarray, u: np.ndarray) -> tuple[int, int, int, int]:
+    """``(row0, row1, col0, col1)`` (end exclusive) bounding the pixels (v, u) (N,), N > 0
+    (:attr:`HandObservation.box`)."""
+    return int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1
+
+
 def union_observation(a: HandObservation, b: HandObservation) -> HandObservation:
     """The pixels of two segments of one frame (both found) as one observation, the depth
     of ``a`` where both have a pixel (they read the same image)."""
     mask = a.mask | b.mask
     depth = np.where(a.mask, a.depth_m, np.where(b.mask, b.depth_m, 0.0))
     v, u = np.nonzero(mask)
-    box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
     return HandObservation.from_pixels(depth, mask, v, u, depth[v, u].astype(np.float64),
-                                       a.intrinsics, box)
+                                       a.intrinsics, _pixel_box(v, u))
 
 
 def _keep(obs: HandObservation, keep: np.ndarray, min_pixels: int) -> HandObservation | None:
@@ -711,8 +715,7 @@ def _keep(obs: HandObservation, keep: np.ndarray, min_pixels: int) -> HandObserv
     mask[v, u] = True
     depth = np.zeros_like(obs.depth_m)
     depth[v, u] = obs.depth_m[v, u]
-    box = (int(v.min()), int(v.max()) + 1, int(u.min()), int(u.max()) + 1)
-    return HandObservation.from_pixels(depth, mask, v, u, z, obs.intrinsics, box)
+    return HandObservation.from_pixels(depth, mask, v, u, z, obs.intrinsics, _pixel_box(v, u))
 
 
 def cut_forearm(obs: HandObservation, cfg: TrackerConfig, hand_scale: float = 1.0,
