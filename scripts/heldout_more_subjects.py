@@ -40,7 +40,8 @@ def _track(job: tuple[int, int, bool, TrackerConfig, int]
     limit_blas_threads(1)
     cam, clutter, seed = HELDOUT[k]
     seq, _, cal = heldout_case(k, cam, clutter, seed + (100 if arm else 0) + offset, arm, n, 1)
-    tracker = HybridTracker(HandModel(), cfg, HandRegressor.load(default_model_path()))
+    tracker = HybridTracker(HandModel(), cfg,
+                            HandRegressor.load(cfg.model_file or default_model_path()))
     tracker.set_calibration(cal)
     return k, offset, arm, _score(tracker, seq.frames, seq.keypoints)["errs"]
 

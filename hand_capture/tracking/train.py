@@ -40,6 +40,7 @@ from hand_capture.tracking.regressor import (
     ik_fingers,
     palm_init_pca,
 )
+from hand_capture.tracking.tubes import TubeSurface, tube_mesh
 
 __all__ = ["ARM_FRAMES", "ARM_LABEL", "HAND_LABEL", "TOWARDS_PROB", "TRAIN_SAMPLES",
            "TrainingSample", "default_intrinsics", "draw_forearm",
@@ -57,6 +58,8 @@ ARM_FRAMES = 2000
 TRAIN_SAMPLES, TOWARDS_PROB = 10000, 0.15
 #: share of training renders with stereo artifacts (:mod:`~hand_capture.tracking.augment`)
 ARTIFACT_PROB = 0.5
+#: share of training hands drawn with the tube surface (:mod:`~hand_capture.tracking.tubes`)
+TUBE_PROB = 0.5
 
 
 def default_intrinsics() -> Intrinsics:
@@ -207,7 +210,8 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
                    cfg: TrackerConfig | None = None, *, forearm_prob: float = 0.0,
                    surface_mm: tuple[float, float] = (0.0, 0.0), cut_arm: bool = True,
                    max_tilt_deg: float = 60.0, towards_prob: float = 0.0,
-                   artifact_prob: float = 0.0) -> list[TrainingSample]:
+                   artifact_prob: float = 0.0, tube_prob: float = 0.0
+                   ) -> list[TrainingSample]:
     """Render ``n`` noisy, segmented samples (shapes cycled through ``models``).
 
     Widened generator (issue 13): with probability ``forearm_prob`` a forearm
@@ -222,7 +226,9 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
     the per-pixel arm classifier, :mod:`~hand_capture.tracking.armseg`). ``max_tilt_deg``
     and ``towards_prob`` set the viewpoints (:func:`random_pose`). A share
     ``artifact_prob`` of the images also gets a stereo camera's artifacts
-    (:func:`~hand_capture.tracking.augment.add_artifacts_mm`) after the sensor model.
+    (:func:`~hand_capture.tracking.augment.add_artifacts_mm`) after the sensor model. A
+    share ``tube_prob`` of the hands is drawn with another surface than the template mesh
+    (:mod:`~hand_capture.tracking.tubes`, a new draw each; the surface offsets do not apply).
     """
     from hand_capture.tracking.preprocess import cut_forearm
 
@@ -234,12 +240,16 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
         k = len(out) % len(models)
         m = models[k]
         q = random_pose(rng, m, max_tilt_deg=max_tilt_deg, towards_prob=towards_prob)
-        V = m.vertices(q)
-        if surface_mm != (0.0, 0.0):
-            off = rng.uniform(*surface_mm) * 1e-3
-            palm = rng.uniform(0.0, max(surface_mm[1], 0.0)) * 1e-3 * (m.vertex_labels == 0)
-            V = V + m.normals(V) * (off + palm)[:, None]
-        meshes = [Mesh(V, m.faces, HAND_LABEL, closed=True)]
+        if tube_prob > 0 and rng.random() < tube_prob:
+            meshes = [tube_mesh(m, q, TubeSurface.sample(rng), HAND_LABEL)]
+        else:
+            V = m.vertices(q)
+            if surface_mm != (0.0, 0.0):
+                off = rng.uniform(*surface_mm) * 1e-3
+                palm = rng.uniform(0.0, max(surface_mm[1], 0.0)) * 1e-3 \
+                    * (m.vertex_labels == 0)
+                V = V + m.normals(V) * (off + palm)[:, None]
+            meshes = [Mesh(V, m.faces, HAND_LABEL, closed=True)]
         arm = rng.random() < forearm_prob
         if arm:
             meshes.append(forearm_mesh(m, q, *draw_forearm(rng), label=ARM_LABEL))
@@ -291,7 +301,7 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
                   intrinsics: Intrinsics | None = None, log: Callable[[str], None] | None = None,
                   forearm_prob: float = 0.5, surface_mm: tuple[float, float] = (-1.0, 2.5),
                   max_tilt_deg: float = 60.0, towards_prob: float = TOWARDS_PROB,
-                  artifact_prob: float = ARTIFACT_PROB,
+                  artifact_prob: float = ARTIFACT_PROB, tube_prob: float = TUBE_PROB,
                   relative_background: bool = True) -> HandRegressor:
     """Train the cascaded regressor from scratch, reproducibly from ``seed``.
 
@@ -312,6 +322,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
         max_tilt_deg, towards_prob: the viewpoints of the training poses (:func:`random_pose`).
         artifact_prob: share of samples with a stereo camera's artifacts
             (:func:`render_samples`).
+        tube_prob: share of samples whose hand is drawn as tubes on the skeleton
+            (:mod:`~hand_capture.tracking.tubes`, :func:`render_samples`).
         relative_background: a feature's point off the hand reads its own depth + 1 m
             (:class:`~hand_capture.tracking.regressor.DepthLookup`; ``info["background"]``
             "relative"), not a constant 2 m ("constant": the distance of the hand a cue).
@@ -329,7 +341,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
     frames = [ModelFrames(m) for m in models]
     samples = render_samples(n_samples, rng, models, intr, forearm_prob=forearm_prob,
                              surface_mm=surface_mm, max_tilt_deg=max_tilt_deg,
-                             towards_prob=towards_prob, artifact_prob=artifact_prob)
+                             towards_prob=towards_prob, artifact_prob=artifact_prob,
+                             tube_prob=tube_prob)
     say(f"rendered {len(samples)} samples in {time.perf_counter() - t_start:.1f} s")
     lookups = [DepthLookup(s.crop, s.u0, s.v0, intr, relative=relative_background)
                for s in samples]
@@ -430,6 +443,7 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
                          "max_depth": str(max_depth), "forearm_prob": str(forearm_prob),
                          "surface_mm": f"{surface_mm[0]},{surface_mm[1]}",
                          "max_tilt_deg": str(max_tilt_deg), "towards_prob": str(towards_prob),
+                         "tube_prob": str(tube_prob),
                          "background": "relative" if relative_background else "constant",
                          "train_s": f"{time.perf_counter() - t_start:.0f}"})
     if out_path is not None:
@@ -457,6 +471,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="share of training poses with the fingers towards the camera")
     ap.add_argument("--artifacts", type=float, default=ARTIFACT_PROB,
                     help="share of training renders with a stereo camera's artifacts")
+    ap.add_argument("--tubes", type=float, default=TUBE_PROB,
+                    help="share of training hands drawn as tubes on the skeleton")
     ap.add_argument("--arm-out", default=str(tracker_dir / "arm.npz"))
     ap.add_argument("--arm-frames", type=int, default=ARM_FRAMES)
     ap.add_argument("--arm-only", action="store_true",
@@ -465,7 +481,7 @@ def main(argv: list[str] | None = None) -> int:
     limit_blas_threads(1)
     if not a.arm_only:
         train_tracker(a.out, seed=a.seed, n_samples=a.samples, towards_prob=a.towards,
-                      artifact_prob=a.artifacts, log=print)
+                      artifact_prob=a.artifacts, tube_prob=a.tubes, log=print)
     train_arm_classifier(a.arm_out, seed=a.seed, n_frames=a.arm_frames, log=print)
     return 0
 
