@@ -45,9 +45,9 @@ def test_tube_hand_follows_the_skeleton_and_its_parameters() -> None:
     assert np.isfinite(long_).all()
     tip_dir = (kp[12] - kp[11]) / np.linalg.norm(kp[12] - kp[11])
     # the middle finger's tip ends past its keypoint by tip_out of its radius (7.75 mm)
-    reach = lambda V: float(((V - kp[12]) @ tip_dir).max())  # noqa: E731
-    assert abs(reach(short) - 0.2 * 7.75e-3) < 1.5e-3
-    assert abs(reach(long_) - 7.75e-3) < 1.5e-3
+    reach = [float(((V - kp[12]) @ tip_dir).max()) for V in (short, long_)]
+    assert abs(reach[0] - 0.2 * 7.75e-3) < 1.5e-3
+    assert abs(reach[1] - 7.75e-3) < 1.5e-3
     # the stub reaches 40 mm past the wrist; without it the hand ends near the wrist
     back = (kp[0] - kp[9]) / np.linalg.norm(kp[0] - kp[9])
     assert ((long_ - kp[0]) @ back).max() > 0.035
