@@ -58,8 +58,9 @@ ARM_FRAMES = 2000
 TRAIN_SAMPLES, TOWARDS_PROB = 10000, 0.15
 #: share of training renders with stereo artifacts (:mod:`~hand_capture.tracking.augment`)
 ARTIFACT_PROB = 0.5
-#: share of training hands drawn with the tube surface (:mod:`~hand_capture.tracking.tubes`)
-TUBE_PROB = 0.5
+#: share of training hands drawn with the tube surface (:mod:`~hand_capture.tracking.tubes`;
+#: 0.5 was tried and not shipped, README fortieth session)
+TUBE_PROB = 0.0
 
 
 def default_intrinsics() -> Intrinsics:
