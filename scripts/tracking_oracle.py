@@ -3,7 +3,8 @@
 Tracks the bench's six held-out sequences a row (``hand-suite bench tracking``'s cases,
 calibrated as there, product settings or ``--config`` overrides) while one more candidate
 joins every frame's pool (as the deferred regression's carry does: screened, refined and
-selected like the regressor's):
+selected like the regressor's; it takes the place of a deferred regression's carry
+under ``--config defer_regression=true``):
 
 * ``product``: none;
 * ``truth``: the true pose;
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     from hand_capture.bench.tracking import _summary
     from hand_capture.cameras.threads import limit_blas_threads
     from hand_capture.model import HandModel
-    from hand_capture.tracking.hybrid import HybridTracker, default_model_path
+    from hand_capture.tracking.hybrid import HybridTracker, model_path
     from hand_capture.tracking.regressor import HandRegressor
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         ap.error(str(e))
     limit_blas_threads(1)
-    reg = HandRegressor.load(cfg.model_file or default_model_path())
+    reg = HandRegressor.load(model_path(cfg))
     arms = {"no": (False,), "yes": (True,), "both": (False, True)}[a.forearm]
     for arm in arms:
         rows: dict[str, list[np.ndarray]] = {m: [] for m in a.modes}
@@ -84,7 +85,9 @@ def main(argv: list[str] | None = None) -> int:
                 errs = []
                 for (depth, intr), q, kp in zip(seq.frames, seq.poses, seq.keypoints,
                                                 strict=True):
-                    tr._carry = _extra(mode, q, tr.prev, rng, a.noise)
+                    extra = _extra(mode, q, tr.prev, rng, a.noise)
+                    if extra is not None:   # else the tracker's own carry stays
+                        tr._carry = extra
                     r = tr.process(depth, intr)
                     tr.run_deferred()
                     errs.append(np.linalg.norm(tr.model.joint_positions(r.pose) - kp,

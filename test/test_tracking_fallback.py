@@ -55,10 +55,7 @@ def _first_frame_error(case, cfg: TrackerConfig) -> float:
         r, dropped, cloud = inner(obs, intr, arm, flip)
         if arm is None:   # the retry: its result is the body patch's fit
             o = r.observation
-            e_d = float(tr.icp.depth_costs(BODY_PATCH[None], o,
-                                           downsampled_depth(o, cost_grid(o, tr.cfg)),
-                                           stub_optional=tr._stub_free,
-                                           arm_optional=tr._arm_free)[0])
+            e_d = tr._costs([BODY_PATCH], o, downsampled_depth(o, cost_grid(o, tr.cfg)))[0][1]
             costs.append(e_d)
             r = dataclasses.replace(r, pose=BODY_PATCH.copy(), cost=e_d,
                                     success=e_d < tr.tau_mm)

@@ -34,7 +34,6 @@ import sys
 import time
 from collections import Counter
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -70,7 +69,7 @@ from hand_capture.tracking.calibration import (
     shape_path,
 )
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.hybrid import HybridTracker, TrackResult, default_model_path
+from hand_capture.tracking.hybrid import HybridTracker, TrackResult, model_path
 from hand_capture.tracking.regressor import HandRegressor
 
 _ART_IDX = np.array([JOINT_INDEX[j] for j in ARTICULATED_JOINTS])
@@ -124,8 +123,7 @@ class TrackerNode(Node):
         self.cfg = declare_config(self, TrackerConfig)
         log = self.get_logger()
         regressor = None
-        path = Path(self.cfg.model_file).expanduser() if self.cfg.model_file \
-            else default_model_path()
+        path = model_path(self.cfg)
         if path.exists():
             regressor = HandRegressor.load(path)
         elif self.cfg.mode != "icp":

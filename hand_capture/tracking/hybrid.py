@@ -167,6 +167,12 @@ def default_model_path() -> Path:
     return data_dir() / "tracker" / "regressor.npz"
 
 
+def model_path(cfg: TrackerConfig) -> Path:
+    """The regressor file ``cfg`` names (``model_file``, ``~`` expanded), else
+    :func:`default_model_path`."""
+    return Path(cfg.model_file).expanduser() if cfg.model_file else default_model_path()
+
+
 @dataclass
 class TrackResult:
     """Outcome of one frame.
