@@ -47,8 +47,7 @@ from hand_capture.errors import ConfigError
 from hand_capture.model import JOINT_LIMITS, HandModel
 from hand_capture.model.joints import JOINT_NAMES
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.hybrid import HybridTracker, default_model_path
-from hand_capture.tracking.regressor import HandRegressor
+from hand_capture.tracking.hybrid import HybridTracker, load_regressor
 
 #: the suite's clips whose wrist paths the sequences follow
 CLIPS = ("wrist_rotation", "translation", "finger_counting", "pinch")
@@ -88,7 +87,7 @@ def sequence(seed: int, clip: str, n: int, capsules: bool, artifacts: bool
 
 def run(cfg: TrackerConfig, n: int, artifacts: bool) -> dict[str, float]:
     """Mean error [mm] and success@20 of both surfaces (module doc)."""
-    reg = HandRegressor.load(default_model_path())
+    reg = load_regressor(cfg)   # the regressors cfg asks for (ensemble: both)
     base = HandModel()
     out: dict[str, float] = {}
     for name, capsules in (("own", False), ("capsule", True)):

@@ -33,14 +33,13 @@ def _track(job: tuple[int, int, bool, TrackerConfig, int]
     from hand_capture.bench._tracking_heldout import HELDOUT, _score, heldout_case
     from hand_capture.cameras.threads import limit_blas_threads
     from hand_capture.model import HandModel
-    from hand_capture.tracking.hybrid import HybridTracker, model_path
-    from hand_capture.tracking.regressor import HandRegressor
+    from hand_capture.tracking.hybrid import HybridTracker, load_regressor
 
     k, offset, arm, cfg, n = job
     limit_blas_threads(1)
     cam, clutter, seed = HELDOUT[k]
     seq, _, cal = heldout_case(k, cam, clutter, seed + (100 if arm else 0) + offset, arm, n, 1)
-    tracker = HybridTracker(HandModel(), cfg, HandRegressor.load(model_path(cfg)))
+    tracker = HybridTracker(HandModel(), cfg, load_regressor(cfg))
     tracker.set_calibration(cal)
     return k, offset, arm, _score(tracker, seq.frames, seq.keypoints)["errs"]
 

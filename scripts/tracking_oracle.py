@@ -57,8 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     from hand_capture.bench.tracking import _summary
     from hand_capture.cameras.threads import limit_blas_threads
     from hand_capture.model import HandModel
-    from hand_capture.tracking.hybrid import HybridTracker, model_path
-    from hand_capture.tracking.regressor import HandRegressor
+    from hand_capture.tracking.hybrid import HybridTracker, load_regressor
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
@@ -71,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         ap.error(str(e))
     limit_blas_threads(1)
-    reg = HandRegressor.load(model_path(cfg))
+    reg = load_regressor(cfg)
     arms = {"no": (False,), "yes": (True,), "both": (False, True)}[a.forearm]
     for arm in arms:
         rows: dict[str, list[np.ndarray]] = {m: [] for m in a.modes}

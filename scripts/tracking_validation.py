@@ -31,6 +31,7 @@ import argparse
 import json
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -40,8 +41,8 @@ from hand_capture.cameras.threads import limit_blas_threads
 from hand_capture.config import from_overrides
 from hand_capture.errors import ConfigError
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.hybrid import default_model_path
-from hand_capture.tracking.regressor import HandRegressor
+from hand_capture.tracking.hybrid import load_regressor
+from hand_capture.tracking.regressor import HandRegressor, RegressorSet
 
 #: the sections, by name: each returns the bench's figures for the product settings
 SECTIONS = ("surface", "capsule", "stereo", "forearm", "table", "capsule_forearm",
@@ -50,7 +51,7 @@ SECTIONS = ("surface", "capsule", "stereo", "forearm", "table", "capsule_forearm
 BENCH_SECTIONS = SECTIONS[:-2]
 
 
-def _spread_section(reg: HandRegressor, cfg: TrackerConfig) -> dict:
+def _spread_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig) -> dict:
     """The surface and capsule validation families with the fingers spread (the script's
     alone): finger counting and fist, each sequence's spread 8-20 deg
     (:func:`~hand_capture.bench._tracking_heldout.spread_fingers`), tracked through."""
@@ -77,7 +78,7 @@ def _spread_section(reg: HandRegressor, cfg: TrackerConfig) -> dict:
     return fig
 
 
-def _run(section: str, reg: HandRegressor, cfg: TrackerConfig) -> dict:
+def _run(section: str, reg: HandRegressor | RegressorSet, cfg: TrackerConfig) -> dict:
     if section == "spread":
         return _spread_section(reg, cfg)
     if section == "surface":
@@ -124,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", action="append", default=[], metavar="KEY=VALUE",
                     help="TrackerConfig override (repeatable)")
     ap.add_argument("--regressor", type=Path, default=None,
-                    help="a regressor file other than the shipped one (a retrained candidate)")
+                    help="a first regressor file other than the shipped one (a retrained "
+                    "candidate; --config ensemble=false: alone)")
     ap.add_argument("--out", type=Path, help="JSON file of every sequence's figures")
     ap.add_argument("--against", type=Path, help="another run's --out file: paired differences")
     a = ap.parse_args(argv)
@@ -134,7 +136,9 @@ def main(argv: list[str] | None = None) -> int:
         print(e, file=sys.stderr)
         return 2
     limit_blas_threads(1)
-    reg = HandRegressor.load(a.regressor or default_model_path())
+    if a.regressor:   # the first regressor (ensemble: the shipped second one joins it)
+        cfg = replace(cfg, model_file=str(a.regressor))
+    reg = load_regressor(cfg)
     shapes = tuple(range(a.shapes[0], a.shapes[1] + 1))
     # the bench's sections read their shapes and score their sequences through these two
     # module names; swapped for the run (analysis only), restored after

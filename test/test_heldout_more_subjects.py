@@ -27,14 +27,14 @@ def test_offset_zero_is_the_benchs_sequence(hm):
     from hand_capture.bench import _tracking_heldout as th
     from hand_capture.model import HandModel
     from hand_capture.tracking.config import TrackerConfig
-    from hand_capture.tracking.hybrid import HybridTracker, default_model_path
-    from hand_capture.tracking.regressor import HandRegressor
+    from hand_capture.tracking.hybrid import HybridTracker, load_regressor
 
     k, offset, arm, e = hm._track((0, 0, False, TrackerConfig(), 4))
     assert (k, offset, arm) == (0, 0, False) and e.shape == (4, 21)
     cam, clutter, seed = th.HELDOUT[0]
     seq, _, cal = th.heldout_case(0, cam, clutter, seed, False, 4, 1)
-    tr = HybridTracker(HandModel(), TrackerConfig(), HandRegressor.load(default_model_path()))
+    # the product's regressors, as the bench loads them (with ensemble: both)
+    tr = HybridTracker(HandModel(), TrackerConfig(), load_regressor(TrackerConfig()))
     tr.set_calibration(cal)
     np.testing.assert_array_equal(e, th._score(tr, seq.frames, seq.keypoints)["errs"])
     # another offset: another subject

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tracking_helpers import OffPalms
 
 from hand_capture.bench._tracking_heldout import SurfaceVariant
 from hand_capture.cameras.render import make_renderer
@@ -22,29 +23,6 @@ ON = TrackerConfig(finger_postures=False)
 OFF = TrackerConfig(finger_postures=False, regress_previous=False)
 #: how far the test moves the regressor's palm modes [m]
 PALM_OFF_M = 0.08
-
-
-class _OffPalms:
-    """The regressor with its palm modes moved ``PALM_OFF_M`` along x (a surface it was
-    not trained on), recording the palms the finger cascade runs on."""
-
-    def __init__(self, reg: HandRegressor) -> None:
-        self._reg = reg
-        self.roots: list[np.ndarray] = []
-        self.modes: list[np.ndarray] = []
-
-    def __getattr__(self, name: str):
-        return getattr(self._reg, name)
-
-    def palm_modes(self, *args, **kw) -> list[np.ndarray]:
-        shift = np.zeros(27)
-        shift[0] = PALM_OFF_M
-        self.modes = [q + shift for q in self._reg.palm_modes(*args, **kw)]
-        return self.modes
-
-    def regress_fingers(self, frames, lookup, q, *args) -> np.ndarray:
-        self.roots.append(np.array(q, copy=True))
-        return self._reg.regress_fingers(frames, lookup, q, *args)
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +50,7 @@ def scene() -> tuple[HandModel, np.ndarray, np.ndarray, np.ndarray]:
     return m, q_true, depth, prev
 
 
-def _track(scene, reg: _OffPalms, cfg: TrackerConfig) -> float:
+def _track(scene, reg: OffPalms, cfg: TrackerConfig) -> float:
     """One frame tracked on from ``prev`` (as after a tracked frame); the largest keypoint
     error [mm]."""
     m, q_true, depth, prev = scene
@@ -89,7 +67,7 @@ def test_a_finger_tracked_wrong_is_mended_from_the_tracked_palm(scene, regressor
     m, q_true, _, prev = scene
     start = np.linalg.norm(m.joint_positions(prev) - m.joint_positions(q_true), axis=1).max()
     assert start * 1e3 > 40.0                   # the hooked index finger
-    off, on = _OffPalms(regressor), _OffPalms(regressor)
+    off, on = OffPalms(regressor, PALM_OFF_M), OffPalms(regressor, PALM_OFF_M)
     err_off, err_on = _track(scene, off, OFF), _track(scene, on, ON)
     assert err_off > 30.0, err_off               # no candidate had the finger right
     assert err_on < 15.0, err_on
@@ -103,7 +81,7 @@ def test_a_finger_tracked_wrong_is_mended_from_the_tracked_palm(scene, regressor
 def test_a_first_frame_regresses_on_the_palm_modes_alone(scene, regressor) -> None:
     """No previous pose (a reset tracker): nothing of its own to regress on."""
     m, _, depth, _ = scene
-    reg = _OffPalms(regressor)
+    reg = OffPalms(regressor, PALM_OFF_M)
     tr = HybridTracker(m, ON, None)
     tr.regressor = reg
     tr.process(depth, default_intrinsics())

@@ -1,7 +1,10 @@
 """Shared set-up of the depth tracker's tests: the shipped regressor (a tiny one trained on
-the spot when the file is missing) and the synthetic camera on the ``translation`` clip."""
+the spot when the file is missing), a regressor whose palm modes are moved off the hand, and
+the synthetic camera on the ``translation`` clip."""
 
 from __future__ import annotations
+
+import numpy as np
 
 from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
 from hand_capture.tracking.hybrid import default_model_path
@@ -23,3 +26,27 @@ def translation_camera() -> SyntheticCamera:
     c = SyntheticCamera(SyntheticCameraConfig(render_color=False, clip="translation"))
     c.open()
     return c
+
+
+class OffPalms:
+    """``reg`` with its palm modes moved ``off_m`` [m] along x (a surface it was not trained
+    on), recording the palm modes and the palms the finger cascade runs on."""
+
+    def __init__(self, reg: HandRegressor, off_m: float) -> None:
+        self._reg = reg
+        self.off_m = off_m
+        self.roots: list[np.ndarray] = []
+        self.modes: list[np.ndarray] = []
+
+    def __getattr__(self, name: str):
+        return getattr(self._reg, name)
+
+    def palm_modes(self, *args, **kw) -> list[np.ndarray]:
+        shift = np.zeros(27)
+        shift[0] = self.off_m
+        self.modes = [q + shift for q in self._reg.palm_modes(*args, **kw)]
+        return self.modes
+
+    def regress_fingers(self, frames, lookup, q, *args) -> np.ndarray:
+        self.roots.append(np.array(q, copy=True))
+        return self._reg.regress_fingers(frames, lookup, q, *args)

@@ -125,17 +125,17 @@ def _run(quick: bool, smoke: bool) -> dict:
     from hand_capture.cameras.threads import limit_blas_threads
     from hand_capture.model import HandModel
     from hand_capture.tracking.calibration import render_calibration_frames
-    from hand_capture.tracking.hybrid import HybridTracker, default_model_path
-    from hand_capture.tracking.regressor import HandRegressor
+    from hand_capture.tracking.config import TrackerConfig
+    from hand_capture.tracking.hybrid import HybridTracker, load_regressor, regressor_files
     from hand_capture.tracking.train import train_tracker
 
     quick = quick or smoke
     limit_blas_threads(1)
     configs = _configs()
-    path = default_model_path()
-    if path.exists():
-        reg = HandRegressor.load(path)
-        reg_src = str(path.name)
+    product = TrackerConfig()
+    reg = load_regressor(product)   # the product's: with ensemble its second regressor too
+    if reg is not None:
+        reg_src = " + ".join(p.name for p in regressor_files(product))
     else:  # no shipped model: a small one trained here (reproducible)
         reg = train_tracker(None, seed=0, n_samples=600 if quick else 2000, n_shapes=20)
         reg_src = "trained in-run"

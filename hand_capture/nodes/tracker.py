@@ -69,8 +69,13 @@ from hand_capture.tracking.calibration import (
     shape_path,
 )
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.hybrid import HybridTracker, TrackResult, model_path
-from hand_capture.tracking.regressor import HandRegressor
+from hand_capture.tracking.hybrid import (
+    HybridTracker,
+    TrackResult,
+    load_regressor,
+    model_path,
+    regressor_files,
+)
 
 _ART_IDX = np.array([JOINT_INDEX[j] for j in ARTICULATED_JOINTS])
 _IMAGE = "camera/depth/image_raw"
@@ -122,13 +127,12 @@ class TrackerNode(Node):
         limit_blas_threads(self.node_cfg.blas_threads)
         self.cfg = declare_config(self, TrackerConfig)
         log = self.get_logger()
-        regressor = None
-        path = model_path(self.cfg)
-        if path.exists():
-            regressor = HandRegressor.load(path)
+        regressor = load_regressor(self.cfg)
+        if regressor is not None:
+            log.info("regressor: " + " + ".join(str(p) for p in regressor_files(self.cfg)))
         elif self.cfg.mode != "icp":
-            log.warning(f"no regressor model at {path}: tracking without regression "
-                        f"(train one with `hand-suite train tracker`)")
+            log.warning(f"no regressor model at {model_path(self.cfg)}: tracking without "
+                        f"regression (train one with `hand-suite train tracker`)")
         self.tracker = HybridTracker(HandModel(side=self.cfg.side), self.cfg, regressor)
         self.shape_msg: HandShapeMsg | None = None
         nc = self.node_cfg

@@ -3,11 +3,13 @@ shape-indexed cascaded regression forests, hybrid tracking with recovery, calibr
 
 Pure numpy/scipy/OpenCV (no rclpy). Typical use::
 
-    from hand_capture.tracking import HybridTracker, HandRegressor, TrackerConfig
+    from hand_capture.tracking import HybridTracker, TrackerConfig, load_regressor
     from hand_capture.model import HandModel
 
-    tracker = HybridTracker(HandModel(shape), TrackerConfig(),
-                            HandRegressor.load("data/tracker/regressor.npz"))
+    cfg = TrackerConfig()
+    # the shipped regressors: data/tracker/regressor.npz and, with ``ensemble``, the
+    # second one (regressor_tubes.npz)
+    tracker = HybridTracker(HandModel(shape), cfg, load_regressor(cfg))
     result = tracker.process(depth_mm, intrinsics)   # TrackResult: pose, success, status...
 
 Modules: ``config`` (every weight/threshold), ``preprocess`` (segmentation, forearm cut),
@@ -26,13 +28,18 @@ from hand_capture.tracking.calibration import (
     save_shape,
 )
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.hybrid import HybridTracker, TrackResult, default_model_path
+from hand_capture.tracking.hybrid import (
+    HybridTracker,
+    TrackResult,
+    default_model_path,
+    load_regressor,
+)
 from hand_capture.tracking.icp import ModelTracker
 from hand_capture.tracking.preprocess import HandObservation, cut_forearm, segment_hand
-from hand_capture.tracking.regressor import HandRegressor
+from hand_capture.tracking.regressor import HandRegressor, RegressorSet
 from hand_capture.tracking.train import train_tracker
 
 __all__ = ["CALIBRATION_POSES", "CalibrationResult", "HandObservation", "HandRegressor",
-           "HybridTracker", "ModelTracker", "TrackResult", "TrackerConfig", "calibrate",
-           "cut_forearm", "default_model_path", "load_shape", "save_shape", "segment_hand",
-           "train_tracker"]
+           "HybridTracker", "ModelTracker", "RegressorSet", "TrackResult", "TrackerConfig",
+           "calibrate", "cut_forearm", "default_model_path", "load_regressor", "load_shape",
+           "save_shape", "segment_hand", "train_tracker"]

@@ -271,6 +271,11 @@ class TrackerConfig:
                                    "once, as without this")
     model_file: str = param("", "trained regressor (.npz); empty = data/tracker/"
                             "regressor.npz when present")
+    ensemble: bool = param(True, "a second trained regressor's candidates join the pool "
+                           "of steps 1-2 (its palm modes, and its finger regression on every "
+                           "palm); off = the one regressor of II.4")
+    second_model_file: str = param("", "the second regressor (.npz) of ensemble; empty = "
+                                   "data/tracker/regressor_tubes.npz when present")
     mode: str = param("hybrid", "tracking mode", choices=("hybrid", "icp", "regressor"))
     side: str = param("right", "hand side", choices=("right", "left"))
 

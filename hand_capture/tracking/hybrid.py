@@ -65,7 +65,11 @@ near the previous pose, so a regressed candidate that rightly leaves a wrong pre
 comes out of the refinement worse than it went in); E_d of eq. II.19 / II.20 past the
 wrist counts the model's wrist stub only where data lies on a frame without a forearm cut
 off, and the arm past each pose's wrist only where the model is on a frame with one
-(``cost_stub_optional``, ``cost_arm_optional``; ``ModelTracker.depth_costs``).
+(``cost_stub_optional``, ``cost_arm_optional``; ``ModelTracker.depth_costs``); with
+``ensemble`` a second regressor trained on another seed and surfaces (a
+:class:`~hand_capture.tracking.regressor.RegressorSet`, :func:`load_regressor`) adds its palm
+modes in step 1 and its finger regression on every palm in step 2 (the held-out misses are
+the search's: the true pose, offered as a candidate, wins most failing frames).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -80,6 +84,7 @@ from pathlib import Path
 import numpy as np
 
 from hand_capture.cameras.base import Intrinsics
+from hand_capture.errors import InputError
 from hand_capture.model import (
     FINGER_DOFS,
     JOINT_LIMITS,
@@ -99,9 +104,16 @@ from hand_capture.tracking.preprocess import (
     split_surfaces,
     union_observation,
 )
-from hand_capture.tracking.regressor import DepthLookup, HandRegressor, ModelFrames, palm_init_pca
+from hand_capture.tracking.regressor import (
+    DepthLookup,
+    HandRegressor,
+    ModelFrames,
+    RegressorSet,
+    palm_init_pca,
+)
 
-__all__ = ["HybridTracker", "TrackResult", "default_model_path", "STAGES"]
+__all__ = ["HybridTracker", "TrackResult", "default_model_path", "load_regressor", "model_path",
+           "regressor_files", "second_model_path", "STAGES"]
 
 STAGES = ("preprocess", "regression", "icp", "selection")
 
@@ -173,6 +185,45 @@ def model_path(cfg: TrackerConfig) -> Path:
     return Path(cfg.model_file).expanduser() if cfg.model_file else default_model_path()
 
 
+def second_model_path(cfg: TrackerConfig) -> Path | None:
+    """The second regressor's file of ``ensemble`` (``second_model_file``, ``~`` expanded,
+    else ``data/tracker/regressor_tubes.npz``); None with ``ensemble`` off."""
+    if not cfg.ensemble:
+        return None
+    if cfg.second_model_file:
+        return Path(cfg.second_model_file).expanduser()
+    return default_model_path().with_name("regressor_tubes.npz")
+
+
+def regressor_files(cfg: TrackerConfig) -> list[Path]:
+    """The regressor files ``cfg`` asks for that exist: :func:`model_path`'s, then with
+    ``ensemble`` :func:`second_model_path`'s (none without the first).
+
+    Raises:
+        InputError: ``second_model_file`` names a file that does not exist.
+    """
+    first, second = model_path(cfg), second_model_path(cfg)
+    if second is not None and cfg.second_model_file and not second.exists():
+        raise InputError(f"second_model_file {second} does not exist (empty: the shipped "
+                         "data/tracker/regressor_tubes.npz; ensemble false: none)")
+    if not first.exists():
+        return []
+    return [first] + ([second] if second is not None and second.exists() else [])
+
+
+def load_regressor(cfg: TrackerConfig) -> HandRegressor | RegressorSet | None:
+    """The regressor(s) of :func:`regressor_files`: None without any, one
+    :class:`HandRegressor`, or a :class:`RegressorSet` of both (``ensemble``).
+
+    Raises:
+        InputError: a file cannot be read, or ``second_model_file`` does not exist.
+    """
+    regs = [HandRegressor.load(p) for p in regressor_files(cfg)]
+    if not regs:
+        return None
+    return regs[0] if len(regs) == 1 else RegressorSet(regs)
+
+
 @dataclass
 class TrackResult:
     """Outcome of one frame.
@@ -229,15 +280,16 @@ class HybridTracker:
     Args:
         model: hand model (the subject's calibrated shape, or the default).
         config: all weights and thresholds.
-        regressor: trained regressor; required for ``hybrid`` and ``regressor`` modes.
+        regressor: trained regressor, or a :class:`RegressorSet` (``ensemble``,
+            :func:`load_regressor`); required for ``hybrid`` and ``regressor`` modes.
         arm: per-pixel hand/arm classifier; None = ``config.arm_model_file`` or
             ``data/tracker/arm.npz`` when present (with ``arm_classifier`` and
             ``forearm_cut`` on).
     """
 
     def __init__(self, model: HandModel, config: TrackerConfig | None = None,
-                 regressor: HandRegressor | None = None, arm: ArmClassifier | None = None
-                 ) -> None:
+                 regressor: HandRegressor | RegressorSet | None = None,
+                 arm: ArmClassifier | None = None) -> None:
         self.cfg = config or TrackerConfig()
         self.regressor = regressor
         if arm is None and self.cfg.arm_classifier and self.cfg.forearm_cut:
@@ -693,7 +745,7 @@ class HybridTracker:
         return trials
 
     def _palm_modes(self, obs: HandObservation, intr: Intrinsics, n_modes: int
-                    ) -> tuple[DepthLookup, list[np.ndarray]]:
+                    ) -> tuple[DepthLookup | tuple[DepthLookup, ...], list[np.ndarray]]:
         """Step 1: ``n_modes`` palm modes of the regressor for a frame, and its depth
         lookup."""
         # the features read depth in the hand's bounding box (off it: background, as off the

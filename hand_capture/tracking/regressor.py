@@ -20,7 +20,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,6 +34,7 @@ from hand_capture.model.joints import root_angles_from_matrix, root_rotation_mat
 from hand_capture.tracking.forest import ForestGroup, RegressionForest
 
 __all__ = ["BACKGROUND_M", "BACKGROUND_REL_M", "DepthLookup", "FeatureSet", "HandRegressor",
+           "RegressorSet",
            "ModelFrames", "PALM_KP", "FINGER_KP", "ik_fingers", "kabsch", "palm_init_pca"]
 
 #: depth read off the hand or off the image [m]
@@ -446,3 +447,43 @@ class HandRegressor:
                 dict(zip(a["info_keys"].tolist(), a["info_values"].tolist(), strict=True)))
         except KeyError as e:
             raise InputError(f"tracker model {p} lacks {e}") from e
+
+
+class RegressorSet:
+    """Several trained cascades whose candidates join one pool (a departure from II.4, which
+    trains one): every member's palm modes (step 1), and every member's finger regression
+    (step 2) on all of those palms. Members trained on other seeds or other training
+    surfaces miss the true pose in different ways on a hand unlike the training's, so the
+    pool more often holds a candidate in its basin (issue 13: the held-out misses are the
+    search's). The same interface as :class:`HandRegressor` where the tracker uses it.
+
+    Args:
+        members: the cascades, at least one; the first one's ``info`` is the set's.
+    """
+
+    def __init__(self, members: Sequence[HandRegressor]) -> None:
+        if not members:
+            raise InputError("a RegressorSet needs at least one HandRegressor")
+        self.members = tuple(members)
+        self.info = self.members[0].info
+        self.ik_iterations = self.members[0].ik_iterations
+
+    def lookup(self, depth: np.ndarray, u0: int, v0: int, intr: Intrinsics
+               ) -> tuple[DepthLookup, ...]:
+        """Every member's :meth:`HandRegressor.lookup` (their backgrounds may differ)."""
+        return tuple(m.lookup(depth, u0, v0, intr) for m in self.members)
+
+    def palm_modes(self, frames: ModelFrames, lookup: tuple[DepthLookup, ...],
+                   q0: np.ndarray, n_modes: int) -> list[np.ndarray]:
+        """Every member's ``n_modes`` palm candidates, member by member."""
+        out: list[np.ndarray] = []
+        for m, lk in zip(self.members, lookup, strict=True):
+            out += m.palm_modes(frames, lk, q0, n_modes)
+        return out
+
+    def regress_fingers(self, frames: ModelFrames, lookup: tuple[DepthLookup, ...],
+                        q: np.ndarray, ik_iterations: int | None = None) -> np.ndarray:
+        """Every member's finger cascade on every palm of ``q`` (B, 27): (M * B, 27)."""
+        Q = np.atleast_2d(q)
+        return np.concatenate([m.regress_fingers(frames, lk, Q, ik_iterations)
+                               for m, lk in zip(self.members, lookup, strict=True)])

@@ -58,9 +58,13 @@ ARM_FRAMES = 2000
 TRAIN_SAMPLES, TOWARDS_PROB = 10000, 0.15
 #: share of training renders with stereo artifacts (:mod:`~hand_capture.tracking.augment`)
 ARTIFACT_PROB = 0.5
-#: share of training hands drawn with the tube surface (:mod:`~hand_capture.tracking.tubes`;
-#: 0.5 was tried and not shipped, README fortieth session)
+#: share of training hands drawn with the tube surface (:mod:`~hand_capture.tracking.tubes`)
+#: in the first regressor (0.5 there was tried and not shipped, README fortieth session)
 TUBE_PROB = 0.0
+#: the ensemble's second regressor (``TrackerConfig.ensemble``,
+#: ``data/tracker/regressor_tubes.npz``, ``--second``): half of its training hands drawn as
+#: tubes, and another seed (chosen on the validation families, README forty-first session)
+SECOND_TUBE_PROB, SECOND_SEED = 0.5, 2
 
 
 def default_intrinsics() -> Intrinsics:
@@ -455,8 +459,10 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m hand_capture.tracking.train [--out PATH] [--seed N] [--samples N]
-    [--towards P] [--arm-out PATH] [--arm-frames N] [--arm-only]``: the regressor, then the
-    per-pixel arm classifier (:func:`~hand_capture.tracking.armseg.train_arm_classifier`)."""
+    [--towards P] [--tubes P] [--arm-out PATH] [--arm-frames N] [--arm-only | --second]``:
+    the regressor, then the per-pixel arm classifier
+    (:func:`~hand_capture.tracking.armseg.train_arm_classifier`); ``--second``: the
+    ensemble's second regressor alone (its seed, tube share and file by default)."""
     import argparse
 
     from hand_capture.cameras.threads import limit_blas_threads
@@ -465,25 +471,37 @@ def main(argv: list[str] | None = None) -> int:
     tracker_dir = Path(__file__).resolve().parents[2] / "data" / "tracker"
     ap = argparse.ArgumentParser(description="train the depth tracker's regressor and its "
                                  "hand/arm pixel classifier")
-    ap.add_argument("--out", default=str(tracker_dir / "regressor.npz"))
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=None, help="default: data/tracker/regressor.npz "
+                    "(--second: data/tracker/regressor_tubes.npz)")
+    ap.add_argument("--seed", type=int, default=None, help=f"default: 0 (--second: "
+                    f"{SECOND_SEED})")
     ap.add_argument("--samples", type=int, default=TRAIN_SAMPLES)
     ap.add_argument("--towards", type=float, default=TOWARDS_PROB,
                     help="share of training poses with the fingers towards the camera")
     ap.add_argument("--artifacts", type=float, default=ARTIFACT_PROB,
                     help="share of training renders with a stereo camera's artifacts")
-    ap.add_argument("--tubes", type=float, default=TUBE_PROB,
-                    help="share of training hands drawn as tubes on the skeleton")
+    ap.add_argument("--tubes", type=float, default=None,
+                    help=f"share of training hands drawn as tubes on the skeleton (default: "
+                    f"{TUBE_PROB}; --second: {SECOND_TUBE_PROB})")
     ap.add_argument("--arm-out", default=str(tracker_dir / "arm.npz"))
     ap.add_argument("--arm-frames", type=int, default=ARM_FRAMES)
-    ap.add_argument("--arm-only", action="store_true",
-                    help="train the arm classifier only (the regressor is left as it is)")
+    only = ap.add_mutually_exclusive_group()
+    only.add_argument("--arm-only", action="store_true",
+                      help="train the arm classifier only (the regressor is left as it is)")
+    only.add_argument("--second", action="store_true",
+                      help="train the ensemble's second regressor only (the arm classifier "
+                      "is left as it is)")
     a = ap.parse_args(argv)
     limit_blas_threads(1)
+    second = a.second
+    out = a.out or str(tracker_dir / ("regressor_tubes.npz" if second else "regressor.npz"))
+    seed = a.seed if a.seed is not None else SECOND_SEED if second else 0
+    tubes = a.tubes if a.tubes is not None else SECOND_TUBE_PROB if second else TUBE_PROB
     if not a.arm_only:
-        train_tracker(a.out, seed=a.seed, n_samples=a.samples, towards_prob=a.towards,
-                      artifact_prob=a.artifacts, tube_prob=a.tubes, log=print)
-    train_arm_classifier(a.arm_out, seed=a.seed, n_frames=a.arm_frames, log=print)
+        train_tracker(out, seed=seed, n_samples=a.samples, towards_prob=a.towards,
+                      artifact_prob=a.artifacts, tube_prob=tubes, log=print)
+    if not second:
+        train_arm_classifier(a.arm_out, seed=seed, n_frames=a.arm_frames, log=print)
     return 0
 
 
