@@ -79,6 +79,35 @@ def test_a_member_that_misses_is_mended_by_the_other(shipped, frame) -> None:
     assert both < alone + 2.0
 
 
+class _Counting(OffPalms):
+    """A member that counts the frames it is asked for palm modes (not moved)."""
+
+    def __init__(self, reg: HandRegressor) -> None:
+        super().__init__(reg, 0.0)
+        self.asked = 0
+
+    def palm_modes(self, *args, **kw) -> list[np.ndarray]:
+        self.asked += 1
+        return super().palm_modes(*args, **kw)
+
+
+@pytest.mark.parametrize("frames_cfg", ["acquire", "all"])
+def test_ensemble_frames_says_when_the_second_member_is_asked(shipped, frames_cfg) -> None:
+    """``acquire``: the second regressor on the frames that search wide only (the first
+    here); ``all``: on every frame that regresses."""
+    cam = translation_camera()
+    first, second = _Counting(shipped), _Counting(shipped)
+    tr = HybridTracker(cam.model, TrackerConfig(ensemble_frames=frames_cfg),
+                       RegressorSet([first, second]))
+    results = []
+    for t in (0.5, 0.5 + 1 / 30, 0.5 + 2 / 30):
+        f = cam.render(t)
+        results.append(tr.process(f.depth, f.depth_intrinsics))
+    assert [r.success for r in results] == [True, True, True]
+    assert first.asked == 3
+    assert second.asked == (1 if frames_cfg == "acquire" else 3)
+
+
 def test_a_set_needs_a_member() -> None:
     with pytest.raises(InputError, match="at least one"):
         RegressorSet([])

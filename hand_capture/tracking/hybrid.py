@@ -68,8 +68,9 @@ off, and the arm past each pose's wrist only where the model is on a frame with 
 (``cost_stub_optional``, ``cost_arm_optional``; ``ModelTracker.depth_costs``); with
 ``ensemble`` a second regressor trained on another seed and surfaces (a
 :class:`~hand_capture.tracking.regressor.RegressorSet`, :func:`load_regressor`) adds its palm
-modes in step 1 and its finger regression on every palm in step 2 (the held-out misses are
-the search's: the true pose, offered as a candidate, wins most failing frames).
+modes in step 1 and its finger regression on every palm in step 2 on the frames that search
+wide (``ensemble_frames``; the held-out misses are the search's: the true pose, offered as a
+candidate, wins most failing frames).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -292,6 +293,7 @@ class HybridTracker:
                  arm: ArmClassifier | None = None) -> None:
         self.cfg = config or TrackerConfig()
         self.regressor = regressor
+        self._reg_now = regressor
         if arm is None and self.cfg.arm_classifier and self.cfg.forearm_cut:
             arm = load_arm_classifier(self.cfg.arm_model_file or None)
         #: the per-pixel hand/arm classifier (None: the geometric forearm cut only)
@@ -529,6 +531,12 @@ class HybridTracker:
         top = (cfg.acquire_refine_top or cfg.refine_top) if acquire else cfg.refine_top
         its = ((cfg.acquire_icp_iterations or cfg.icp_iterations) if acquire
                else cfg.icp_iterations)
+        # ensemble_frames "acquire": a tracked frame asks the first regressor alone (the
+        # second's candidates mend acquisitions; on tracked frames they cost 1.28x the CPU)
+        self._reg_now = self.regressor
+        if (cfg.ensemble_frames == "acquire" and mode == "hybrid" and not acquire
+                and isinstance(self.regressor, RegressorSet)):
+            self._reg_now = self.regressor.members[0]
         if regress:  # step 1: palm modes
             t = time.perf_counter()
             lookup, palms = self._palm_modes(obs, intr, n_modes)
@@ -551,7 +559,7 @@ class HybridTracker:
             # previous pose's palm too
             own = cfg.regress_previous and self.prev is not None and prev is not None
             roots = [*palms, prev] if own else palms
-            cands = self.regressor.regress_fingers(self.frames, lookup, np.array(roots),
+            cands = self._reg_now.regress_fingers(self.frames, lookup, np.array(roots),
                                                    cfg.ik_iterations)
             pool += [(qc, qc.copy()) for qc in cands]
             timing["regression"] += time.perf_counter() - t
@@ -751,9 +759,9 @@ class HybridTracker:
         # the features read depth in the hand's bounding box (off it: background, as off the
         # hand anywhere)
         r0, r1, c0, c1 = obs.box if obs.box is not None else (0, intr.height, 0, intr.width)
-        lookup = self.regressor.lookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
+        lookup = self._reg_now.lookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
         q0 = palm_init_pca(obs.points, self.frames)
-        return lookup, self.regressor.palm_modes(self.frames, lookup, q0, n_modes)
+        return lookup, self._reg_now.palm_modes(self.frames, lookup, q0, n_modes)
 
     def run_deferred(self) -> dict[str, float] | None:
         """Steps 1-2 for the last frame, when it deferred them (``defer_regression``).
@@ -781,7 +789,7 @@ class HybridTracker:
         if cfg.regress_previous:   # as in _process: the tracked palm too
             palms = [*palms, q_tracked]
         t = time.perf_counter()
-        cands = list(self.regressor.regress_fingers(self.frames, lookup, np.array(palms),
+        cands = list(self._reg_now.regress_fingers(self.frames, lookup, np.array(palms),
                                                     cfg.ik_iterations))
         timing["regression"] += time.perf_counter() - t
         t = time.perf_counter()
