@@ -274,10 +274,11 @@ class TrackerConfig:
     ensemble: bool = param(True, "a second trained regressor's candidates join the pool "
                            "of steps 1-2 (its palm modes, and its finger regression on every "
                            "palm); off = the one regressor of II.4")
-    ensemble_frames: str = param("acquire", "frames on which the second regressor of "
-                                 "ensemble proposes candidates too: acquire = those that search "
-                                 "wide (no tracked pose, or one in doubt: acquire_above_tau), "
-                                 "all = every frame that regresses", choices=("acquire", "all"))
+    ensemble_frames: str = param("all", "frames on which the second regressor of ensemble "
+                                 "proposes candidates too: all = every frame that regresses; "
+                                 "acquire = those that search wide (no tracked pose, or one in "
+                                 "doubt: acquire_above_tau), about the single regressor's CPU "
+                                 "a frame", choices=("all", "acquire"))
     second_model_file: str = param("", "the second regressor (.npz) of ensemble; empty = "
                                    "data/tracker/regressor_tubes.npz when present")
     mode: str = param("hybrid", "tracking mode", choices=("hybrid", "icp", "regressor"))

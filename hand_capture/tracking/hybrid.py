@@ -68,9 +68,9 @@ off, and the arm past each pose's wrist only where the model is on a frame with 
 (``cost_stub_optional``, ``cost_arm_optional``; ``ModelTracker.depth_costs``); with
 ``ensemble`` a second regressor trained on another seed and surfaces (a
 :class:`~hand_capture.tracking.regressor.RegressorSet`, :func:`load_regressor`) adds its palm
-modes in step 1 and its finger regression on every palm in step 2 on the frames that search
-wide (``ensemble_frames``; the held-out misses are the search's: the true pose, offered as a
-candidate, wins most failing frames).
+modes in step 1 and its finger regression on every palm in step 2 (on every frame, or with
+``ensemble_frames`` "acquire" on the frames that search wide only; the held-out misses are
+the search's: the true pose, offered as a candidate, wins most failing frames).
 
 Modes ``icp`` (model-based only, from an initial pose) and ``regressor`` (per-frame
 regression only, best mode by E_d) are the ablations of Figure II.18.
@@ -532,7 +532,7 @@ class HybridTracker:
         its = ((cfg.acquire_icp_iterations or cfg.icp_iterations) if acquire
                else cfg.icp_iterations)
         # ensemble_frames "acquire": a tracked frame asks the first regressor alone (the
-        # second's candidates mend acquisitions; on tracked frames they cost 1.28x the CPU)
+        # cheaper setting: on every frame the second costs 1.28x the CPU a frame)
         self._reg_now = self.regressor
         if (cfg.ensemble_frames == "acquire" and mode == "hybrid" and not acquire
                 and isinstance(self.regressor, RegressorSet)):
