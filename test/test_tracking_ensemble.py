@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tracking_helpers import OffPalms, translation_camera
+from tracking_helpers import OffPalms, shipped_regressor, translation_camera
 
 from hand_capture.errors import InputError
 from hand_capture.model import HandModel
@@ -28,9 +28,7 @@ OFF_M = 0.12
 
 @pytest.fixture(scope="module")
 def shipped() -> HandRegressor:
-    path = default_model_path()
-    assert path.exists(), f"the shipped regressor {path} is missing (hand-suite train tracker)"
-    return HandRegressor.load(path)
+    return shipped_regressor()
 
 
 @pytest.fixture(scope="module")

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tracking_helpers import OffPalms
+from tracking_helpers import OffPalms, shipped_regressor
 
 from hand_capture.bench._tracking_heldout import SurfaceVariant
 from hand_capture.cameras.render import make_renderer
 from hand_capture.model import JOINT_INDEX, HandModel
 from hand_capture.tracking.config import TrackerConfig
-from hand_capture.tracking.hybrid import HybridTracker, default_model_path
+from hand_capture.tracking.hybrid import HybridTracker
 from hand_capture.tracking.regressor import HandRegressor
 from hand_capture.tracking.train import default_intrinsics, random_pose
 
@@ -27,9 +27,7 @@ PALM_OFF_M = 0.08
 
 @pytest.fixture(scope="module")
 def regressor() -> HandRegressor:
-    path = default_model_path()
-    assert path.exists(), f"the shipped regressor {path} is missing (hand-suite train tracker)"
-    return HandRegressor.load(path)
+    return shipped_regressor()
 
 
 @pytest.fixture(scope="module")

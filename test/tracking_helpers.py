@@ -12,6 +12,13 @@ from hand_capture.tracking.regressor import HandRegressor
 from hand_capture.tracking.train import train_tracker
 
 
+def shipped_regressor() -> HandRegressor:
+    """``data/tracker/regressor.npz`` (the test fails when it is missing)."""
+    p = default_model_path()
+    assert p.exists(), f"the shipped regressor {p} is missing (hand-suite train tracker)"
+    return HandRegressor.load(p)
+
+
 def shipped_or_tiny_regressor() -> HandRegressor:
     """``data/tracker/regressor.npz``, or a small regressor trained from seed 1."""
     p = default_model_path()
