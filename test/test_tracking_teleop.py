@@ -122,10 +122,10 @@ def test_a_deferred_regression_runs_after_the_frame_and_feeds_the_next_one(cam, 
     tr.process(f.depth, f.depth_intrinsics)
     r = tr.process(f.depth, f.depth_intrinsics)  # a regression is due: deferred
     assert not r.regressed and tr._deferred is not None
-    obs, intr, pts, obs_ds, q, c = tr._deferred
+    reg, obs, intr, pts, obs_ds, q, c = tr._deferred
     bad = q.copy()
     bad[6:] += 0.4  # as if the tracked fingers had drifted: the regression fits better
-    tr._deferred = (obs, intr, pts, obs_ds, bad, tr._costs([bad], obs, obs_ds)[0][0])
+    tr._deferred = (reg, obs, intr, pts, obs_ds, bad, tr._costs([bad], obs, obs_ds)[0][0])
     tr.run_deferred()
     assert tr._carry is not None
     sizes = []

@@ -114,9 +114,12 @@ from hand_capture.tracking.regressor import (
 )
 
 __all__ = ["HybridTracker", "TrackResult", "default_model_path", "load_regressor", "model_path",
-           "regressor_files", "second_model_path", "STAGES"]
+           "regressor_files", "second_model_path", "SECOND_MODEL_NAME", "STAGES"]
 
 STAGES = ("preprocess", "regression", "icp", "selection")
+#: the second regressor's file name in ``data/tracker`` (``ensemble``; ``hand-suite train
+#: tracker --second`` writes it)
+SECOND_MODEL_NAME = "regressor_tubes.npz"
 
 
 #: the hand's bones as keypoint pairs (KEYPOINT_NAMES order: wrist, then per finger its root
@@ -193,7 +196,7 @@ def second_model_path(cfg: TrackerConfig) -> Path | None:
         return None
     if cfg.second_model_file:
         return Path(cfg.second_model_file).expanduser()
-    return default_model_path().with_name("regressor_tubes.npz")
+    return default_model_path().with_name(SECOND_MODEL_NAME)
 
 
 def regressor_files(cfg: TrackerConfig) -> list[Path]:
@@ -293,7 +296,6 @@ class HybridTracker:
                  arm: ArmClassifier | None = None) -> None:
         self.cfg = config or TrackerConfig()
         self.regressor = regressor
-        self._reg_now = regressor
         if arm is None and self.cfg.arm_classifier and self.cfg.forearm_cut:
             arm = load_arm_classifier(self.cfg.arm_model_file or None)
         #: the per-pixel hand/arm classifier (None: the geometric forearm cut only)
@@ -375,7 +377,8 @@ class HybridTracker:
         self.frame_count = 0
         self._since_regression = 0
         self._prev_cost = 0.0   # E_d of the previous frame [mm]
-        # run_deferred's inputs: (obs, intr, pts, obs_ds, tracked pose, its E_c)
+        # run_deferred's inputs: (the frame's regressor, obs, intr, pts, obs_ds, tracked pose,
+        # its E_c)
         self._deferred: tuple | None = None
         self._carry: np.ndarray | None = None  # a deferred regression's candidate (27,)
 
@@ -533,13 +536,13 @@ class HybridTracker:
                else cfg.icp_iterations)
         # ensemble_frames "acquire": a tracked frame asks the first regressor alone (the
         # cheaper setting: on every frame the second costs 1.28x the CPU a frame)
-        self._reg_now = self.regressor
+        reg = self.regressor
         if (cfg.ensemble_frames == "acquire" and mode == "hybrid" and not acquire
-                and isinstance(self.regressor, RegressorSet)):
-            self._reg_now = self.regressor.members[0]
+                and isinstance(reg, RegressorSet)):
+            reg = reg.members[0]
         if regress:  # step 1: palm modes
             t = time.perf_counter()
-            lookup, palms = self._palm_modes(obs, intr, n_modes)
+            lookup, palms = self._palm_modes(reg, obs, intr, n_modes)
             timing["regression"] += time.perf_counter() - t
         prev = None
         if mode in ("hybrid", "icp"):  # step 3: the previous pose
@@ -559,7 +562,7 @@ class HybridTracker:
             # previous pose's palm too
             own = cfg.regress_previous and self.prev is not None and prev is not None
             roots = [*palms, prev] if own else palms
-            cands = self._reg_now.regress_fingers(self.frames, lookup, np.array(roots),
+            cands = reg.regress_fingers(self.frames, lookup, np.array(roots),
                                                    cfg.ik_iterations)
             pool += [(qc, qc.copy()) for qc in cands]
             timing["regression"] += time.perf_counter() - t
@@ -646,7 +649,7 @@ class HybridTracker:
         self.delta = success
         self._prev_cost = e_d
         if defer:
-            self._deferred = (obs, intr, pts, obs_ds, q.copy(), costs[best][0])
+            self._deferred = (reg, obs, intr, pts, obs_ds, q.copy(), costs[best][0])
         conf = float(np.clip(1.0 - e_d / cfg.depth_cap_mm, 0.0, 1.0))
         return TrackResult(q.copy(), success, status, e_d, conf, self.last_good, len(costs),
                            timing, obs, regress, cut, self.tau_mm), dropped, cloud
@@ -752,16 +755,17 @@ class HybridTracker:
                 trials.append(t)
         return trials
 
-    def _palm_modes(self, obs: HandObservation, intr: Intrinsics, n_modes: int
+    def _palm_modes(self, reg: HandRegressor | RegressorSet, obs: HandObservation,
+                    intr: Intrinsics, n_modes: int
                     ) -> tuple[DepthLookup | tuple[DepthLookup, ...], list[np.ndarray]]:
-        """Step 1: ``n_modes`` palm modes of the regressor for a frame, and its depth
-        lookup."""
+        """Step 1: ``n_modes`` palm modes of ``reg`` (each member's, for a set) for a frame,
+        and its depth lookup."""
         # the features read depth in the hand's bounding box (off it: background, as off the
         # hand anywhere)
         r0, r1, c0, c1 = obs.box if obs.box is not None else (0, intr.height, 0, intr.width)
-        lookup = self._reg_now.lookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
+        lookup = reg.lookup(obs.depth_m[r0:r1, c0:c1], c0, r0, intr)
         q0 = palm_init_pca(obs.points, self.frames)
-        return lookup, self._reg_now.palm_modes(self.frames, lookup, q0, n_modes)
+        return lookup, reg.palm_modes(self.frames, lookup, q0, n_modes)
 
     def run_deferred(self) -> dict[str, float] | None:
         """Steps 1-2 for the last frame, when it deferred them (``defer_regression``).
@@ -775,11 +779,11 @@ class HybridTracker:
         d, self._deferred = self._deferred, None
         if d is None:
             return None
-        obs, intr, pts, obs_ds, q_tracked, c_tracked = d
+        reg, obs, intr, pts, obs_ds, q_tracked, c_tracked = d
         cfg = self.cfg
         timing = dict.fromkeys(STAGES, 0.0)
         t = time.perf_counter()
-        lookup, palms = self._palm_modes(obs, intr, cfg.n_modes)
+        lookup, palms = self._palm_modes(reg, obs, intr, cfg.n_modes)
         timing["regression"] += time.perf_counter() - t
         if cfg.palm_iterations:
             t = time.perf_counter()
@@ -789,7 +793,7 @@ class HybridTracker:
         if cfg.regress_previous:   # as in _process: the tracked palm too
             palms = [*palms, q_tracked]
         t = time.perf_counter()
-        cands = list(self._reg_now.regress_fingers(self.frames, lookup, np.array(palms),
+        cands = list(reg.regress_fingers(self.frames, lookup, np.array(palms),
                                                     cfg.ik_iterations))
         timing["regression"] += time.perf_counter() - t
         t = time.perf_counter()

@@ -467,6 +467,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from hand_capture.cameras.threads import limit_blas_threads
     from hand_capture.tracking.armseg import train_arm_classifier
+    from hand_capture.tracking.hybrid import SECOND_MODEL_NAME
 
     tracker_dir = Path(__file__).resolve().parents[2] / "data" / "tracker"
     ap = argparse.ArgumentParser(description="train the depth tracker's regressor and its "
@@ -494,7 +495,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     limit_blas_threads(1)
     second = a.second
-    out = a.out or str(tracker_dir / ("regressor_tubes.npz" if second else "regressor.npz"))
+    out = a.out or str(tracker_dir / (SECOND_MODEL_NAME if second else "regressor.npz"))
     seed = a.seed if a.seed is not None else SECOND_SEED if second else 0
     tubes = a.tubes if a.tubes is not None else SECOND_TUBE_PROB if second else TUBE_PROB
     if not a.arm_only:
