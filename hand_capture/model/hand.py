@@ -598,14 +598,21 @@ class HandModel:
         return T, H, rot, pos
 
     def keypoints_and_jacobian(self, pose: object, keypoints: object = None,
-                               dofs: object = None) -> tuple[np.ndarray, np.ndarray]:
+                               dofs: object = None,
+                               fk: tuple[np.ndarray, np.ndarray] | None = None
+                               ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`joint_positions` and :meth:`keypoint_jacobian` from one FK pass, optionally
         only for some ``keypoints`` (rows) and ``dofs`` (columns).
 
         The Jacobian column of hinge k at keypoint p is ``a_k x (p - o_k)`` when the hinge
-        moves p's bone (what :meth:`keypoint_jacobian` gives through the skinning rows)."""
+        moves p's bone (what :meth:`keypoint_jacobian` gives through the skinning rows).
+        ``fk``: the bone rotations and origins of these poses, as :meth:`bone_basis` returns
+        them for the same batch (that FK pass is then not repeated)."""
         q, single = self._batch(pose)
-        rot, pos = self._fk(q)
+        if fk is None:
+            rot, pos = self._fk(q)
+        else:
+            rot, pos = (fk[0][None], fk[1][None]) if single else fk
         kp = self._keypoints(rot, pos)
         axes, anchors = self._dof_axes(q, rot, pos)
         kr = np.arange(N_KEYPOINTS) if keypoints is None else np.asarray(keypoints)

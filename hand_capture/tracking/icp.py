@@ -42,7 +42,6 @@ has no points.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -98,50 +97,11 @@ def render_depth(vertices: np.ndarray, intr: Intrinsics, ds: int = 1) -> np.ndar
     splatted into its nearest pixel and the one-pixel holes left between vertices are closed
     (3x3 morphological closing of the silhouette, filled with the nearest neighbour depth).
     """
-    W = (intr.width + ds - 1) // ds
-    H = (intr.height + ds - 1) // ds
-    out = np.zeros((H, W), np.float32)
-    win, r0, c0 = _render_window(vertices, intr, ds, None)
-    out[r0:r0 + win.shape[0], c0:c0 + win.shape[1]] = win
-    return out
-
-
-def _render_window(vertices: np.ndarray, intr: Intrinsics, ds: int,
-                   box: tuple[int, int, int, int] | None
-                   ) -> tuple[np.ndarray, int, int]:
-    """:func:`render_depth` computed in a window only: ``(image, row0, col0)``. The window
-    holds every splatted pixel with a 2-pixel margin (so the 3x3 closing is the same as on
-    the whole image) and the rows / columns ``box = (r0, r1, c0, c1)`` (end exclusive)."""
-    return next(_render_windows(vertices[None], intr, ds, box))
-
-
-def _render_windows(Vs: np.ndarray, intr: Intrinsics, ds: int,
-                    box: tuple[int, int, int, int] | None
-                    ) -> Iterator[tuple[np.ndarray, int, int]]:
-    """:func:`_render_window` of every pose's vertices ``Vs`` (B, V, 3), in order: the
-    pixels of all poses are computed together (the same numbers as one pose at a time)."""
-    for u, w, z, _ in _vertex_pixels(Vs, intr, ds):
-        yield _splat_window(u, w, z, *_image_size(intr, ds), box)
-
-
-def _render_windows_optional(Vs: np.ndarray, optional: np.ndarray, intr: Intrinsics,
-                             ds: int, box: tuple[int, int, int, int] | None
-                             ) -> Iterator[tuple[np.ndarray, int, int, np.ndarray]]:
-    """:func:`_render_windows` with, per window, where the vertices ``optional`` (V,) bool
-    are the rendered surface: ``(image, row0, col0, optional_pixels)``. The optional
-    vertices are splatted alone (:func:`_splat_window`, inside the whole window); a pixel
-    is theirs where their depth is the rendered one."""
     H, W = _image_size(intr, ds)
-    for u, w, z, keep in _vertex_pixels(Vs, intr, ds):
-        win, r0, c0 = _splat_window(u, w, z, H, W, box)
-        opt = optional if keep is None else optional[keep]
-        mine = np.zeros(win.shape, bool)
-        if opt.any() and win.size:
-            sw, s0, t0 = _splat_window(u[opt], w[opt], z[opt], H, W, None)
-            part = win[s0 - r0:s0 - r0 + sw.shape[0], t0 - c0:t0 - c0 + sw.shape[1]]
-            mine[s0 - r0:s0 - r0 + sw.shape[0], t0 - c0:t0 - c0 + sw.shape[1]] = (
-                (sw > 0) & (part > 0) & (sw <= part + np.float32(1e-6)))
-        yield win, r0, c0, mine
+    out = np.zeros((H, W), np.float32)
+    img, r0, c0, _ = _render_batch(vertices[None], intr, ds, None)
+    out[r0:r0 + img.shape[1], c0:c0 + img.shape[2]] = img[0]
+    return out
 
 
 def _image_size(intr: Intrinsics, ds: int) -> tuple[int, int]:
@@ -149,54 +109,77 @@ def _image_size(intr: Intrinsics, ds: int) -> tuple[int, int]:
     return (intr.height + ds - 1) // ds, (intr.width + ds - 1) // ds
 
 
-def _vertex_pixels(Vs: np.ndarray, intr: Intrinsics, ds: int
-                   ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]]:
-    """Per pose of ``Vs`` (B, N, 3): the nearest pixels (column ``u``, row ``w``, int64) at
-    ``1/ds`` resolution of its points in front of the camera and inside the image, their
-    depths ``z`` (float32) [m] and which of the N points those are ((N,) bool; None: all);
-    all poses' points projected together."""
+def _render_batch(Vs: np.ndarray, intr: Intrinsics, ds: int,
+                  box: tuple[int, int, int, int] | None, optional: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, int, int, np.ndarray | None]:
+    """:func:`render_depth` of every pose's vertices ``Vs`` (B, N, 3), all in one window:
+    ``(images (B, h, w) float32 [m], row0, col0, mine)``.
+
+    The window holds every pose's splatted pixels with a 2-pixel margin and the rows /
+    columns ``box = (r0, r1, c0, c1)`` (end exclusive), clipped to the image: the 3x3
+    closing of a silhouette then gives what it gives on the whole image (nothing closes
+    across 2 empty pixels), so each pose's image is its :func:`render_depth` there.
+    ``optional`` (N,) bool: vertices splatted alone as well; ``mine`` (B, h, w) says where
+    they are the rendered surface (their depth is the rendered one); None without them.
+    """
     H, W = _image_size(intr, ds)
+    B = len(Vs)
     Z = Vs[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):   # dropped below: z <= 1 mm, NaN
         U = np.rint((intr.fx * Vs[..., 0] / Z + intr.cx) / ds)     # (B, N) pixel columns
         R = np.rint((intr.fy * Vs[..., 1] / Z + intr.cy) / ds)     # (B, N) pixel rows
     ok = (Z > 1e-3) & (U >= 0) & (U < W) & (R >= 0) & (R < H)
-    Z32 = Z.astype(np.float32)
-    out = []
-    for b in range(len(Vs)):
-        u, w, z = U[b], R[b], Z32[b]
-        keep = None
-        if not ok[b].all():
-            keep = ok[b]
-            u, w, z = u[keep], w[keep], z[keep]
-        out.append((u.astype(np.int64), w.astype(np.int64), z, keep))
-    return out
-
-
-def _splat_window(u: np.ndarray, w: np.ndarray, z: np.ndarray, H: int, W: int,
-                  box: tuple[int, int, int, int] | None) -> tuple[np.ndarray, int, int]:
-    """Z-buffer of depths ``z`` (N,) float32 [m] at pixels (``w`` row, ``u`` column), all
-    inside the H x W image, with the one-pixel holes closed: ``(window, row0, col0)``."""
+    every = bool(ok.all())
+    pose = np.arange(B)[:, None]
+    if not every:
+        pose = np.broadcast_to(pose, ok.shape)[ok]
+    u, w, z = (U, R, Z) if every else (U[ok], R[ok], Z[ok])   # whole pixels, as floats
     rows = [] if box is None else [box[0], box[1] - 1]
     cols = [] if box is None else [box[2], box[3] - 1]
-    if len(u):
+    if u.size:
         rows += [int(w.min()) - 2, int(w.max()) + 2]
         cols += [int(u.min()) - 2, int(u.max()) + 2]
     if not rows:
-        return np.zeros((0, 0), np.float32), 0, 0
+        return np.zeros((B, 0, 0), np.float32), 0, 0, None
     r0, r1 = max(min(rows), 0), min(max(rows) + 1, H)
     c0, c1 = max(min(cols), 0), min(max(cols) + 1, W)
     h, wd = r1 - r0, c1 - c0
-    buf = np.full(h * wd, _FAR, np.float32)
-    np.minimum.at(buf, (w - r0) * wd + (u - c0), z)
-    buf = buf.reshape(h, wd)
+    # each pose's image is h + 1 rows: the last one (never drawn) keeps the 3x3 operations
+    # of one image from reaching the next (_splat)
+    flat = ((pose * (h + 1) + (w - r0)) * wd + (u - c0)).astype(np.int64).ravel()
+    z = z.astype(np.float32).ravel()
+    img = _splat(flat, z, (B, h + 1, wd))
+    mine = None
+    if optional is not None:
+        sel = (np.broadcast_to(optional, ok.shape) if every else
+               np.broadcast_to(optional, ok.shape)[ok]).ravel()
+        part = _splat(flat[sel], z[sel], (B, h + 1, wd))
+        mine = ((part > 0) & (img > 0) & (part <= img + np.float32(1e-6)))[:, :h]
+    return img[:, :h], r0, c0, mine
+
+
+def _splat(flat: np.ndarray, z: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
+    """Z-buffers ``shape`` (B, h + 1, w) of depths ``z`` (K,) float32 [m] at the flat
+    indices ``flat`` (K,), each image's last row left empty, the one-pixel holes closed
+    (3x3 closing of each silhouette, filled with the nearest depth around them), empty
+    pixels 0.
+
+    The images are stacked into one (B (h + 1), w) image for OpenCV, the empty rows between
+    them: the dilation of the closing reads them as nothing and the erosion, with them set
+    to 1, as nothing too, like OpenCV's own border, so each image is closed alone."""
+    B, h1, wd = shape
+    buf = np.full(B * h1 * wd, _FAR, np.float32)
+    np.minimum.at(buf, flat, z)
+    buf = buf.reshape(B * h1, wd)
     occ = (buf < _FAR).astype(np.uint8)
-    closed = cv2.morphologyEx(occ, cv2.MORPH_CLOSE, _K3)
-    holes = (closed > 0) & (occ == 0)
+    grown = cv2.dilate(occ, _K3)
+    grown[h1 - 1::h1] = 1
+    holes = (cv2.erode(grown, _K3) > 0) & (occ == 0)
+    holes[h1 - 1::h1] = False
     if holes.any():
         buf[holes] = cv2.erode(buf, _K3)[holes]
     buf[buf >= _FAR] = 0.0
-    return buf, r0, c0
+    return buf.reshape(shape)
 
 
 def cost_grid(obs: HandObservation, cfg: TrackerConfig) -> int:
@@ -557,7 +540,7 @@ class ModelTracker:
         cfg = self.cfg
         dt = self._dof_terms(dofs)
         root = dt.root
-        T, H, rot, _ = self.model.bone_basis(Q, jacobian=not root)
+        T, H, rot, pos = self.model.bone_basis(Q, jacobian=not root)
         B, nb = rot.shape[0], rot.shape[1]
         # [X_c | N_c] @ [[T, 0], [0, R^T]] for every pose: columns (pose, 6)
         rhs = np.zeros((self._xcn.shape[1], B, 6))
@@ -568,7 +551,8 @@ class ModelTracker:
         wd, wr = cfg.data_weight, cfg.reverse_weight
         tree = self._point_tree(points) if wr > 0 else None
         # the fingers' penetration (hand_capture.tracking.overlap), not for the palm alone
-        ov = (self.overlap.residuals(*self.model.keypoints_and_jacobian(Q, dofs=dofs))
+        ov = (self.overlap.residuals(*self.model.keypoints_and_jacobian(Q, dofs=dofs,
+                                                                         fk=(rot, pos)))
               if cfg.overlap_weight > 0 and not root else None)
         intr = obs.intrinsics
         out = Q.copy()
@@ -737,40 +721,55 @@ class ModelTracker:
             arm = (self._observed_points(o, obs.intrinsics, ds), kp[:, 0], d, arm_free_m)
         else:
             V = self.model.vertices(Q)
-        if stub_optional and self.optional.any():
-            wins = _render_windows_optional(V, self.optional, obs.intrinsics, ds, box)
-        else:
-            wins = _render_windows(V, obs.intrinsics, ds, box)
-        return self._window_errors(wins, o, arm)
+        opt = self.optional if stub_optional and self.optional.any() else None
+        img, r0, c0, mine = _render_batch(V, obs.intrinsics, ds, box, opt)
+        return self._window_errors(img, r0, c0, mine, o, arm)
 
-    def _window_errors(self, wins: Iterable[tuple], o: np.ndarray, arm: tuple | None = None
-                       ) -> np.ndarray:
-        """E_d of eq. II.19 of each rendered window ``(image, row0, col0[, optional])``
-        against the observed image ``o`` (both silhouettes lie inside the window, so E_d
-        over it is E_d over the image)."""
-        out = []
-        for b, (r, r0, c0, *opt) in enumerate(wins):
-            ob = o[r0:r0 + r.shape[0], c0:c0 + r.shape[1]]
-            h, w = ob.shape
-            free = None
-            if arm is not None:   # the data past pose b's wrist, towards the arm
-                P = arm[0][r0:r0 + h, c0:c0 + w]
-                past = (P - arm[1][b]) @ arm[2][b]   # [m] beyond the wrist plane
-                free = (ob > 0) & (past > 0)
+    def _window_errors(self, img: np.ndarray, r0: int, c0: int, mine: np.ndarray | None,
+                       o: np.ndarray, arm: tuple | None = None) -> np.ndarray:
+        """E_d of eq. II.19 of each pose's image ``img`` (B, h, w) of one window (row
+        ``r0``, column ``c0``; ``mine``: where the optional vertices are the surface, or
+        None) against the observed image ``o`` (every silhouette lies inside the window,
+        so E_d over it is E_d over the image): :func:`depth_error` of every pose, its
+        per-pixel terms computed for all poses at once."""
+        B, h, w = img.shape
+        ob = o[r0:r0 + h, c0:c0 + w]
+        h, w = ob.shape
+        r = img[:, :h, :w]
+        cap = self.cfg.depth_cap_mm
+        if mine is not None:   # the optional stub's pixels count only where data lies
+            r = np.where(mine[:, :h, :w] & (ob <= 0), np.float32(0.0), r)
+        obs_b = np.broadcast_to(ob, r.shape)
+        if arm is not None:   # the data past each pose's wrist, towards the arm
+            data = ob > 0   # all of o's data: the window holds the observed box
+            pts = arm[0]
+            free = np.zeros(r.shape, bool)
+            for b in range(B):
+                past = (pts - arm[1][b]) @ arm[2][b]   # [m] beyond the wrist plane
+                keep = past > 0
                 if arm[3] > 0:
-                    free &= past < arm[3]
-            out.append(depth_error(r[:h, :w], ob, self.cfg.depth_cap_mm,
-                                   opt[0][:h, :w] if opt else None, free))
-        return np.array(out)
+                    keep &= past < arm[3]
+                free[b][data] = keep
+            obs_b = np.where(free & (r <= 0), np.float32(0.0), obs_b)
+        union = (r > 0) | (obs_b > 0)
+        both = (r > 0) & (obs_b > 0)
+        diff = np.where(both, np.minimum(np.abs(r - obs_b) * _MM, cap), cap)
+        out = np.full(B, float(cap))
+        for b in range(B):   # the sum over each pose's union, as depth_error takes it
+            n = int(np.count_nonzero(union[b]))
+            if n:
+                out[b] = float(diff[b][union[b]].sum() / n)
+        return out
 
     def _observed_points(self, o: np.ndarray, intr: Intrinsics, ds: int) -> np.ndarray:
-        """(H, W, 3) the 3D points [m] of the E_d grid's observed depths ``o`` (kept while
-        the same array is passed); zero depth gives the camera centre."""
+        """(n, 3) the 3D points [m] of the E_d grid's observed depths ``o`` where it has
+        data, in row-major pixel order (kept while the same array is passed)."""
         c = self._points_cache
         if c is None or c[0] is not o:
-            rr, cc = np.mgrid[0:o.shape[0], 0:o.shape[1]]
-            P = np.stack([(cc * ds - intr.cx) / intr.fx * o, (rr * ds - intr.cy) / intr.fy * o,
-                          o], axis=-1)
+            rr, cc = np.nonzero(o > 0)
+            z = o[rr, cc]
+            P = np.stack([(cc * ds - intr.cx) / intr.fx * z, (rr * ds - intr.cy) / intr.fy * z,
+                          z], axis=-1)
             c = (o, P)
             self._points_cache = c
         return c[1]
