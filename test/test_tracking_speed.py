@@ -68,6 +68,11 @@ def test_bone_basis_matches_vertices_jacobian_and_keypoints():
         np.testing.assert_allclose(pos[b], fk.joint_frames[:, :3, 3], atol=0)
     kp, kj = m.keypoints_and_jacobian(Q)
     np.testing.assert_array_equal(kp, m.joint_positions(Q))
+    kp1, kj1 = m.keypoints_and_jacobian(Q, fk=(rot, pos))   # bone_basis' FK pass reused
+    np.testing.assert_array_equal(kp1, kp)
+    np.testing.assert_array_equal(kj1, kj)
+    kp1, kj1 = m.keypoints_and_jacobian(Q[1], fk=(rot[1], pos[1]))
+    np.testing.assert_array_equal(kj1, kj[1])
     np.testing.assert_allclose(kj, m.keypoint_jacobian(Q), atol=1e-12)
     rows, dofs = np.array([3, 8, 20]), np.array([1, 4, 9, 26])
     kp2, kj2 = m.keypoints_and_jacobian(Q, rows, dofs)
@@ -191,14 +196,16 @@ def test_batched_rendering_matches_a_plain_z_buffer(scene):
     tr = ModelTracker(model, cfg)
     ds = cfg.cost_downsample
     o = obs.depth_m[::ds, ::ds]
-    Q = np.repeat(f.pose[None], 4, axis=0)
+    Q = np.repeat(f.pose[None], 6, axis=0)
     Q[1, 0] += 0.12                      # half out of the image
     Q[2, 2] = 0.01                       # the hand straddles the camera plane
     Q[3, 0:3] += (0.01, -0.005, 0.02)
+    Q[4, 1] += 0.09                      # out at the bottom: the poses' images are stacked
+    Q[5, 1] -= 0.12                      # (row-wise) for the closing, and out at the top
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         costs = tr.depth_costs(Q, obs, o)
-        for b in range(4):
+        for b in range(len(Q)):
             ref = _plain_render(model.vertices(Q[b]), obs.intrinsics, ds)
             assert costs[b] == depth_error(ref, o, cfg.depth_cap_mm)
             assert tr.depth_cost(Q[b], obs) == costs[b]
@@ -211,6 +218,35 @@ def test_batched_rendering_matches_a_plain_z_buffer(scene):
         np.testing.assert_array_equal(got, _plain_render(V, obs.intrinsics, ds))
         assert np.count_nonzero(got == np.float32(2e-3)) == 1
     assert 0 < costs[0] < costs[1] < cfg.depth_cap_mm
+    for b, row in ((4, -1), (5, 0)):   # drawn up to the image's last / first row
+        assert render_depth(model.vertices(Q[b]), obs.intrinsics, ds)[row].any()
+
+
+def test_stacked_splat_closes_each_image_alone():
+    """E_d's renders of a batch are stacked into one image for the closing (icp._splat):
+    each comes out as OpenCV's closing and hole fill of that image alone gives it, pixels
+    on every edge included (small random silhouettes, so most touch an edge)."""
+    from hand_capture.tracking.icp import _splat
+
+    rng = np.random.default_rng(3)
+    k = np.ones((3, 3), np.uint8)
+    for density in (0.2, 0.4, 0.6):
+        B, h, w = 5, 7, 9
+        n = int(density * h * w)
+        b = np.repeat(np.arange(B), n)
+        pix = np.concatenate([rng.choice(h * w, n, replace=False) for _ in range(B)])
+        z = rng.uniform(0.2, 0.6, B * n).astype(np.float32)
+        got = _splat(b * (h + 1) * w + pix, z, (B, h + 1, w))
+        for i in range(B):
+            ref = np.full(h * w, 1e3, np.float32)
+            np.minimum.at(ref, pix[b == i], z[b == i])
+            ref = ref.reshape(h, w)
+            occ = (ref < 1e3).astype(np.uint8)
+            holes = (cv2.morphologyEx(occ, cv2.MORPH_CLOSE, k) > 0) & (occ == 0)
+            ref[holes] = cv2.erode(ref, k)[holes]
+            ref[ref >= 1e3] = 0.0
+            np.testing.assert_array_equal(got[i, :h], ref)
+            assert not got[i, h].any()
 
 
 @pytest.fixture(scope="module")
