@@ -224,21 +224,33 @@ def depth_error(rendered_m: np.ndarray, observed_m: np.ndarray, cap_mm: float,
     pixels that count only where ``rendered_m`` has the model (the arm past the pose's
     wrist, ``cost_arm_optional``).
     """
+    opt = None if optional is None else optional[None]
+    dopt = None if data_optional is None else data_optional[None]
+    return float(_depth_errors(rendered_m[None], observed_m, cap_mm, opt, dopt)[0])
+
+
+def _depth_errors(rendered_m: np.ndarray, observed_m: np.ndarray, cap_mm: float,
+                  optional: np.ndarray | None = None,
+                  data_optional: np.ndarray | None = None) -> np.ndarray:
+    """:func:`depth_error` of every rendered image ``rendered_m`` (B, h, w) against one
+    observed image ``observed_m`` (h, w), with per-image masks ``optional`` /
+    ``data_optional`` (B, h, w): (B,) [mm]. The per-pixel terms are computed for all
+    images at once, the sum over each image's union in its pixels' order."""
     r = rendered_m
-    o = observed_m
+    o = np.broadcast_to(observed_m, r.shape)
     if optional is not None:
         r = np.where(optional & (o <= 0), np.float32(0.0), r)
     if data_optional is not None:
         o = np.where(data_optional & (r <= 0), np.float32(0.0), o)
     union = (r > 0) | (o > 0)
-    n = int(np.count_nonzero(union))
-    if n == 0:
-        return float(cap_mm)
-    ru, ou = r[union], o[union]
-    diff = np.abs(ru - ou) * _MM
-    both = (ru > 0) & (ou > 0)
-    diff = np.where(both, np.minimum(diff, cap_mm), cap_mm)
-    return float(diff.sum() / n)
+    both = (r > 0) & (o > 0)
+    diff = np.where(both, np.minimum(np.abs(r - o) * _MM, cap_mm), cap_mm)
+    out = np.full(len(r), float(cap_mm))   # an empty union: no hand, no model
+    for b in range(len(r)):
+        n = int(np.count_nonzero(union[b]))
+        if n:
+            out[b] = float(diff[b][union[b]].sum() / n)
+    return out
 
 
 def _root_jacobian(q: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -730,36 +742,23 @@ class ModelTracker:
         """E_d of eq. II.19 of each pose's image ``img`` (B, h, w) of one window (row
         ``r0``, column ``c0``; ``mine``: where the optional vertices are the surface, or
         None) against the observed image ``o`` (every silhouette lies inside the window,
-        so E_d over it is E_d over the image): :func:`depth_error` of every pose, its
-        per-pixel terms computed for all poses at once."""
+        so E_d over it is E_d over the image): :func:`depth_error` of every pose."""
         B, h, w = img.shape
         ob = o[r0:r0 + h, c0:c0 + w]
         h, w = ob.shape
-        r = img[:, :h, :w]
-        cap = self.cfg.depth_cap_mm
-        if mine is not None:   # the optional stub's pixels count only where data lies
-            r = np.where(mine[:, :h, :w] & (ob <= 0), np.float32(0.0), r)
-        obs_b = np.broadcast_to(ob, r.shape)
+        free = None
         if arm is not None:   # the data past each pose's wrist, towards the arm
             data = ob > 0   # all of o's data: the window holds the observed box
             pts = arm[0]
-            free = np.zeros(r.shape, bool)
+            free = np.zeros((B, h, w), bool)
             for b in range(B):
                 past = (pts - arm[1][b]) @ arm[2][b]   # [m] beyond the wrist plane
                 keep = past > 0
                 if arm[3] > 0:
                     keep &= past < arm[3]
                 free[b][data] = keep
-            obs_b = np.where(free & (r <= 0), np.float32(0.0), obs_b)
-        union = (r > 0) | (obs_b > 0)
-        both = (r > 0) & (obs_b > 0)
-        diff = np.where(both, np.minimum(np.abs(r - obs_b) * _MM, cap), cap)
-        out = np.full(B, float(cap))
-        for b in range(B):   # the sum over each pose's union, as depth_error takes it
-            n = int(np.count_nonzero(union[b]))
-            if n:
-                out[b] = float(diff[b][union[b]].sum() / n)
-        return out
+        return _depth_errors(img[:, :h, :w], ob, self.cfg.depth_cap_mm,
+                             None if mine is None else mine[:, :h, :w], free)
 
     def _observed_points(self, o: np.ndarray, intr: Intrinsics, ds: int) -> np.ndarray:
         """(n, 3) the 3D points [m] of the E_d grid's observed depths ``o`` where it has
