@@ -144,8 +144,8 @@ class DepthLookup:
 
     def __call__(self, pts: np.ndarray) -> np.ndarray:
         z = np.maximum(pts[..., 2], 1e-3)
-        u = np.rint(self.intr.fx * pts[..., 0] / z + self.intr.cx).astype(np.int64) - self.u0
-        v = np.rint(self.intr.fy * pts[..., 1] / z + self.intr.cy).astype(np.int64) - self.v0
+        u = np.rint(self.intr.fx * pts[..., 0] / z + self.intr.cx).astype(np.int64)
+        v = np.rint(self.intr.fy * pts[..., 1] / z + self.intr.cy).astype(np.int64)
         # the image with background filled in and a one-pixel background border: a pixel off
         # the image reads the border (clipped index), a pixel off the hand the background
         # (relative: marked -1 here, read as the point's depth + BACKGROUND_REL_M below, so
@@ -158,9 +158,13 @@ class DepthLookup:
             img[1:-1, 1:-1] = np.where(self.depth > 0, self.depth, back)
             self._padded = img
         h, w = img.shape
-        np.clip(u, -1, w - 2, out=u)
-        np.clip(v, -1, h - 2, out=v)
-        d = img[v + 1, u + 1]
+        u += 1 - self.u0   # the padded image's column and row
+        v += 1 - self.v0
+        np.clip(u, 0, w - 1, out=u)
+        np.clip(v, 0, h - 1, out=v)
+        v *= w
+        v += u
+        d = img.ravel().take(v)
         if self.relative:
             d = np.where(d < 0, (pts[..., 2] + BACKGROUND_REL_M).astype(d.dtype), d)
         return d
