@@ -137,6 +137,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     limit_blas_threads(1)
     if a.regressor:   # the first regressor (ensemble: the shipped second one joins it)
+        if not a.regressor.exists():
+            print(f"--regressor {a.regressor} does not exist", file=sys.stderr)
+            return 2
         cfg = replace(cfg, model_file=str(a.regressor))
     reg = load_regressor(cfg)
     shapes = tuple(range(a.shapes[0], a.shapes[1] + 1))

@@ -535,7 +535,7 @@ class HybridTracker:
         its = ((cfg.acquire_icp_iterations or cfg.icp_iterations) if acquire
                else cfg.icp_iterations)
         # ensemble_frames "acquire": a tracked frame asks the first regressor alone (the
-        # cheaper setting: on every frame the second costs 1.28x the CPU a frame)
+        # cheaper setting: on every frame the second costs about 1.3x the CPU a frame)
         reg = self.regressor
         if (cfg.ensemble_frames == "acquire" and mode == "hybrid" and not acquire
                 and isinstance(reg, RegressorSet)):
@@ -563,7 +563,7 @@ class HybridTracker:
             own = cfg.regress_previous and self.prev is not None and prev is not None
             roots = [*palms, prev] if own else palms
             cands = reg.regress_fingers(self.frames, lookup, np.array(roots),
-                                                   cfg.ik_iterations)
+                                        cfg.ik_iterations)
             pool += [(qc, qc.copy()) for qc in cands]
             timing["regression"] += time.perf_counter() - t
         if self._carry is not None:  # the last frame's deferred regression
@@ -794,7 +794,7 @@ class HybridTracker:
             palms = [*palms, q_tracked]
         t = time.perf_counter()
         cands = list(reg.regress_fingers(self.frames, lookup, np.array(palms),
-                                                    cfg.ik_iterations))
+                                         cfg.ik_iterations))
         timing["regression"] += time.perf_counter() - t
         t = time.perf_counter()
         costs = self._costs(cands, obs, obs_ds)

@@ -151,8 +151,8 @@ def _render_batch(Vs: np.ndarray, intr: Intrinsics, ds: int,
     img = _splat(flat, z, (B, h + 1, wd))
     mine = None
     if optional is not None:
-        sel = (np.broadcast_to(optional, ok.shape) if every else
-               np.broadcast_to(optional, ok.shape)[ok]).ravel()
+        sel = np.broadcast_to(optional, ok.shape)
+        sel = (sel if every else sel[ok]).ravel()
         part = _splat(flat[sel], z[sel], (B, h + 1, wd))
         mine = ((part > 0) & (img > 0) & (part <= img + np.float32(1e-6)))[:, :h]
     return img[:, :h], r0, c0, mine
