@@ -5,6 +5,8 @@ truth in different ways."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from tracking_helpers import OffPalms, shipped_regressor, translation_camera
@@ -62,6 +64,26 @@ def test_the_set_pools_every_members_candidates(shipped, frame) -> None:
     out = rs.regress_fingers(frames, lookups, Q)
     assert out.shape == (8, 27)   # each member's fingers on each of the 4 palms
     np.testing.assert_allclose(out[:4], shipped.regress_fingers(frames, lookups[0], Q))
+
+
+def test_the_sets_finger_cascade_is_each_members_in_turn(frame) -> None:
+    """The set runs its members' finger cascades stage by stage in one batch (one FK pass
+    and one IK solve a stage): the same poses as each member's cascade on its own."""
+    model, depth, intr, _ = frame
+    rs = load_regressor(TrackerConfig())
+    assert isinstance(rs, RegressorSet) and len(rs.members) == 2
+    frames = ModelFrames(model)
+    lookups = rs.lookup(depth.astype(np.float64) / 1000.0, 0, 0, intr)
+    q0 = np.zeros(27)
+    q0[2] = 0.5
+    Q = np.array(rs.palm_modes(frames, lookups, q0, 2))
+    for members in (rs.members,   # the batched path, then members whose IK differs
+                    (rs.members[0], dataclasses.replace(rs.members[1], ik_iterations=3))):
+        s = RegressorSet(members)
+        out = s.regress_fingers(frames, lookups, Q)
+        each = [m.regress_fingers(frames, lk, Q) for m, lk in zip(members, lookups, strict=True)]
+        np.testing.assert_allclose(out, np.concatenate(each), rtol=0.0, atol=1e-12)
+        assert np.abs(each[0] - each[1]).max() > 1e-3   # the members' fingers differ
 
 
 def test_a_member_that_misses_is_mended_by_the_other(shipped, frame) -> None:

@@ -380,29 +380,36 @@ class HandRegressor:
         single = q.ndim == 1
         Q = np.atleast_2d(q).copy()
         Q[:, 6:] = 0.0
+        for s in range(self.finger_stages):
+            targets = self.finger_targets(s, frames, lookup, Q)
+            Q = ik_fingers(frames.model, Q, targets, ik_iterations or self.ik_iterations)
+        return Q[0] if single else Q
+
+    def finger_targets(self, s: int, frames: ModelFrames, lookup: DepthLookup, Q: np.ndarray,
+                       T: np.ndarray | None = None) -> np.ndarray:
+        """Stage ``s`` of the finger cascade (eq. II.18) for poses ``Q`` (B, 27): the finger
+        keypoints ``FINGER_KP`` moved by the stage's regressed offsets, (B, 5, 3, 3) [m].
+        ``T``: ``frames.model.bone_basis(Q)[0]`` when the caller has it (B, 64, 3)."""
+        st = self._finger_stage(s, frames)
         model = frames.model
         B = len(Q)
-        for s in range(self.finger_stages):
-            st = self._finger_stage(s, frames)
-            R0 = root_rotation_matrix(Q[:, 3:6])                             # palm bone
-            if Q[:, 6:].any():
-                T = model.bone_basis(Q)[0]                                   # (B, 64, 3)
-                P = st["rows"] @ np.swapaxes(T, 0, 1).reshape(T.shape[1], 3 * B)
-                P = np.swapaxes(P.reshape(-1, B, 3), 0, 1)                  # (B, n, 3)
-            else:  # straight fingers (first stage): the hand moves rigidly with the palm
-                P = np.matmul(st["rest"][None], np.swapaxes(R0, 1, 2)) + Q[:, None, 0:3]
-            V, kp = P[:, :st["n_v"]], P[:, st["n_v"]:]
-            # finger-root frames T_f (B, 5, 3, 3): palm rotation times the rest frames
-            Rf = np.einsum("bij,fjk->bfik", R0, frames.finger_rot)
-            Rt = np.swapaxes(Rf, 2, 3)
-            p = V[:, st["m"]] + np.matmul(st["d"][None], Rt)             # (B, 5, 2F, 3)
-            d = lookup(p)                                                   # (B, 5, 2F)
-            n = st["n"]
-            x = d[..., :n] - d[..., n:]                                     # eq. II.15
-            delta = st["group"].predict(x).reshape(B, 5, 3, 3)
-            targets = kp[:, FINGER_KP] + np.einsum("bfkj,bfij->bfki", delta, Rf)
-            Q = ik_fingers(model, Q, targets, ik_iterations or self.ik_iterations)
-        return Q[0] if single else Q
+        R0 = root_rotation_matrix(Q[:, 3:6])                                 # palm bone
+        if Q[:, 6:].any():
+            T = model.bone_basis(Q)[0] if T is None else T                   # (B, 64, 3)
+            P = st["rows"] @ np.swapaxes(T, 0, 1).reshape(T.shape[1], 3 * B)
+            P = np.swapaxes(P.reshape(-1, B, 3), 0, 1)                      # (B, n, 3)
+        else:  # straight fingers (first stage): the hand moves rigidly with the palm
+            P = np.matmul(st["rest"][None], np.swapaxes(R0, 1, 2)) + Q[:, None, 0:3]
+        V, kp = P[:, :st["n_v"]], P[:, st["n_v"]:]
+        # finger-root frames T_f (B, 5, 3, 3): palm rotation times the rest frames
+        Rf = np.einsum("bij,fjk->bfik", R0, frames.finger_rot)
+        Rt = np.swapaxes(Rf, 2, 3)
+        p = V[:, st["m"]] + np.matmul(st["d"][None], Rt)                     # (B, 5, 2F, 3)
+        d = lookup(p)                                                       # (B, 5, 2F)
+        n = st["n"]
+        x = d[..., :n] - d[..., n:]                                         # eq. II.15
+        delta = st["group"].predict(x).reshape(B, 5, 3, 3)
+        return kp[:, FINGER_KP] + np.einsum("bfkj,bfij->bfki", delta, Rf)
 
     def predict(self, frames: ModelFrames, lookup: DepthLookup, points: np.ndarray,
                 n_modes: int = 3) -> list[np.ndarray]:
@@ -487,7 +494,26 @@ class RegressorSet:
 
     def regress_fingers(self, frames: ModelFrames, lookup: tuple[DepthLookup, ...],
                         q: np.ndarray, ik_iterations: int | None = None) -> np.ndarray:
-        """Every member's finger cascade on every palm of ``q`` (B, 27): (M * B, 27)."""
+        """Every member's finger cascade on every palm of ``q`` (B, 27): (M * B, 27).
+
+        Stage by stage, one FK pass and one inverse kinematics solve for all members'
+        poses (each member's own features and forests): the same poses as each member's
+        :meth:`HandRegressor.regress_fingers` in turn (members with other stage counts or
+        IK iterations are run so)."""
         Q = np.atleast_2d(q)
-        return np.concatenate([m.regress_fingers(frames, lk, Q, ik_iterations)
-                               for m, lk in zip(self.members, lookup, strict=True)])
+        its = {ik_iterations or m.ik_iterations for m in self.members}
+        stages = {m.finger_stages for m in self.members}
+        if len(its) > 1 or len(stages) > 1:
+            return np.concatenate([m.regress_fingers(frames, lk, Q, ik_iterations)
+                                   for m, lk in zip(self.members, lookup, strict=True)])
+        B, n_its = len(Q), its.pop()
+        Qs = np.tile(Q, (len(self.members), 1))
+        Qs[:, 6:] = 0.0
+        for s in range(stages.pop()):
+            T = frames.model.bone_basis(Qs)[0] if Qs[:, 6:].any() else None
+            targets = np.concatenate([
+                m.finger_targets(s, frames, lk, Qs[i * B:(i + 1) * B],
+                                 None if T is None else T[i * B:(i + 1) * B])
+                for i, (m, lk) in enumerate(zip(self.members, lookup, strict=True))])
+            Qs = ik_fingers(frames.model, Qs, targets, n_its)
+        return Qs
