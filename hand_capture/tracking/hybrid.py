@@ -535,7 +535,7 @@ class HybridTracker:
         its = ((cfg.acquire_icp_iterations or cfg.icp_iterations) if acquire
                else cfg.icp_iterations)
         # ensemble_frames "acquire": a tracked frame asks the first regressor alone (the
-        # cheaper setting: on every frame the second costs about 1.3x the CPU a frame)
+        # cheaper setting: on every frame the second costs about 1.2x the CPU a frame)
         reg = self.regressor
         if (cfg.ensemble_frames == "acquire" and mode == "hybrid" and not acquire
                 and isinstance(reg, RegressorSet)):
