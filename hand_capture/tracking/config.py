@@ -235,8 +235,8 @@ class TrackerConfig:
                                    "fingers, so a finger tracked wrong can be replaced "
                                    "while the palm is right")
     n_modes: int = param(1, "palm modes kept by clustering the leaves (II.4.3), each "
-                         "regressor's on a frame with a tracked pose (acquire_modes on one "
-                         "without)", lo=1, hi=16)
+                         "regressor's; in hybrid mode on a frame with a tracked pose only "
+                         "(acquire_modes on one without)", lo=1, hi=16)
     ik_iterations: int = param(2, "finger IK Gauss-Newton steps per finger cascade stage",
                                lo=1, hi=20)
     refine_top: int = param(2, "candidates fully refined after screening (step 4)", lo=1,
