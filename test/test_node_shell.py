@@ -23,6 +23,7 @@ from hand_capture.nodes.shell import run_node
 class Slow(Node):
     def __init__(self):
         super().__init__("slow_stop")
+        self.ticked = False
         self.create_timer(0.01, self._tick)
         if "--slow-build" in sys.argv:  # e.g. a recorder that has opened its bag, still busy
             print("building", flush=True)
@@ -30,6 +31,9 @@ class Slow(Node):
         print("up", flush=True)
 
     def _tick(self):
+        if not self.ticked:  # the executor spins: a stack dump now shows it
+            self.ticked = True
+            print("ticking", flush=True)
         try:
             time.sleep(0.05)
         except KeyboardInterrupt:
@@ -95,7 +99,9 @@ def test_sigusr1_prints_the_stacks_and_the_node_goes_on() -> None:
     """Where a stuck node is: SIGUSR1 prints every thread's stack (the graph runner sends it
     before SIGKILL); the node keeps running and still stops cleanly."""
     with _node() as (p, lines):
-        assert wait_for(lambda: "up\n" in lines, 30.0), lines
+        # "up" comes from the constructor, before the executor exists: wait for the first
+        # timer callback, so that the stack shows the spinning loop
+        assert wait_for(lambda: "ticking\n" in lines, 30.0), lines
         p.send_signal(signal.SIGUSR1)
         assert wait_for(lambda: any("in _spin" in ln for ln in lines), 10.0), lines
         n_up = len(lines)
