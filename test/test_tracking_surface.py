@@ -363,6 +363,28 @@ def test_abduction_trial_uncrosses_two_fingers():
     assert np.array_equal(q1, spread) and c == c1
 
 
+def test_abduction_trial_skipped_below_its_gate():
+    """``abduction_min_deg``: a pose whose four fingers are all abducted less than the gate
+    is returned as it is, with no refinement, even where the trial would lower the cost;
+    with the gate at 0 the same pose is tried and the cheaper result taken."""
+    from hand_capture.model import JOINT_INDEX
+
+    m, tr, q_true, obs, obs_ds, pts, err_mm = _finger_trial_scene()
+    near = q_true.copy()
+    near[JOINT_INDEX["index_mcp_abd"]] = np.radians(-2.5)
+    near[JOINT_INDEX["middle_mcp_abd"]] = np.radians(2.5)
+    c_near = tr._costs([near], obs, obs_ds)[0]
+    assert tr.cfg.abduction_min_deg == 3.0
+    calls = []
+    refine = tr.icp.refine_batch
+    tr.icp.refine_batch = lambda *a, **k: calls.append(1) or refine(*a, **k)
+    q, c = tr._abduction_trial(near, c_near, obs, obs_ds, pts)
+    assert np.array_equal(q, near) and c == c_near and not calls
+    tr.cfg = dataclasses.replace(tr.cfg, abduction_min_deg=0.0)
+    q, c = tr._abduction_trial(near, c_near, obs, obs_ds, pts)
+    assert calls and c[0] < c_near[0] and err_mm(q) < err_mm(near)
+
+
 def test_exchange_trial_mends_two_fingers_on_each_others_points():
     """The index curled and the ring straight, fitted the other way round (the index
     straight on the ring's points, the ring curled): one finger at a time cannot mend it,

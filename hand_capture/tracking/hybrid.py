@@ -700,7 +700,11 @@ class HybridTracker:
         families: two neighbouring fingers each fitted to the other's points, crossed at
         20-38 deg of abduction, with a cost E_d below tau; the finger-wise selection keeps
         each finger's abduction and changes one finger at a time, so it cannot undo that.
-        Returns the pose and its ``(E_c, E_d)``."""
+        Skipped (``q`` and ``c`` returned) when no finger is abducted by
+        ``abduction_min_deg`` or more: the trial would start next to ``q``. Returns the pose
+        and its ``(E_c, E_d)``."""
+        if np.degrees(np.abs(q[_FINGER_ABD]).max()) < self.cfg.abduction_min_deg:
+            return q, c
         trial = q.copy()
         trial[_FINGER_ABD] = 0.0
         return self._refined_if_cheaper(trial, self.cfg.icp_iterations, q, c, obs, obs_ds,
