@@ -101,7 +101,7 @@ def test_a_deferred_regression_runs_after_the_frame_and_feeds_the_next_one(cam, 
     pose joins the next frame's pool. After a loss it runs at once."""
     spy = _Counting(regressor)
     cfg = TrackerConfig(regress_every=3, refine_top=1, defer_regression=True,
-                        finger_postures=False)  # as in config/teleop.yaml
+                        finger_postures=False, abduction_min_deg=0.0)  # as in teleop.yaml
     tr = HybridTracker(cam.model, cfg, spy)
     flags, deferred = [], []
     for i in range(7):
