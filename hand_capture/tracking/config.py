@@ -226,7 +226,7 @@ class TrackerConfig:
                                      "four fingers' MCP abduction is at least this [deg] "
                                      "(the crossed fingers it mends were at 20-38; 3 chosen "
                                      "on the validation families: the same accuracy for "
-                                     "about 7 % less CPU a frame)", lo=0.0, hi=90.0)
+                                     "about 6 % less CPU a frame)", lo=0.0, hi=90.0)
     exchange_trial: bool = param(True, "after the finger-wise selection two of the four "
                                  "fingers may exchange their flexion angles (each pair "
                                  "tried, the cheapest taken and refined when it lowers the "
