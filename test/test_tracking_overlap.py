@@ -155,3 +155,22 @@ def test_axes_that_cross_are_pushed_back_to_their_own_sides():
     # the crossing pair's residual falls when the index swings back (+) and the middle
     # back (-), not further across
     assert J[k, i_abd] < 0.0 < J[k, m_abd]
+
+
+def test_batch_rows_only_for_penetrating_poses_and_the_same_values():
+    """The batched step forms the keypoint Jacobian only for the poses that penetrate: their
+    rows equal those of the whole batch's, and the others get none."""
+    m = HandModel()
+    tr = ModelTracker(m, TrackerConfig())
+    Q = _random_poses(40, 3)
+    kp_all, jac_all = m.keypoints_and_jacobian(Q)
+    hit = tr.overlap.penetrating(kp_all)
+    assert np.array_equal(hit, tr.overlap.depth_mm(kp_all) > 0)
+    assert 0 < hit.sum() < len(Q)
+    full = tr.overlap.residuals(kp_all, jac_all)
+    _, _, rot, pos = m.bone_basis(Q)
+    rows = tr._overlap_rows(Q, np.arange(N_DOF), rot, pos)
+    assert sorted(rows) == np.flatnonzero(hit).tolist()
+    for b, (r, J) in rows.items():
+        np.testing.assert_array_equal(r, full[b][0])
+        np.testing.assert_array_equal(J, full[b][1])

@@ -428,6 +428,11 @@ class HandModel:
         kp = self._keypoints(*self._fk(q))
         return kp[0] if single else kp
 
+    def keypoints_of_fk(self, fk: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """The 21 keypoints (B, 21, 3) [m] of the bone rotations (B, 16, 3, 3) and origins
+        (B, 16, 3) that :meth:`bone_basis` returns for a batch (no second FK pass)."""
+        return self._keypoints(*fk)
+
     def fingertips(self, pose: object, where: str = "tip") -> np.ndarray:
         """Fingertip points (5, 3) / (B, 5, 3), thumb to little finger.
 

@@ -563,9 +563,8 @@ class ModelTracker:
         wd, wr = cfg.data_weight, cfg.reverse_weight
         tree = self._point_tree(points) if wr > 0 else None
         # the fingers' penetration (hand_capture.tracking.overlap), not for the palm alone
-        ov = (self.overlap.residuals(*self.model.keypoints_and_jacobian(Q, dofs=dofs,
-                                                                         fk=(rot, pos)))
-              if cfg.overlap_weight > 0 and not root else None)
+        ov = (self._overlap_rows(Q, dofs, rot, pos)
+              if cfg.overlap_weight > 0 and not root else {})
         intr = obs.intrinsics
         out = Q.copy()
         pairs = []
@@ -627,7 +626,7 @@ class ModelTracker:
                     r *= sw
                 A = J.T @ J
                 g = J.T @ r
-            if ov is not None:
+            if b in ov:
                 r_o, J_o = ov[b]
                 if len(r_o):
                     A += cfg.overlap_weight * (J_o.T @ J_o)
@@ -644,6 +643,19 @@ class ModelTracker:
                     dq *= cfg.max_step_rad / big
             out[b, dofs] += dq
         return out, pairs
+
+    def _overlap_rows(self, Q: np.ndarray, dofs: np.ndarray, rot: np.ndarray, pos: np.ndarray
+                      ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """The fingers' penetration rows (:meth:`FingerOverlap.residuals`: (k,) [mm], (k,
+        len(dofs))) of the poses ``Q`` (B, 27) that penetrate, by batch row; ``rot``, ``pos``
+        their FK (:meth:`HandModel.bone_basis`). The keypoint Jacobian is formed only for
+        those poses (about 2 % of the tracked ones), the same values as for the batch."""
+        hit = np.flatnonzero(self.overlap.penetrating(self.model.keypoints_of_fk((rot, pos))))
+        if not len(hit):
+            return {}
+        kp, jac = self.model.keypoints_and_jacobian(Q[hit], dofs=dofs,
+                                                    fk=(rot[hit], pos[hit]))
+        return dict(zip(hit.tolist(), self.overlap.residuals(kp, jac), strict=True))
 
     def _prior_terms(self, A: np.ndarray, g: np.ndarray, q: np.ndarray,
                      q_ref: np.ndarray | None, dofs: np.ndarray, dt: _DofTerms) -> None:

@@ -94,6 +94,12 @@ class FingerOverlap:
         """Summed penetration depth [mm] of keypoints (B, 21, 3) (poses of this model)."""
         return np.maximum(self._closest(kp)[-1], 0.0).sum(axis=-1) * _MM
 
+    def penetrating(self, kp: np.ndarray) -> np.ndarray:
+        """(B,) bool: whether two of the four fingers' capsules penetrate, per pose of
+        keypoints (B, 21, 3). Most tracked poses have none, so a caller can leave their
+        keypoint Jacobians (the costlier part of :meth:`residuals`) uncomputed."""
+        return (self._closest(kp)[-1] > 0.0).any(axis=-1)
+
     def residuals(self, kp: np.ndarray, jac: np.ndarray
                   ) -> list[tuple[np.ndarray, np.ndarray]]:
         """Penetration depths [mm] of the penetrating pairs of each pose and their Jacobian
