@@ -16,10 +16,15 @@ CapsuleSurface`). Each sequence is
 calibrated from the calibration poses rendered the same way, then tracked through with the
 product settings (``--config`` overrides them) by the bench's own scoring.
 
-    PYTHONPATH=. .venv/bin/python scripts/articulation_validation.py [--frames 40] \\
-        [--config smooth_weight=20] [--artifacts]
+``--mid LO HI`` centres the sinusoids anywhere from LO to HI up each range (default 0.2
+0.6; ``--mid 0 0.6`` reaches the MCPs' hyperextension to their lower limit, -30 deg, which
+the default centres reach only at the troughs); ``--shapes FIRST LAST`` takes other shapes.
 
-Printed: mean keypoint error [mm] and success@20 mm per surface; the last line is their JSON.
+    PYTHONPATH=. .venv/bin/python scripts/articulation_validation.py [--frames 40] \\
+        [--config smooth_weight=20] [--artifacts] [--mid 0 0.6] [--shapes 25 32]
+
+Printed: mean keypoint error [mm] and success@20 mm per surface; the last line is their JSON
+(with every sequence's mean error, ``<surface>_sequences_mm``, for paired comparisons).
 """
 
 from __future__ import annotations
@@ -53,14 +58,20 @@ from hand_capture.tracking.hybrid import HybridTracker, load_regressor
 CLIPS = ("wrist_rotation", "translation", "finger_counting", "pinch")
 #: every second frame of the 30 fps clip
 STEP = 2
+#: where each joint's sinusoid is centred, as shares of its range (``--mid``; 0 is the
+#: lower limit: the MCPs' hyperextension of -30 deg, which the default range reaches only at
+#: the sinusoids' troughs)
+MID_SHARE = (0.2, 0.6)
 
 
-def finger_motion(rng: np.random.Generator, n: int, step: int = STEP) -> np.ndarray:
+def finger_motion(rng: np.random.Generator, n: int, step: int = STEP,
+                  mid_share: tuple[float, float] = MID_SHARE) -> np.ndarray:
     """(n, 21) finger joint angles [rad] of every ``step``-th frame at 30 fps: each joint on a
-    sinusoid of its own (module doc), clipped to the joint limits."""
+    sinusoid of its own (module doc) around a point ``mid_share`` up its range, clipped to
+    the joint limits."""
     lo, hi = JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1]
     k = len(lo)
-    mid = lo + (hi - lo) * rng.uniform(0.2, 0.6, k)
+    mid = lo + (hi - lo) * rng.uniform(*mid_share, k)
     amp = (hi - lo) * rng.uniform(0.05, 0.3, k)
     freq = rng.uniform(0.2, 0.8, k)
     phase = rng.uniform(0.0, 2.0 * math.pi, k)
@@ -71,12 +82,13 @@ def finger_motion(rng: np.random.Generator, n: int, step: int = STEP) -> np.ndar
     return np.clip(q, lo, hi)
 
 
-def sequence(seed: int, clip: str, n: int, capsules: bool, artifacts: bool
-             ) -> tuple[list, list, list]:
+def sequence(seed: int, clip: str, n: int, capsules: bool, artifacts: bool,
+             mid_share: tuple[float, float] = MID_SHARE) -> tuple[list, list, list]:
     """``(frames, keypoints, calibration frames)`` of shape ``seed`` on ``clip``'s wrist path
     with independent finger motion (module doc): the bench's
     :func:`~hand_capture.bench._tracking_heldout.suite_surface_sequence` with these fingers."""
-    fingers = finger_motion(np.random.default_rng(seed * 100 + len(clip)), n)
+    fingers = finger_motion(np.random.default_rng(seed * 100 + len(clip)), n,
+                            mid_share=mid_share)
     surface = CapsuleSurface() if capsules else SurfaceVariant()   # the default: own mesh
     _, _, frames, kps, _, cal = suite_surface_sequence(seed, clip, n, STEP, surface, fingers)
     if artifacts:
@@ -85,22 +97,26 @@ def sequence(seed: int, clip: str, n: int, capsules: bool, artifacts: bool
     return frames, kps, cal
 
 
-def run(cfg: TrackerConfig, n: int, artifacts: bool) -> dict[str, float]:
-    """Mean error [mm] and success@20 of both surfaces (module doc)."""
+def run(cfg: TrackerConfig, n: int, artifacts: bool,
+        mid_share: tuple[float, float] = MID_SHARE,
+        shapes: tuple[int, ...] = ARM_VAL_SEEDS) -> dict[str, object]:
+    """Mean error [mm] and success@20 of both surfaces (module doc), and every sequence's
+    mean error [mm] (``<surface>_sequences_mm``, for paired comparisons)."""
     reg = load_regressor(cfg)   # the regressors cfg asks for (ensemble: both)
     base = HandModel()
-    out: dict[str, float] = {}
+    out: dict[str, object] = {}
     for name, capsules in (("own", False), ("capsule", True)):
         errs = []
-        for seed in ARM_VAL_SEEDS:
+        for seed in shapes:
             for clip in CLIPS:
-                frames, kps, cal = sequence(seed, clip, n, capsules, artifacts)
+                frames, kps, cal = sequence(seed, clip, n, capsules, artifacts, mid_share)
                 tracker = HybridTracker(base, cfg, reg)
                 tracker.set_calibration(bench_calibrate(cal, model=base, config=cfg))
                 errs.append(_score(tracker, frames, kps)["errs"])
         s = _summary(np.concatenate(errs))
         out[f"{name}_mean_mm"] = s["mean"]
         out[f"{name}_success_20mm"] = s["s20"]
+        out[f"{name}_sequences_mm"] = [float(e.mean()) for e in errs]
         print(f"{name:8s} mean {s['mean']:6.2f} mm  success@20 {s['s20']:.3f}")
     return out
 
@@ -112,6 +128,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="a TrackerConfig field")
     ap.add_argument("--artifacts", action="store_true",
                     help="the suite's stereo artifacts (tracking/augment.py) on every frame")
+    ap.add_argument("--mid", type=float, nargs=2, default=MID_SHARE, metavar=("LO", "HI"),
+                    help="the sinusoids' centres, shares of each joint's range (default "
+                    f"{MID_SHARE[0]} {MID_SHARE[1]}; 0 0.6 reaches the MCPs' hyperextension)")
+    ap.add_argument("--shapes", type=int, nargs=2, default=None, metavar=("FIRST", "LAST"),
+                    help=f"shape seeds (default {ARM_VAL_SEEDS[0]}-{ARM_VAL_SEEDS[-1]})")
     args = ap.parse_args(argv)
     try:
         cfg = from_overrides(TrackerConfig, args.config)
@@ -119,9 +140,14 @@ def main(argv: list[str] | None = None) -> int:
         print(e, file=sys.stderr)
         return 2
     limit_blas_threads(1)
-    out = run(cfg, args.frames, args.artifacts)
+    if not 0.0 <= args.mid[0] <= args.mid[1] <= 1.0:
+        print("--mid needs 0 <= LO <= HI <= 1", file=sys.stderr)
+        return 2
+    shapes = (tuple(range(args.shapes[0], args.shapes[1] + 1)) if args.shapes
+              else ARM_VAL_SEEDS)
+    out = run(cfg, args.frames, args.artifacts, tuple(args.mid), shapes)
     print(json.dumps({**out, "frames": args.frames, "artifacts": args.artifacts,
-                      "config": args.config}))
+                      "mid": list(args.mid), "shapes": list(shapes), "config": args.config}))
     return 0
 
 

@@ -10,7 +10,7 @@ import pytest
 from script_helpers import load_script
 
 from hand_capture.errors import InputError
-from hand_capture.model import N_DOF, HandModel
+from hand_capture.model import JOINT_INDEX, JOINT_LIMITS, N_DOF, HandModel
 from hand_capture.tracking.train import (
     default_intrinsics,
     finger_pitch_deg,
@@ -104,3 +104,43 @@ def test_regressor_validation_tracks_the_validation_families_with_the_product_al
     assert 0.0 < out["val_capsule_reset_mean_mm"] < 100.0
     assert not [k for k in out if "_before" in k or "cut_only" in k or "val_hard" in k]
     assert "product" in capsys.readouterr().out
+
+
+def test_uniform_poses_reach_the_joint_limits_and_a_floor_maps_the_same_draws() -> None:
+    """With ``floor_rad`` None the uniformly drawn poses span the joint limits (MCP
+    hyperextension to -30 deg, the little finger's spread to -25 deg); a floor maps the same
+    draws into [max(lower limit, floor), upper limit], every other part of the pose unchanged;
+    the default is the shipped regressors' floor."""
+    lo, hi = JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1]
+    lo_f = np.maximum(lo, -0.2)
+    mcp = [JOINT_INDEX[f"{f}_mcp_flex"] - 6 for f in ("index", "middle", "ring", "little")]
+    uniform = []
+    for seed in range(120):
+        full = random_pose(np.random.default_rng(seed), _MODEL, floor_rad=None)
+        floored = random_pose(np.random.default_rng(seed), _MODEL, floor_rad=-0.2)
+        np.testing.assert_array_equal(floored, random_pose(np.random.default_rng(seed), _MODEL))
+        np.testing.assert_array_equal(full[:6], floored[:6])
+        if np.array_equal(full, floored):
+            continue                       # a library pose: no uniform draw
+        r = (full[6:] - lo) / (hi - lo)    # the draw in [0, 1]
+        np.testing.assert_allclose(floored[6:], lo_f + (hi - lo_f) * r, atol=1e-12)
+        uniform.append(full[6:])
+    u = np.array(uniform)
+    assert len(u) > 15
+    assert (u >= lo).all() and (u <= hi).all()
+    assert u[:, mcp].min() < -0.35 < -0.2     # hyperextended beyond the earlier floor
+
+
+def test_articulation_family_centres_reach_the_hyperextension_only_when_asked() -> None:
+    """``scripts/articulation_validation.py --mid 0 0.6`` (the validation family of the
+    full-range training poses) hyperextends the MCPs; the default centres do so rarely."""
+    art = load_script("articulation_validation")
+    lo = JOINT_LIMITS[6:, 0]
+    mcp = [JOINT_INDEX[f"{f}_mcp_flex"] - 6 for f in ("index", "middle", "ring", "little")]
+    share = {}
+    for mid in (art.MID_SHARE, (0.0, 0.6)):
+        q = np.concatenate([art.finger_motion(np.random.default_rng(s), 40, mid_share=mid)
+                            for s in range(30)])
+        assert (q >= lo - 1e-12).all()
+        share[mid] = float(np.mean(q[:, mcp] < -0.2))
+    assert share[(0.0, 0.6)] > 2 * share[art.MID_SHARE] and share[(0.0, 0.6)] > 0.1

@@ -6,7 +6,8 @@ each perturbed at random, plus uniformly random poses inside the joint limits. V
 variation: random palm orientations around "palm towards the camera" and random positions
 in front of the camera. Every sample is rendered by the project's CPU renderer and passed
 through the sensor noise model (random and silhouette noise), then segmented like a live
-frame. :func:`train_tracker` is reproducible from its seed.
+frame. :func:`train_tracker` is reproducible from its seed on one machine (another CPU's
+floating point can grow other forests from the same draws).
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ from hand_capture.tracking.regressor import (
 )
 from hand_capture.tracking.tubes import TubeSurface, tube_mesh
 
-__all__ = ["ARM_FRAMES", "ARM_LABEL", "HAND_LABEL", "TOWARDS_PROB", "TRAIN_SAMPLES",
+__all__ = ["ARM_FRAMES", "ARM_LABEL", "HAND_LABEL", "POSE_FLOOR_RAD",
+           "TOWARDS_PROB", "TRAIN_SAMPLES",
            "TrainingSample", "default_intrinsics", "draw_forearm",
            "finger_pitch_deg", "forearm_mesh", "random_pose", "render_samples",
            "train_tracker"]
@@ -65,6 +67,12 @@ TUBE_PROB = 0.0
 #: ``data/tracker/regressor_tubes.npz``, ``--second``): half of its training hands drawn as
 #: tubes, and another seed (chosen on the validation families, README forty-first session)
 SECOND_TUBE_PROB, SECOND_SEED = 0.5, 2
+#: the uniformly drawn training poses' finger joints start here or at their lower limit,
+#: whichever is higher [rad] (:func:`random_pose`; None: at the limits). The shipped files'
+#: draw: no MCP hyperextension beyond 11 deg (the limits allow 30), the ring and little
+#: fingers' spread cut at 11 of 20-25 deg. None was tried in the forty-sixth session and
+#: not shipped (README issue 13)
+POSE_FLOOR_RAD: float | None = -0.2
 
 
 def default_intrinsics() -> Intrinsics:
@@ -105,7 +113,8 @@ def finger_pitch_deg(model: HandModel, q: np.ndarray) -> float:
 
 def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: float = 60.0,
                 max_roll_deg: float = 45.0, towards_prob: float = 0.0,
-                towards_deg: tuple[float, float] = (20.0, 60.0)) -> np.ndarray:
+                towards_deg: tuple[float, float] = (20.0, 60.0),
+                floor_rad: float | None = POSE_FLOOR_RAD) -> np.ndarray:
     """A random training pose in the camera frame (see the module docstring).
 
     Args:
@@ -119,6 +128,8 @@ def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: flo
             uniform in ``towards_deg`` [deg] (the held-out diagnosis' failing views: fingers
             40-45 deg towards the camera). 0 draws nothing extra, so the poses of a seed
             are those of the plain generator.
+        floor_rad: the uniformly drawn poses' finger joints start at ``max(lower limit,
+            floor_rad)`` [rad]; None = at the joint limits (default :data:`POSE_FLOOR_RAD`).
     """
     if not 0.0 <= towards_prob <= 1.0:
         raise InputError(f"towards_prob must be in [0, 1], got {towards_prob}")
@@ -126,9 +137,11 @@ def random_pose(rng: np.random.Generator, model: HandModel, *, max_tilt_deg: flo
         q = _LIB[rng.integers(len(_LIB))].copy()
         q[6:] += rng.normal(0.0, 0.18, N_DOF - 6)
     else:
-        lo, hi = JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1]
+        hi = JOINT_LIMITS[6:, 1]
+        lo = JOINT_LIMITS[6:, 0] if floor_rad is None else np.maximum(JOINT_LIMITS[6:, 0],
+                                                                       floor_rad)
         q = np.zeros(N_DOF)
-        q[6:] = np.maximum(lo, -0.2) + (hi - np.maximum(lo, -0.2)) * rng.random(N_DOF - 6)
+        q[6:] = lo + (hi - lo) * rng.random(N_DOF - 6)
     q[6:] = np.clip(q[6:], JOINT_LIMITS[6:, 0], JOINT_LIMITS[6:, 1])
     axis = rng.normal(size=3)
     axis /= np.linalg.norm(axis)
@@ -215,8 +228,8 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
                    cfg: TrackerConfig | None = None, *, forearm_prob: float = 0.0,
                    surface_mm: tuple[float, float] = (0.0, 0.0), cut_arm: bool = True,
                    max_tilt_deg: float = 60.0, towards_prob: float = 0.0,
-                   artifact_prob: float = 0.0, tube_prob: float = 0.0
-                   ) -> list[TrainingSample]:
+                   artifact_prob: float = 0.0, tube_prob: float = 0.0,
+                   pose_floor_rad: float | None = POSE_FLOOR_RAD) -> list[TrainingSample]:
     """Render ``n`` noisy, segmented samples (shapes cycled through ``models``).
 
     Widened generator (issue 13): with probability ``forearm_prob`` a forearm
@@ -234,6 +247,7 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
     (:func:`~hand_capture.tracking.augment.add_artifacts_mm`) after the sensor model. A
     share ``tube_prob`` of the hands is drawn with another surface than the template mesh
     (:mod:`~hand_capture.tracking.tubes`, a new draw each; the surface offsets do not apply).
+    ``pose_floor_rad``: where the uniformly drawn poses' finger joints start (:func:`random_pose`).
     """
     from hand_capture.tracking.preprocess import cut_forearm
 
@@ -244,7 +258,8 @@ def render_samples(n: int, rng: np.random.Generator, models: list[HandModel],
     while len(out) < n:
         k = len(out) % len(models)
         m = models[k]
-        q = random_pose(rng, m, max_tilt_deg=max_tilt_deg, towards_prob=towards_prob)
+        q = random_pose(rng, m, max_tilt_deg=max_tilt_deg, towards_prob=towards_prob,
+                        floor_rad=pose_floor_rad)
         if tube_prob > 0 and rng.random() < tube_prob:
             meshes = [tube_mesh(m, q, TubeSurface.sample(rng), HAND_LABEL)]
         else:
@@ -307,7 +322,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
                   forearm_prob: float = 0.5, surface_mm: tuple[float, float] = (-1.0, 2.5),
                   max_tilt_deg: float = 60.0, towards_prob: float = TOWARDS_PROB,
                   artifact_prob: float = ARTIFACT_PROB, tube_prob: float = TUBE_PROB,
-                  relative_background: bool = True) -> HandRegressor:
+                  relative_background: bool = True,
+                  pose_floor_rad: float | None = POSE_FLOOR_RAD) -> HandRegressor:
     """Train the cascaded regressor from scratch, reproducibly from ``seed``.
 
     Args:
@@ -332,6 +348,8 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
         relative_background: a feature's point off the hand reads its own depth + 1 m
             (:class:`~hand_capture.tracking.regressor.DepthLookup`; ``info["background"]``
             "relative"), not a constant 2 m ("constant": the distance of the hand a cue).
+        pose_floor_rad: where the uniformly drawn poses' finger joints start
+            (:func:`random_pose`, :data:`POSE_FLOOR_RAD`).
 
     Returns:
         The trained :class:`HandRegressor`.
@@ -347,7 +365,7 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
     samples = render_samples(n_samples, rng, models, intr, forearm_prob=forearm_prob,
                              surface_mm=surface_mm, max_tilt_deg=max_tilt_deg,
                              towards_prob=towards_prob, artifact_prob=artifact_prob,
-                             tube_prob=tube_prob)
+                             tube_prob=tube_prob, pose_floor_rad=pose_floor_rad)
     say(f"rendered {len(samples)} samples in {time.perf_counter() - t_start:.1f} s")
     lookups = [DepthLookup(s.crop, s.u0, s.v0, intr, relative=relative_background)
                for s in samples]
@@ -448,13 +466,18 @@ def train_tracker(out_path: str | Path | None, seed: int = 0,
                          "max_depth": str(max_depth), "forearm_prob": str(forearm_prob),
                          "surface_mm": f"{surface_mm[0]},{surface_mm[1]}",
                          "max_tilt_deg": str(max_tilt_deg), "towards_prob": str(towards_prob),
-                         "tube_prob": str(tube_prob),
+                         "tube_prob": str(tube_prob), "pose_floor_rad": str(pose_floor_rad),
                          "background": "relative" if relative_background else "constant",
                          "train_s": f"{time.perf_counter() - t_start:.0f}"})
     if out_path is not None:
         reg.save(out_path)
         say(f"saved {out_path}")
     return reg
+
+
+def _floor_arg(text: str) -> float | None:
+    """``--pose-floor``: a number [rad] or ``none`` (the joint limits)."""
+    return None if text.strip().lower() == "none" else float(text)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -484,6 +507,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tubes", type=float, default=None,
                     help=f"share of training hands drawn as tubes on the skeleton (default: "
                     f"{TUBE_PROB}; --second: {SECOND_TUBE_PROB})")
+    ap.add_argument("--pose-floor", type=_floor_arg, default=POSE_FLOOR_RAD, metavar="RAD",
+                    help="the uniformly drawn poses' finger joints start at max(lower limit, "
+                    f"RAD) (default {POSE_FLOOR_RAD}; 'none': at the joint limits)")
     ap.add_argument("--arm-out", default=str(tracker_dir / "arm.npz"))
     ap.add_argument("--arm-frames", type=int, default=ARM_FRAMES)
     only = ap.add_mutually_exclusive_group()
@@ -500,7 +526,8 @@ def main(argv: list[str] | None = None) -> int:
     tubes = a.tubes if a.tubes is not None else SECOND_TUBE_PROB if second else TUBE_PROB
     if not a.arm_only:
         train_tracker(out, seed=seed, n_samples=a.samples, towards_prob=a.towards,
-                      artifact_prob=a.artifacts, tube_prob=tubes, log=print)
+                      artifact_prob=a.artifacts, tube_prob=tubes, log=print,
+                      pose_floor_rad=a.pose_floor)
     if not second:
         train_arm_classifier(a.arm_out, seed=seed, n_frames=a.arm_frames, log=print)
     return 0
