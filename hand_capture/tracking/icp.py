@@ -626,11 +626,10 @@ class ModelTracker:
                     r *= sw
                 A = J.T @ J
                 g = J.T @ r
-            if b in ov:
+            if b in ov:   # only poses that penetrate have rows (at least one)
                 r_o, J_o = ov[b]
-                if len(r_o):
-                    A += cfg.overlap_weight * (J_o.T @ J_o)
-                    g += cfg.overlap_weight * (J_o.T @ r_o)
+                A += cfg.overlap_weight * (J_o.T @ J_o)
+                g += cfg.overlap_weight * (J_o.T @ r_o)
             self._prior_terms(A, g, q, q_refs[b], dofs, dt)
             A.ravel()[dt.diag] += cfg.damping * (1.0 + A.ravel()[dt.diag])
             try:
