@@ -1,6 +1,6 @@
 """Touch encodings on wider training subjects, measured on validation frames (issue #13).
 
-An experiment, not shipped (README, "Multi-touch to hand pose"): the quadratic encoding
+An experiment, not shipped (docs/experiments/touch.md): the quadratic encoding
 (Chung et al., eq. 1) is fitted on candidate training sets and measured on frames of the
 TRAINING generator that no candidate was made from (no held-out frame):
 

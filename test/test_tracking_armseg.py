@@ -268,7 +268,8 @@ def test_a_lost_frame_with_clutter_touching_the_hand_is_retried_at_the_other_end
     err, cost = {}, {}
     # measured under the whole-hand selection of eq. II.20 (finger_swap off): with the
     # finger-wise selection the wrong end's fit scores lower on one of these frames (mean
-    # 27 mm with the retry); flip_retry stays off either way (README)
+    # 27 mm with the retry); flip_retry stays off either way
+    # (docs/experiments/depth_tracking.md)
     # split_retry (test_tracking_split.py) off: it finds the hand on these frames by
     # itself; the wider search of a reset tracker (acquire_modes) changes which of these
     # frames keep the wrong end (with it: 99 / 72 / 57 / 33 mm without the retry, 99 / 56 /

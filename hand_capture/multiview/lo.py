@@ -62,13 +62,15 @@ class LOConfig:
     use_salient: bool = param(True, "salient point correspondences S")
     use_collisions: bool = param(True, "collision term C (eq. 4)")
     # 30 px: 20 or 15 px (narrowing to a third) lowered the own-mesh validation error with
-    # the circles but failed the physcap studio lifts (README, multi-view: the own-mesh floor)
+    # the circles but failed the physcap studio lifts
+    # (docs/experiments/multiview.md: the own-mesh floor)
     edge_max_px: float = param(30.0, "farthest image edge matched to a model edge in the "
                                "first outer iteration [px]; the gate narrows to a third of "
                                "it (gate_narrow_share)", lo=1.0, hi=200.0)
     # 1 (over the whole solve): 0.5 (10 px from the 8th of 15 iterations) lowered the
     # own-mesh validation error with the circles 5.91 -> 5.30 mm, but the full bench then gave
-    # held-out fingers 10.98 mm (README, multi-view: the own-mesh floor), so it is not default
+    # held-out fingers 10.98 mm (docs/experiments/multiview.md: the own-mesh floor),
+    # so it is not default
     gate_narrow_share: float = param(1.0, "share of the outer iterations over which the edge "
                                      "gate narrows from edge_max_px to a third of it (held "
                                      "there after; 1: over the whole solve)", lo=0.05, hi=1.0)

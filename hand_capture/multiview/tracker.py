@@ -26,7 +26,7 @@ re-found object needs ``recover_region`` too. A tracked object whose score is be
 e.g. a ball that flew off while the solve stopped beside the hand) is checked against its
 colour hull's placement: refined, the better by support x region is kept (RECOVERED).
 Edge support alone cannot tell a ball's pose on clutter circles or hand edges from its true
-one (the README's validation figures).
+one (validation figures in docs/experiments/multiview.md).
 
 Start of a frame: the previous estimate (seed 002), plus, for the objects no hand holds
 (none within ``held_m``), their last frame-to-frame motion (``predict_objects``: a thrown

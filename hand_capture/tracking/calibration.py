@@ -142,9 +142,9 @@ def calibrate(frames: Sequence[tuple[np.ndarray, Intrinsics]],
             rasteriser and noise, two thirds with ``SurfaceVariant`` surfaces, scales
             0.85-1.15, shapes ``sample_shape``, 36 subjects, seeds 900-935): mean / worst
             bone-length error 3.46 / 8.06 % -> 2.17 / 4.28 %, palm 3.2 -> 2.0 %, rest-pose
-            keypoints 3.8 -> 2.2 mm, 0.99 -> 1.16 s a calibration (see the README,
-            issue 13). The bench's calibration section, measured after the
-            choice (same run, same machine): worst 5.20 -> 4.45 %, held-out mean 3.56 ->
+            keypoints 3.8 -> 2.2 mm, 0.99 -> 1.16 s a calibration (see
+            docs/experiments/depth_tracking.md). The bench's calibration section, measured
+            after the choice (same run, same machine): worst 5.20 -> 4.45 %, held-out mean 3.56 ->
             2.71 %, suite's hands 1.67 -> 1.06 %; 1.06 -> 1.13 s a calibration.
         recut_margin_m: where the data is cut at the fitted wrists (after the scale grid's first
             fits and half-way through the rounds), beyond the wrist keypoint along the forearm [m,

@@ -56,22 +56,24 @@ HAND_LABEL, ARM_LABEL = 1, 2
 ARM_FRAMES = 2000
 #: rendered frames of the shipped regressor and its share of poses with the fingers pitched
 #: towards the camera (:func:`random_pose`): chosen on the validation shapes 21-24
-#: (``scripts/regressor_validation.py``; 3000 / 0 before, README issue 13)
+#: (``scripts/regressor_validation.py``; 3000 / 0 before, docs/experiments/depth_tracking.md)
 TRAIN_SAMPLES, TOWARDS_PROB = 10000, 0.15
 #: share of training renders with stereo artifacts (:mod:`~hand_capture.tracking.augment`)
 ARTIFACT_PROB = 0.5
 #: share of training hands drawn with the tube surface (:mod:`~hand_capture.tracking.tubes`)
-#: in the first regressor (0.5 there was tried and not shipped, README fortieth session)
+#: in the first regressor (0.5 there was tried and not shipped,
+#: docs/experiments/depth_tracking.md)
 TUBE_PROB = 0.0
 #: the ensemble's second regressor (``TrackerConfig.ensemble``,
 #: ``data/tracker/regressor_tubes.npz``, ``--second``): half of its training hands drawn as
-#: tubes, and another seed (chosen on the validation families, README forty-first session)
+#: tubes, and another seed (chosen on the validation families,
+#: docs/experiments/depth_tracking.md)
 SECOND_TUBE_PROB, SECOND_SEED = 0.5, 2
 #: the uniformly drawn training poses' finger joints start here or at their lower limit,
 #: whichever is higher [rad] (:func:`random_pose`; None: at the limits). The shipped files'
 #: draw: no MCP hyperextension beyond 11 deg (the limits allow 30), the ring and little
 #: fingers' spread cut at 11 of 20-25 deg. None was tried in the forty-sixth session and
-#: not shipped (README issue 13)
+#: not shipped (docs/experiments/depth_tracking.md)
 POSE_FLOOR_RAD: float | None = -0.2
 
 
