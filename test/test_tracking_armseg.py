@@ -294,31 +294,3 @@ def test_a_lost_frame_with_clutter_touching_the_hand_is_retried_at_the_other_end
     # shape 21's fist, that regressor, this machine: 82 / 61 / 88 / 96 -> 30 / 21 / 88 / 67
     # mm)
     assert np.any((err["no retry"] > 40.0) & (err["retry"] < 30.0))
-
-
-def test_a_tracked_frame_keeps_the_tracked_margin_of_arm(clf) -> None:
-    # arm_margin_tracked_m: while tracking (a previous wrist to cut at) the arm kept next to
-    # the classified hand is the tracked margin; a first frame keeps arm_margin_m's
-    reg = HandRegressor.load(default_model_path())
-    arm_share: dict[str, list] = {"first": [], "tracked": []}
-    for depth, lab, intr in _frames(1.0, 3, 41):
-        mm = (depth * 1000).astype(np.uint16)
-        ref = _obs(depth, intr)
-        runs = {}
-        for tracked_m in (-1.0, 0.0):   # -1: arm_margin_m (35 mm) on every frame
-            # a loose tau: the uncalibrated first frame counts as tracked, so the second
-            # one has its wrist
-            cfg = TrackerConfig(arm_margin_tracked_m=tracked_m, arm_fallback=False,
-                                success_tau_mm=200.0)
-            tracker = HybridTracker(HandModel(), cfg, reg)
-            first = tracker.process(mm, intr)
-            assert first.success
-            second = tracker.process(mm, intr)
-            runs[tracked_m] = (first.observation, second.observation)
-        np.testing.assert_array_equal(runs[-1.0][0].mask, runs[0.0][0].mask)
-        arm_share["tracked"].append((_shares(runs[0.0][1], lab, ref)[0],
-                                     _shares(runs[-1.0][1], lab, ref)[0]))
-    share = np.array(arm_share["tracked"])
-    # the tracked frame's segment holds less arm with no margin than with 35 mm of it
-    assert np.all(share[:, 0] <= share[:, 1])
-    assert share[:, 0].mean() < share[:, 1].mean()

@@ -86,9 +86,6 @@ class TrackerConfig:
     arm_margin_m: float = param(0.035, "arm pixels this close to the classified hand are kept "
                                 "(the model's wrist reaches into the arm's silhouette) [m]",
                                 lo=0.0, hi=0.2)
-    arm_margin_tracked_m: float = param(0.025, "arm_margin_m while tracking (a previous "
-                                        "wrist to cut at); negative: arm_margin_m [m]",
-                                        lo=-1.0, hi=0.2)
     forearm_margin_m: float = param(0.036, "while tracking: points farther than this beyond "
                                     "the previous wrist (along the forearm) are cut; the "
                                     "template mesh's wrist reaches 36 mm beyond the wrist "

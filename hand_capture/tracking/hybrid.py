@@ -481,14 +481,13 @@ class HybridTracker:
         whole = None   # the uncut segment, when the cut had no tracked wrist to go by
         if cfg.forearm_cut and obs.found:
             scale = self.model.shape.global_scale
-            plane = self._wrist_plane()
             if arm is not None:   # the pixels the classifier calls arm (armseg)
-                margin = cfg.arm_margin_tracked_m if (
-                    plane is not None and cfg.arm_margin_tracked_m >= 0.0) else cfg.arm_margin_m
                 obs, _, dropped = remove_arm(obs, arm, cfg.arm_threshold, cfg.arm_grid_mm,
-                                             cfg.min_hand_pixels, margin_m=margin * scale,
+                                             cfg.min_hand_pixels,
+                                             margin_m=cfg.arm_margin_m * scale,
                                              reach_m=cfg.forearm_reach_m * scale)
                 cut = dropped
+            plane = self._wrist_plane()
             if plane is None:
                 whole = obs
             obs, cut_g = cut_forearm(obs, cfg, scale, plane, flip)
