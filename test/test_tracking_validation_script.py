@@ -93,3 +93,49 @@ def test_the_spread_family_is_the_scripts_alone(tv, monkeypatch):
     with pytest.raises(RuntimeError, match="stop"):
         tv._spread_section(None, None)
     assert len(spreads) == 1 and 8.0 <= spreads[0] <= 20.0
+
+
+def test_the_tube_families_draw_a_tube_hand_per_sequence(tv, monkeypatch):
+    """``tube`` / ``tube_forearm`` (the hand drawn as a swept-tube surface) are choices of the
+    script, not bench sections; each sequence gets its own tube hand, posed with the
+    skeleton (its fingertip reaches the tip keypoint), and the forearm family passes it to
+    the forearm renderer."""
+    import numpy as np
+
+    from hand_capture.bench import _tracking_heldout as th
+    from hand_capture.model import HandModel
+
+    for name in ("tube", "tube_forearm"):
+        assert name in tv.SECTIONS and name not in tv.BENCH_SECTIONS
+    m = HandModel()
+    q = np.zeros(27)
+    hands = []
+
+    def fake_forearm(seed, clip, n, step, surface=None, **kw):
+        hands.append(surface)
+        if len(hands) == 2:
+            raise RuntimeError("stop")
+        return None, None, [], [], []
+
+    monkeypatch.setattr(th, "suite_forearm_sequence", fake_forearm)
+    monkeypatch.setattr(th, "_suite_calibration", lambda *a, **k: None)
+    monkeypatch.setattr(th, "with_artifacts", lambda frames, seed: frames)
+    monkeypatch.setattr(th, "_score", lambda *a, **k: {"errs": np.zeros((0, 21))})
+
+    class Tracker:   # tracks nothing: the renderer is faked above
+        def __init__(self, *a) -> None:
+            pass
+
+        def set_calibration(self, cal) -> None:
+            pass
+
+    from hand_capture.tracking import hybrid
+    monkeypatch.setattr(hybrid, "HybridTracker", Tracker)
+    with pytest.raises(RuntimeError, match="stop"):
+        tv._tube_section(None, None, forearm=True)
+    assert all(isinstance(h, tv.TubeHand) for h in hands)
+    assert hands[0].surface.palm_mm != hands[1].surface.palm_mm   # the next sequence: another hand
+    mesh = hands[0].mesh_fn(m)(q)
+    tip = m.joint_positions(q)[8]                    # the index fingertip keypoint
+    assert np.min(np.linalg.norm(mesh.vertices - tip, axis=1)) < 0.012
+    assert len(mesh.vertices) != len(m.vertices(q))  # not the template's mesh
