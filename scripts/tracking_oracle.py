@@ -53,7 +53,7 @@ def _extra(mode: str, truth: np.ndarray, prev: np.ndarray | None, rng: np.random
 
 
 def main(argv: list[str] | None = None) -> int:
-    from hand_capture.bench._tracking_heldout import HELDOUT, heldout_case
+    from hand_capture.bench._tracking_heldout import HELDOUT, heldout_case, track_with_candidate
     from hand_capture.bench.tracking import _summary
     from hand_capture.cameras.threads import limit_blas_threads
     from hand_capture.model import HandModel
@@ -80,18 +80,9 @@ def main(argv: list[str] | None = None) -> int:
                 rng = np.random.default_rng(5)
                 tr = HybridTracker(HandModel(), cfg, reg)
                 tr.set_calibration(cal)
-                tr.reset()
-                errs = []
-                for (depth, intr), q, kp in zip(seq.frames, seq.poses, seq.keypoints,
-                                                strict=True):
-                    extra = _extra(mode, q, tr.prev, rng, a.noise)
-                    if extra is not None:   # else the tracker's own carry stays
-                        tr._carry = extra
-                    r = tr.process(depth, intr)
-                    tr.run_deferred()
-                    errs.append(np.linalg.norm(tr.model.joint_positions(r.pose) - kp,
-                                               axis=1) * 1e3)
-                e = np.array(errs)
+                e = track_with_candidate(
+                    tr, seq.frames, seq.poses, seq.keypoints,
+                    lambda q, prev: _extra(mode, q, prev, rng, a.noise))  # noqa: B023
                 rows[mode].append(e)
                 s = _summary(e)
                 print(f"{'forearm' if arm else 'heldout'} {cam} clutter {clutter!s:5} "

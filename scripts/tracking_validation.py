@@ -103,8 +103,9 @@ def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm
                 frames = th.with_artifacts(frames, 9000 + 100 * seed + len(clip))
             tr = HybridTracker(base, cfg, reg)
             tr.set_calibration(cal)
-            if oracle:
-                errs.append(_oracle_errors(tr, frames, poses, kps))
+            if oracle:   # the true pose joins every frame's pool
+                errs.append(th.track_with_candidate(
+                    tr, frames, poses, kps, lambda q, prev: np.asarray(q, float).copy()))
             else:
                 errs.append(th._score(tr, frames, kps)["errs"])
     e = np.concatenate(errs)
@@ -114,19 +115,6 @@ def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm
     print(f"{fam} ({len(errs)} sequences): {fig[f'{fam}_mean_mm']:.3f} mm, success@20 "
           f"{fig[f'{fam}_success_20mm']:.3f}")
     return fig
-
-
-def _oracle_errors(tr, frames: list, poses: list, kps: list) -> np.ndarray:
-    """Keypoint errors (n, 21) [mm] of ``tr`` tracking ``frames`` with each frame's true
-    pose joining its pool (the deferred regression's carry)."""
-    tr.reset()
-    out = []
-    for (depth, intr), q, kp in zip(frames, poses, kps, strict=True):
-        tr._carry = np.asarray(q, float).copy()
-        r = tr.process(depth, intr)
-        tr.run_deferred()
-        out.append(np.linalg.norm(tr.model.joint_positions(r.pose) - kp, axis=1) * 1e3)
-    return np.array(out)
 
 
 def _spread_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig) -> dict:

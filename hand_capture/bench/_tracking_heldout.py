@@ -780,6 +780,24 @@ def stereo_validation_section(reg, config, quick: bool, smoke: bool = False) -> 
     return out
 
 
+def track_with_candidate(tracker, frames: list, poses: list, truth: list, extra) -> np.ndarray:
+    """Keypoint errors (n, 21) [mm] of ``tracker`` on ``frames`` from a reset, with one more
+    candidate in each frame's pool: ``extra(q, prev)`` (the frame's true pose, the tracker's
+    previous pose) returns it, and it joins as the deferred regression's carry does
+    (screened, refined and selected like the others); None leaves the tracker's own carry.
+    The diagnosis of ``scripts/tracking_oracle.py`` and of the tube families' ``--oracle``."""
+    tracker.reset()
+    out = []
+    for (depth, intr), q, kp in zip(frames, poses, truth, strict=True):
+        cand = extra(q, tracker.prev)
+        if cand is not None:
+            tracker._carry = cand
+        r = tracker.process(depth, intr)
+        tracker.run_deferred()
+        out.append(np.linalg.norm(tracker.model.joint_positions(r.pose) - kp, axis=1) * 1e3)
+    return np.array(out)
+
+
 def _score_first(tracker, frames, truth, labels) -> dict:
     """Every frame tracked from a reset tracker (the first frame, or after a lost one: no
     previous wrist to cut the forearm at); as :func:`_score`."""
