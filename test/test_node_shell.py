@@ -14,7 +14,8 @@ from contextlib import contextmanager
 from ros_helpers import ROOT, wait_for
 
 #: A node whose timer callback turns an interrupt into another exception (as pybind11 does
-#: when a signal lands while rclpy converts a message), and whose shutdown hook takes 1 s.
+#: when a signal lands while rclpy converts a message), and whose shutdown hook takes 1 s;
+#: with --stuck-teardown its destroy_node never returns.
 NODE = """
 import sys, time
 from rclpy.node import Node
@@ -45,6 +46,12 @@ class Slow(Node):
         print("stopping", flush=True)
         time.sleep(1.0)
         print("stopped", flush=True)
+
+    def destroy_node(self):
+        if "--stuck-teardown" in sys.argv:  # as Fast DDS's participant deletion once hung
+            print("tearing down", flush=True)
+            time.sleep(3600)
+        super().destroy_node()
 
 sys.exit(run_node(Slow, sys.argv))
 """
@@ -112,3 +119,17 @@ def test_sigusr1_prints_the_stacks_and_the_node_goes_on() -> None:
         assert p.wait(timeout=10) == 0, "".join(lines)
     assert wait_for(lambda: "stopped\n" in lines, 2.0), lines
     assert not any("failed" in ln for ln in lines), lines
+
+
+def test_a_teardown_that_hangs_after_the_hook_still_ends_the_process_with_its_code() -> None:
+    """Fast DDS's participant deletion once hung a camera node until the graph runner killed
+    it (a graph that had stopped cleanly then exited 1): after the hook has finished, the
+    shell gives the teardown TEARDOWN_TIMEOUT seconds, says so, and exits with 0."""
+    with _node("--stuck-teardown") as (p, lines):
+        assert wait_for(lambda: "up\n" in lines, 30.0), lines
+        p.send_signal(signal.SIGINT)
+        assert wait_for(lambda: "tearing down\n" in lines, 10.0), lines
+        assert p.wait(timeout=30) == 0, "".join(lines)
+    out = "".join(lines)
+    assert "stopped\n" in lines, out  # the hook ran to its end before the teardown
+    assert "[slow_stop] the DDS teardown did not finish" in out, out

@@ -19,6 +19,10 @@ Stopping, in this order (the graph runner escalates SIGINT -> SIGTERM -> SIGKILL
 2. A second signal while the node is still being built or spun means it is stuck (a long
    constructor or callback): that is interrupted (KeyboardInterrupt).
 3. Once the shutdown hook runs, no signal interrupts it (torque-off, closing a bag).
+4. Then the node and rclpy are torn down. Fast DDS's participant deletion has been seen to
+   hang there (a synthetic camera on a loaded 2-core CI host sat in ``destroy_node`` until the
+   runner killed it): everything the node owns is finished by then, so after
+   :data:`TEARDOWN_TIMEOUT` seconds the process says so and exits with the code it had.
 
 ``SIGUSR1`` makes a node print every thread's stack to stderr (``faulthandler``) without
 stopping it: the graph runner sends it to a node that ignored SIGINT and SIGTERM, before
@@ -31,6 +35,7 @@ import faulthandler
 import os
 import signal
 import sys
+import threading
 import traceback
 from collections.abc import Callable, Sequence
 
@@ -49,6 +54,9 @@ _stop_signal: list[int] = []  # the SIGINT/SIGTERM that asked this process to st
 _running: list[bool] = [False]  # building or spinning the node: a 2nd signal interrupts it
 #: longest time [s] between two looks at a stop request while spinning
 STOP_POLL = 0.1
+#: longest time [s] the middleware teardown after the shutdown hook may take (module doc, 4):
+#: within the graph runner's 6 s between SIGINT and SIGTERM, with room for the hook
+TEARDOWN_TIMEOUT = 3.0
 
 
 def _on_stop_signal(signum: int, frame: object) -> None:
@@ -128,7 +136,29 @@ def run_node(
                     sys.stderr.write(f"[{node.get_name()}] on_shutdown failed:\n"
                                      f"{traceback.format_exc()}")
                     code = 1
+        _teardown(node, code)
+    return code
+
+
+def _teardown(node: Node | None, code: int) -> None:
+    """Destroy ``node`` and shut rclpy down; if that takes over :data:`TEARDOWN_TIMEOUT`
+    seconds, leave the process at once with ``code`` (module doc, 4)."""
+    name = node.get_name() if node is not None else "node"
+
+    def give_up() -> None:
+        sys.stderr.write(f"[{name}] the DDS teardown did not finish within {TEARDOWN_TIMEOUT} s"
+                         f" (shutdown hook done): exiting with {code} without it\n")
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+    watchdog = threading.Timer(TEARDOWN_TIMEOUT, give_up)
+    watchdog.daemon = True
+    watchdog.start()
+    try:
+        if node is not None:
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
-    return code
+    finally:
+        watchdog.cancel()
