@@ -17,7 +17,7 @@ from ros_helpers import ROOT, wait_for
 #: when a signal lands while rclpy converts a message), and whose shutdown hook takes 1 s;
 #: with --stuck-teardown its destroy_node never returns.
 NODE = """
-import sys, time
+import atexit, sys, time
 from rclpy.node import Node
 from hand_capture.nodes.shell import run_node
 
@@ -49,6 +49,7 @@ class Slow(Node):
 
     def destroy_node(self):
         if "--stuck-teardown" in sys.argv:  # as Fast DDS's participant deletion once hung
+            atexit.register(print, "backstop", flush=True)  # e.g. the servo bridge's close
             print("tearing down", flush=True)
             time.sleep(3600)
         super().destroy_node()
@@ -124,7 +125,8 @@ def test_sigusr1_prints_the_stacks_and_the_node_goes_on() -> None:
 def test_a_teardown_that_hangs_after_the_hook_still_ends_the_process_with_its_code() -> None:
     """Fast DDS's participant deletion once hung a camera node until the graph runner killed
     it (a graph that had stopped cleanly then exited 1): after the hook has finished, the
-    shell gives the teardown TEARDOWN_TIMEOUT seconds, says so, and exits with 0."""
+    shell gives the teardown TEARDOWN_TIMEOUT seconds, says so, runs the atexit backstops
+    and exits with 0."""
     with _node("--stuck-teardown") as (p, lines):
         assert wait_for(lambda: "up\n" in lines, 30.0), lines
         p.send_signal(signal.SIGINT)
@@ -133,3 +135,4 @@ def test_a_teardown_that_hangs_after_the_hook_still_ends_the_process_with_its_co
     out = "".join(lines)
     assert "stopped\n" in lines, out  # the hook ran to its end before the teardown
     assert "[slow_stop] the DDS teardown did not finish" in out, out
+    assert "backstop\n" in lines, out  # the atexit backstops ran before the hard exit

@@ -22,7 +22,8 @@ Stopping, in this order (the graph runner escalates SIGINT -> SIGTERM -> SIGKILL
 4. Then the node and rclpy are torn down. Fast DDS's participant deletion has been seen to
    hang there (a synthetic camera on a loaded 2-core CI host sat in ``destroy_node`` until the
    runner killed it): everything the node owns is finished by then, so after
-   :data:`TEARDOWN_TIMEOUT` seconds the process says so and exits with the code it had.
+   :data:`TEARDOWN_TIMEOUT` seconds the process says so, runs its ``atexit`` backstops and
+   exits with the code it had.
 
 ``SIGUSR1`` makes a node print every thread's stack to stderr (``faulthandler``) without
 stopping it: the graph runner sends it to a node that ignored SIGINT and SIGTERM, before
@@ -31,6 +32,7 @@ SIGKILL, so the log says where it was stuck.
 
 from __future__ import annotations
 
+import atexit
 import faulthandler
 import os
 import signal
@@ -148,6 +150,9 @@ def _teardown(node: Node | None, code: int) -> None:
     def give_up() -> None:
         sys.stderr.write(f"[{name}] the DDS teardown did not finish within {TEARDOWN_TIMEOUT} s"
                          f" (shutdown hook done): exiting with {code} without it\n")
+        # os._exit skips the interpreter's exit: run the atexit backstops first (the servo
+        # bridge's torque-off, should its shutdown hook have failed)
+        atexit._run_exitfuncs()
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)
