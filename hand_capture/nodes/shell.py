@@ -21,7 +21,10 @@ Stopping, in this order (the graph runner escalates SIGINT -> SIGTERM -> SIGKILL
 3. Once the shutdown hook runs, no signal interrupts it (torque-off, closing a bag).
 4. Then the node and rclpy are torn down. Fast DDS's participant deletion has been seen to
    hang there (a synthetic camera on a loaded 2-core CI host sat in ``destroy_node`` until the
-   runner killed it): everything the node owns is finished by then, so after
+   runner killed it; the cause is a deadlock between a receive thread removing a departed
+   peer's endpoints under the discovery lock and the event thread waiting for that lock,
+   upstream Fast-DDS issue 6502, README "Networking and safety"): everything the node owns
+   is finished by then, so after
    :data:`TEARDOWN_TIMEOUT` seconds the process says so, runs its ``atexit`` backstops and
    exits with the code it had.
 
