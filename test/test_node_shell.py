@@ -15,7 +15,7 @@ from ros_helpers import ROOT, wait_for
 
 #: A node whose timer callback turns an interrupt into another exception (as pybind11 does
 #: when a signal lands while rclpy converts a message), and whose shutdown hook takes 1 s;
-#: with --stuck-teardown its destroy_node never returns.
+#: with --stuck-teardown its destroy_node never returns (--stuck-teardown-gil: holding the GIL).
 NODE = """
 import atexit, sys, time
 from rclpy.node import Node
@@ -52,6 +52,9 @@ class Slow(Node):
             atexit.register(print, "backstop", flush=True)  # e.g. the servo bridge's close
             print("tearing down", flush=True)
             time.sleep(3600)
+        if "--stuck-teardown-gil" in sys.argv:  # hung inside C code that holds the GIL,
+            print("tearing down", flush=True)   # as rclpy's destroy calls in Fast DDS
+            sum(range(10**14))
         super().destroy_node()
 
 sys.exit(run_node(Slow, sys.argv))
@@ -136,3 +139,16 @@ def test_a_teardown_that_hangs_after_the_hook_still_ends_the_process_with_its_co
     assert "stopped\n" in lines, out  # the hook ran to its end before the teardown
     assert "[slow_stop] the DDS teardown did not finish" in out, out
     assert "backstop\n" in lines, out  # the atexit backstops ran before the hard exit
+
+
+def test_a_teardown_hung_with_the_gil_held_still_ends_the_process_with_its_code() -> None:
+    """rclpy's destroy calls hold the GIL while Fast DDS hangs (a CI run's sim node: its
+    Python watchdog never ran): the stacks are printed and a C-library timer exits with 0."""
+    with _node("--stuck-teardown-gil") as (p, lines):
+        assert wait_for(lambda: "up\n" in lines, 30.0), lines
+        p.send_signal(signal.SIGINT)
+        assert wait_for(lambda: "tearing down\n" in lines, 10.0), lines
+        assert p.wait(timeout=30) == 0, "".join(lines)
+    out = "".join(lines)
+    assert "stopped\n" in lines, out
+    assert "Timeout" in out and "in _teardown" in out, out  # where it hung

@@ -284,7 +284,7 @@ def test_exception_in_the_control_loop_switches_torque_off() -> None:
 
     old = signal.getsignal(signal.SIGTERM)
     try:
-        assert run_node(factory, args=["servo_bridge"]) == 1
+        assert run_node(factory, args=["servo_bridge"], own_process=False) == 1
     finally:
         signal.signal(signal.SIGTERM, old)
     emu = made["emu"]

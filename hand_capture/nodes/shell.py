@@ -26,7 +26,8 @@ Stopping, in this order (the graph runner escalates SIGINT -> SIGTERM -> SIGKILL
    upstream Fast-DDS issue 6502, README "Networking and safety"): everything the node owns
    is finished by then, so after
    :data:`TEARDOWN_TIMEOUT` seconds the process says so, runs its ``atexit`` backstops and
-   exits with the code it had.
+   exits with the code it had; where the hang holds the GIL, its stacks are printed and a
+   C-library timer exits with that code a second later (:func:`_teardown`).
 
 ``SIGUSR1`` makes a node print every thread's stack to stderr (``faulthandler``) without
 stopping it: the graph runner sends it to a node that ignored SIGINT and SIGTERM, before
@@ -53,6 +54,7 @@ from hand_capture.dds import dds_environment
 from hand_capture.errors import HandSuiteError
 from hand_capture.network import apply_network_defaults
 from hand_capture.nodes.executor import LeanExecutor
+from hand_capture.nodes.exit_timer import ExitTimer
 from hand_capture.nodes.realtime import apply_realtime_priority
 
 _stop_signal: list[int] = []  # the SIGINT/SIGTERM that asked this process to stop
@@ -86,6 +88,7 @@ def run_node(
     factory: Callable[[], Node],
     args: Sequence[str] | None = None,
     executor_factory: Callable[[], object] = LeanExecutor,
+    own_process: bool = True,
 ) -> int:
     """Run one node until shutdown; returns the process exit code (0 on a clean stop).
 
@@ -93,6 +96,9 @@ def run_node(
     Future's integer result becomes the exit code. A stop signal ends the spin (module doc).
     The node may define ``on_shutdown()``: it is called on every exit path (normal, Ctrl-C,
     SIGTERM, exception) before the node is destroyed, e.g. to switch torque off.
+    ``own_process``: the node is the process (every console script), so a teardown hung in
+    the middleware ends the process (module doc, 4); a caller that runs a node inside a
+    process it goes on using (a test) passes False.
     """
     _stop_signal.clear()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -141,32 +147,46 @@ def run_node(
                     sys.stderr.write(f"[{node.get_name()}] on_shutdown failed:\n"
                                      f"{traceback.format_exc()}")
                     code = 1
-        _teardown(node, code)
+        _teardown(node, code, own_process)
     return code
 
 
-def _teardown(node: Node | None, code: int) -> None:
-    """Destroy ``node`` and shut rclpy down; if that takes over :data:`TEARDOWN_TIMEOUT`
-    seconds, leave the process at once with ``code`` (module doc, 4)."""
+def _teardown(node: Node | None, code: int, bounded: bool) -> None:
+    """Destroy ``node`` and shut rclpy down. ``bounded``: if that takes over
+    :data:`TEARDOWN_TIMEOUT` seconds, leave the process with ``code`` (module doc, 4).
+
+    Two watchdogs: a Python timer that says so, runs the ``atexit`` backstops (the servo
+    bridge's torque-off, should its hook have failed) and exits; and, for a hang that holds
+    the GIL (rclpy's destroy calls wait inside Fast DDS without releasing it, so no Python
+    runs again), the stacks printed by ``faulthandler`` and ``_exit(code)`` from a C-library
+    timer thread (:class:`~hand_capture.nodes.exit_timer.ExitTimer`) shortly after.
+    """
     name = node.get_name() if node is not None else "node"
 
     def give_up() -> None:
         sys.stderr.write(f"[{name}] the DDS teardown did not finish within {TEARDOWN_TIMEOUT} s"
                          f" (shutdown hook done): exiting with {code} without it\n")
-        # os._exit skips the interpreter's exit: run the atexit backstops first (the servo
-        # bridge's torque-off, should its shutdown hook have failed)
+        # os._exit skips the interpreter's exit: run the atexit backstops first
         atexit._run_exitfuncs()
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(code)
 
-    watchdog = threading.Timer(TEARDOWN_TIMEOUT, give_up)
-    watchdog.daemon = True
-    watchdog.start()
+    watchdog = hard_exit = None
+    if bounded:
+        watchdog = threading.Timer(TEARDOWN_TIMEOUT, give_up)
+        watchdog.daemon = True
+        watchdog.start()
+        faulthandler.dump_traceback_later(TEARDOWN_TIMEOUT + 0.5)  # needs no GIL
+        hard_exit = ExitTimer.start(TEARDOWN_TIMEOUT + 1.0, code)
     try:
         if node is not None:
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
     finally:
-        watchdog.cancel()
+        if bounded:
+            watchdog.cancel()
+            faulthandler.cancel_dump_traceback_later()
+            if hard_exit is not None:
+                hard_exit.cancel()
