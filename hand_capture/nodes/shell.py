@@ -27,7 +27,7 @@ Stopping, in this order (the graph runner escalates SIGINT -> SIGTERM -> SIGKILL
    is finished by then, so after
    :data:`TEARDOWN_TIMEOUT` seconds the process says so, runs its ``atexit`` backstops and
    exits with the code it had; where the hang holds the GIL, its stacks are printed and a
-   C-library timer exits with that code a second later (:func:`_teardown`).
+   C-library timer exits with that code half a second later (:func:`_teardown`).
 
 ``SIGUSR1`` makes a node print every thread's stack to stderr (``faulthandler``) without
 stopping it: the graph runner sends it to a node that ignored SIGINT and SIGTERM, before
@@ -61,9 +61,10 @@ _stop_signal: list[int] = []  # the SIGINT/SIGTERM that asked this process to st
 _running: list[bool] = [False]  # building or spinning the node: a 2nd signal interrupts it
 #: longest time [s] between two looks at a stop request while spinning
 STOP_POLL = 0.1
-#: longest time [s] the middleware teardown after the shutdown hook may take (module doc, 4):
-#: within the graph runner's 6 s between SIGINT and SIGTERM, with room for the hook
-TEARDOWN_TIMEOUT = 3.0
+#: longest time [s] the middleware teardown after the shutdown hook may take (module doc, 4),
+#: short: the node's own work is done, and the hook (a MuJoCo world, a bag) must fit with it
+#: in the graph runner's 6 s between SIGINT and SIGTERM
+TEARDOWN_TIMEOUT = 2.0
 
 
 def _on_stop_signal(signum: int, frame: object) -> None:
@@ -177,8 +178,8 @@ def _teardown(node: Node | None, code: int, bounded: bool) -> None:
         watchdog = threading.Timer(TEARDOWN_TIMEOUT, give_up)
         watchdog.daemon = True
         watchdog.start()
-        faulthandler.dump_traceback_later(TEARDOWN_TIMEOUT + 0.5)  # needs no GIL
-        hard_exit = ExitTimer.start(TEARDOWN_TIMEOUT + 1.0, code)
+        faulthandler.dump_traceback_later(TEARDOWN_TIMEOUT + 0.25)  # needs no GIL
+        hard_exit = ExitTimer.start(TEARDOWN_TIMEOUT + 0.5, code)
     try:
         if node is not None:
             node.destroy_node()
