@@ -172,8 +172,17 @@ class ServoBridgeNode(LifecycleNode):
         return _SUCCESS
 
     def on_shutdown(self, state: LifecycleState | None = None) -> TransitionCallbackReturn:
-        """Torque off and close; the lifecycle shutdown transition and ``run_node`` call it."""
-        self._teardown()
+        """Torque off and close; the lifecycle shutdown transition and ``run_node`` call it.
+
+        From ``run_node`` (``state`` None) the subscription, service and publishers are left
+        to ``destroy_node``, whose time ``run_node`` bounds: a DDS call here could hang in
+        Fast DDS (README "Networking and safety") where nothing may cut the hook short."""
+        if state is None:
+            self._stop_control()
+            if self.core is not None:
+                self.core.close()  # torque off, then close the port
+        else:
+            self._teardown()
         return _SUCCESS
 
     def _stop_control(self) -> None:
