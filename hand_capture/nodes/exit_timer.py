@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 
 __all__ = ["ExitTimer"]
 
@@ -43,13 +44,14 @@ class _Itimerspec(ctypes.Structure):
     _fields_ = [("interval", _Timespec), ("value", _Timespec)]
 
 
+@functools.cache
 def _timer_lib() -> ctypes.CDLL | None:
     """The library with ``timer_create`` (libc, else librt); None where there is none."""
-    for name in (None, ctypes.util.find_library("rt")):
+    for name in (None, "rt"):
         try:
-            lib = ctypes.CDLL(name)
+            lib = ctypes.CDLL(name if name is None else ctypes.util.find_library(name))
             create, settime, delete = lib.timer_create, lib.timer_settime, lib.timer_delete
-        except (OSError, AttributeError):
+        except (OSError, AttributeError, TypeError):
             continue
         create.argtypes = [ctypes.c_int, ctypes.POINTER(_Sigevent),
                            ctypes.POINTER(ctypes.c_void_p)]
