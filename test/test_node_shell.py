@@ -125,18 +125,25 @@ def test_sigusr1_prints_the_stacks_and_the_node_goes_on() -> None:
     assert not any("failed" in ln for ln in lines), lines
 
 
-def test_a_teardown_that_hangs_after_the_hook_still_ends_the_process_with_its_code() -> None:
-    """Fast DDS's participant deletion once hung a camera node until the graph runner killed
-    it (a graph that had stopped cleanly then exited 1): after the hook has finished, the
-    shell gives the teardown TEARDOWN_TIMEOUT seconds, says so, runs the atexit backstops
-    and exits with 0."""
-    with _node("--stuck-teardown") as (p, lines):
+def _stop_through_a_hung_teardown(flag: str) -> tuple[list[str], str]:
+    """Start NODE with ``flag``, stop it with SIGINT, expect exit 0 after its hook ran; the
+    output lines and their text."""
+    with _node(flag) as (p, lines):
         assert wait_for(lambda: "up\n" in lines, 30.0), lines
         p.send_signal(signal.SIGINT)
         assert wait_for(lambda: "tearing down\n" in lines, 10.0), lines
         assert p.wait(timeout=30) == 0, "".join(lines)
     out = "".join(lines)
     assert "stopped\n" in lines, out  # the hook ran to its end before the teardown
+    return lines, out
+
+
+def test_a_teardown_that_hangs_after_the_hook_still_ends_the_process_with_its_code() -> None:
+    """Fast DDS's participant deletion once hung a camera node until the graph runner killed
+    it (a graph that had stopped cleanly then exited 1): after the hook has finished, the
+    shell gives the teardown TEARDOWN_TIMEOUT seconds, says so, runs the atexit backstops
+    and exits with 0."""
+    lines, out = _stop_through_a_hung_teardown("--stuck-teardown")
     assert "[slow_stop] the DDS teardown did not finish" in out, out
     assert "backstop\n" in lines, out  # the atexit backstops ran before the hard exit
 
@@ -144,11 +151,5 @@ def test_a_teardown_that_hangs_after_the_hook_still_ends_the_process_with_its_co
 def test_a_teardown_hung_with_the_gil_held_still_ends_the_process_with_its_code() -> None:
     """rclpy's destroy calls hold the GIL while Fast DDS hangs (a CI run's sim node: its
     Python watchdog never ran): the stacks are printed and a C-library timer exits with 0."""
-    with _node("--stuck-teardown-gil") as (p, lines):
-        assert wait_for(lambda: "up\n" in lines, 30.0), lines
-        p.send_signal(signal.SIGINT)
-        assert wait_for(lambda: "tearing down\n" in lines, 10.0), lines
-        assert p.wait(timeout=30) == 0, "".join(lines)
-    out = "".join(lines)
-    assert "stopped\n" in lines, out
+    _, out = _stop_through_a_hung_teardown("--stuck-teardown-gil")
     assert "Timeout" in out and "in _teardown" in out, out  # where it hung
