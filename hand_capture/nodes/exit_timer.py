@@ -51,7 +51,7 @@ def _timer_lib() -> ctypes.CDLL | None:
         try:
             lib = ctypes.CDLL(name if name is None else ctypes.util.find_library(name))
             create, settime, delete = lib.timer_create, lib.timer_settime, lib.timer_delete
-        except (OSError, AttributeError, TypeError):
+        except (OSError, AttributeError):
             continue
         create.argtypes = [ctypes.c_int, ctypes.POINTER(_Sigevent),
                            ctypes.POINTER(ctypes.c_void_p)]

@@ -37,13 +37,14 @@ SIGKILL, so the log says where it was stuck.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import faulthandler
 import os
 import signal
 import sys
 import threading
 import traceback
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -153,8 +154,19 @@ def run_node(
 
 
 def _teardown(node: Node | None, code: int, bounded: bool) -> None:
-    """Destroy ``node`` and shut rclpy down. ``bounded``: if that takes over
-    :data:`TEARDOWN_TIMEOUT` seconds, leave the process with ``code`` (module doc, 4).
+    """Destroy ``node`` and shut rclpy down; ``bounded``: within :data:`TEARDOWN_TIMEOUT`
+    seconds, else the process leaves with ``code`` (module doc, 4; :func:`_exit_if_stuck`)."""
+    name = node.get_name() if node is not None else "node"
+    with _exit_if_stuck(name, code) if bounded else contextlib.nullcontext():
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+@contextlib.contextmanager
+def _exit_if_stuck(name: str, code: int) -> Iterator[None]:
+    """Leave the process with ``code`` if the block runs over :data:`TEARDOWN_TIMEOUT` s.
 
     Two watchdogs: a Python timer that says so, runs the ``atexit`` backstops (the servo
     bridge's torque-off, should its hook have failed) and exits; and, for a hang that holds
@@ -162,8 +174,6 @@ def _teardown(node: Node | None, code: int, bounded: bool) -> None:
     runs again), the stacks printed by ``faulthandler`` and ``_exit(code)`` from a C-library
     timer thread (:class:`~hand_capture.nodes.exit_timer.ExitTimer`) shortly after.
     """
-    name = node.get_name() if node is not None else "node"
-
     def give_up() -> None:
         sys.stderr.write(f"[{name}] the DDS teardown did not finish within {TEARDOWN_TIMEOUT} s"
                          f" (shutdown hook done): exiting with {code} without it\n")
@@ -173,21 +183,15 @@ def _teardown(node: Node | None, code: int, bounded: bool) -> None:
         sys.stderr.flush()
         os._exit(code)
 
-    watchdog = hard_exit = None
-    if bounded:
-        watchdog = threading.Timer(TEARDOWN_TIMEOUT, give_up)
-        watchdog.daemon = True
-        watchdog.start()
-        faulthandler.dump_traceback_later(TEARDOWN_TIMEOUT + 0.25)  # needs no GIL
-        hard_exit = ExitTimer.start(TEARDOWN_TIMEOUT + 0.5, code)
+    watchdog = threading.Timer(TEARDOWN_TIMEOUT, give_up)
+    watchdog.daemon = True
+    watchdog.start()
+    faulthandler.dump_traceback_later(TEARDOWN_TIMEOUT + 0.25)  # needs no GIL
+    hard_exit = ExitTimer.start(TEARDOWN_TIMEOUT + 0.5, code)
     try:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        yield
     finally:
-        if bounded:
-            watchdog.cancel()
-            faulthandler.cancel_dump_traceback_later()
-            if hard_exit is not None:
-                hard_exit.cancel()
+        watchdog.cancel()
+        faulthandler.cancel_dump_traceback_later()
+        if hard_exit is not None:
+            hard_exit.cancel()

@@ -178,9 +178,7 @@ class ServoBridgeNode(LifecycleNode):
         to ``destroy_node``, whose time ``run_node`` bounds: a DDS call here could hang in
         Fast DDS (README "Networking and safety") where nothing may cut the hook short."""
         if state is None:
-            self._stop_control()
-            if self.core is not None:
-                self.core.close()  # torque off, then close the port
+            self._release_servos()
         else:
             self._teardown()
         return _SUCCESS
@@ -190,10 +188,14 @@ class ServoBridgeNode(LifecycleNode):
             self.destroy_timer(self._control_timer)
             self._control_timer = None
 
-    def _teardown(self) -> None:
+    def _release_servos(self) -> None:
+        """No more control cycles; torque off, then close the port."""
         self._stop_control()
         if self.core is not None:
-            self.core.close()  # torque off, then close the port
+            self.core.close()
+
+    def _teardown(self) -> None:
+        self._release_servos()
         for ent, destroy in ((self._sub, self.destroy_subscription),
                              (self._srv, self.destroy_service)):
             if ent is not None:
