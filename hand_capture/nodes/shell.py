@@ -24,10 +24,10 @@ Stopping, in this order (the graph runner escalates SIGINT -> SIGTERM -> SIGKILL
    runner killed it; the cause is a deadlock between a receive thread removing a departed
    peer's endpoints under the discovery lock and the event thread waiting for that lock,
    upstream Fast-DDS issue 6502, README "Networking and safety"): everything the node owns
-   is finished by then, so after
-   :data:`TEARDOWN_TIMEOUT` seconds the process says so, runs its ``atexit`` backstops and
-   exits with the code it had; where the hang holds the GIL, its stacks are printed and a
-   C-library timer exits with that code half a second later (:func:`_teardown`).
+   is finished by then, so after :data:`TEARDOWN_TIMEOUT` seconds the process says so, runs
+   its ``atexit`` backstops and exits with the code it had; where the hang holds the GIL,
+   its stacks are printed and a C-library timer exits with that code half a second later
+   (:func:`_teardown`).
 
 ``SIGUSR1`` makes a node print every thread's stack to stderr (``faulthandler``) without
 stopping it: the graph runner sends it to a node that ignored SIGINT and SIGTERM, before
