@@ -25,7 +25,11 @@ as hard as the held-out family and fail the same way (a truth candidate in every
 pool, ``--oracle``, takes ``tube`` without the artifacts from 7.8 mm / 0.76 to 5.7 / 0.94;
 held-out 8.4 / 0.66 -> 4.8 / 0.89). Caveat: half of the second regressor's training hands
 are tubes (other draws of the same generator), so these families are not independent of
-the regressor's training: they choose tracker settings, never report the product.
+the regressor's training: they choose tracker settings, never report the product. A
+third, ``tube_moving``, is ``tube`` with the wrist moving: every other family takes the
+suite's clips, which hold the wrist still, where a real hand (and the held-out family)
+moves it several millimetres a frame
+(:func:`~hand_capture.bench._tracking_heldout.moving_wrist_path`).
 
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --out base.json
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --config acquire_modes=0 \\
@@ -57,9 +61,9 @@ from hand_capture.tracking.tubes import TubeSurface, tube_mesh
 #: the sections, by name: each returns the bench's figures for the product settings
 SECTIONS = ("surface", "capsule", "stereo", "forearm", "table", "capsule_forearm",
             "far_forearm", "near_forearm", "distractor", "stereo_forearm", "spread", "tube",
-            "tube_forearm")
+            "tube_forearm", "tube_moving")
 #: the bench's sections (run when ``--sections`` is not given)
-BENCH_SECTIONS = SECTIONS[:-4]
+BENCH_SECTIONS = SECTIONS[:-5]
 
 
 class TubeHand:
@@ -75,12 +79,14 @@ class TubeHand:
 
 
 def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm: bool,
-                  oracle: bool = False) -> dict:
+                  oracle: bool = False, moving: bool = False) -> dict:
     """The tube validation family (module docstring): each shape and motion of the surface
     validation's plan with its own tube hand (drawn from ``770000 + 31 seed + len(clip)``),
     the stereo artifacts of the ``stereo_forearm`` section (without them under ``oracle``),
     calibrated per sequence, tracked through. ``oracle``: the true pose joins every frame's
-    pool (as ``scripts/tracking_oracle.py`` does; hand only)."""
+    pool (as ``scripts/tracking_oracle.py`` does; hand only). ``moving`` (hand only): the
+    wrist follows :func:`~hand_capture.bench._tracking_heldout.moving_wrist_path` (drawn
+    from ``880000 + 37 seed + len(clip)``) instead of holding still."""
     from hand_capture.model import HandModel
     from hand_capture.tracking.hybrid import HybridTracker
 
@@ -96,8 +102,10 @@ def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm
                                                                        surface=hand)
                 cal = th._suite_calibration(true, intr, seed, base, hand)
             else:
-                _, _, frames, kps, poses, calf = th.suite_surface_sequence(seed, clip, n,
-                                                                           step, hand)
+                path = th.moving_wrist_path(np.random.default_rng(
+                    880000 + 37 * seed + len(clip)), n, step) if moving else None
+                _, _, frames, kps, poses, calf = th.suite_surface_sequence(
+                    seed, clip, n, step, hand, wrist_path=path)
                 cal = th.bench_calibrate(calf, model=base, config=cfg)
             if not oracle:
                 frames = th.with_artifacts(frames, 9000 + 100 * seed + len(clip))
@@ -109,7 +117,8 @@ def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm
             else:
                 errs.append(th._score(tr, frames, kps)["errs"])
     e = np.concatenate(errs)
-    fam = "val_tube_forearm" if forearm else "val_tube_oracle" if oracle else "val_tube"
+    fam = ("val_tube_forearm" if forearm else "val_tube_oracle" if oracle else
+           "val_tube_moving" if moving else "val_tube")
     fig = {f"{fam}_mean_mm": float(e.mean()),
            f"{fam}_success_20mm": float((e.max(axis=1) < 20.0).mean())}
     print(f"{fam} ({len(errs)} sequences): {fig[f'{fam}_mean_mm']:.3f} mm, success@20 "
@@ -148,8 +157,9 @@ def _run(section: str, reg: HandRegressor | RegressorSet, cfg: TrackerConfig,
          oracle: bool = False) -> dict:
     if section == "spread":
         return _spread_section(reg, cfg)
-    if section in ("tube", "tube_forearm"):
-        return _tube_section(reg, cfg, section == "tube_forearm", oracle)
+    if section in ("tube", "tube_forearm", "tube_moving"):
+        return _tube_section(reg, cfg, section == "tube_forearm", oracle,
+                             section == "tube_moving")
     if section == "surface":
         return th.surface_validation_section(reg, cfg, False, variants={"product": ("", cfg)})
     if section == "capsule":

@@ -139,3 +139,30 @@ def test_the_tube_families_draw_a_tube_hand_per_sequence(tv, monkeypatch):
     tip = m.joint_positions(q)[8]                    # the index fingertip keypoint
     assert np.min(np.linalg.norm(mesh.vertices - tip, axis=1)) < 0.012
     assert len(mesh.vertices) != len(m.vertices(q))  # not the template's mesh
+
+
+def test_the_moving_tube_family_moves_the_wrist(tv, monkeypatch):
+    """``tube_moving`` (a script section, not the bench's) is ``tube`` with the wrist on a
+    smooth path: it starts where the clip's wrist is and moves a few millimetres a 30 fps
+    frame, where the suite's clips hold it still."""
+    import numpy as np
+
+    from hand_capture.bench import _tracking_heldout as th
+
+    assert "tube_moving" in tv.SECTIONS and "tube_moving" not in tv.BENCH_SECTIONS
+    path = th.moving_wrist_path(np.random.default_rng(0), 60, 1)
+    assert path.shape == (60, 3) and np.all(path[0] == 0.0)
+    speed = np.linalg.norm(np.diff(path, axis=0), axis=1).mean() * 1e3   # [mm a frame]
+    assert 1.5 < speed < 8.0, speed
+    paths = []
+
+    def fake_sequence(seed, clip, n, step, hand, wrist_path=None, **kw):
+        paths.append(wrist_path)
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(th, "suite_surface_sequence", fake_sequence)
+    for moving in (False, True):
+        with pytest.raises(RuntimeError, match="stop"):
+            tv._tube_section(None, None, forearm=False, moving=moving)
+    assert paths[0] is None and paths[1].shape == (20, 3)
+    assert np.abs(paths[1]).max() > 0.01                  # the wrist leaves its start

@@ -536,17 +536,34 @@ def spread_fingers(pose: np.ndarray, spread_deg: float) -> np.ndarray:
     return q
 
 
+def moving_wrist_path(rng: np.random.Generator, n: int, step: int) -> np.ndarray:
+    """A smooth path (n, 3) [m] for the wrist of a suite clip, frames ``step`` apart at 30
+    fps: along each camera axis two sinusoids of 0.25-0.8 Hz with random phases, 10-25 mm
+    each across the image and 5-15 mm in depth, moved to start at zero. The suite's clips
+    hold the wrist still; this moves it about 3.7 mm a 30 fps frame on average (the
+    held-out family: 2.4-7 mm, by its own generator)."""
+    t = np.arange(n) * step / 30.0
+    p = np.zeros((n, 3))
+    for axis, (lo, hi) in enumerate(((0.010, 0.025), (0.010, 0.025), (0.005, 0.015))):
+        for _ in range(2):
+            f, a = rng.uniform(0.25, 0.8), rng.uniform(lo, hi)
+            p[:, axis] += a * np.sin(2.0 * np.pi * f * t + rng.uniform(0.0, 2.0 * np.pi))
+    return p - p[0]
+
+
 def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
                            variant: SurfaceVariant | CapsuleSurface,
-                           fingers: np.ndarray | None = None, spread_deg: float = 0.0
+                           fingers: np.ndarray | None = None, spread_deg: float = 0.0,
+                           wrist_path: np.ndarray | None = None
                            ) -> tuple[HandModel, Intrinsics, list, list, list, list]:
     """A sequence of the suite's generator (the synthetic camera's shape ``seed``, motion
     ``clip``, rasteriser and noise model, 320x240) with the hand's surface replaced by
     ``variant``; ``fingers`` (n, 21) [rad], when given, replaces the clip's finger joint
     angles frame by frame (the wrist keeps the clip's path); ``spread_deg`` spreads the
-    fingers (:func:`spread_fingers`). Returns ``(model, intrinsics, frames, keypoints,
-    poses, calibration frames)`` (the calibration poses rendered with the same surface and
-    noise)."""
+    fingers (:func:`spread_fingers`); ``wrist_path`` (n, 3) [m] is added to the root
+    translation frame by frame (:func:`moving_wrist_path`). Returns ``(model, intrinsics,
+    frames, keypoints, poses, calibration frames)`` (the calibration poses rendered with the
+    same surface and noise)."""
     from hand_capture.cameras.render import make_renderer
     from hand_capture.cameras.synthetic import SyntheticCamera, SyntheticCameraConfig
     from hand_capture.tracking.calibration import render_calibration_frames
@@ -566,6 +583,9 @@ def suite_surface_sequence(seed: int, clip: str, n: int, step: int,
             pose[6:] = fingers[k]
         if spread_deg:
             pose = spread_fingers(pose, spread_deg)
+        if wrist_path is not None:
+            pose = pose.copy()
+            pose[0:3] += wrist_path[k]
         poses.append(pose)
         res = renderer.render([mesh(pose)], cam.intrinsics)
         frames.append((cam.noise.apply_mm(res.depth, res.cos_incidence, cam.intrinsics, rng),

@@ -239,6 +239,11 @@ class TrackerConfig:
                                    "one more candidate, the tracked palm with regressed "
                                    "fingers, so a finger tracked wrong can be replaced "
                                    "while the palm is right")
+    shift_previous: bool = param(True, "step 3 also starts from the previous pose moved by "
+                                 "the shift of the hand segment's centroid since the last "
+                                 "frame (one more candidate while tracking, its own "
+                                 "smoothness reference): a wrist that moves several mm a "
+                                 "frame")
     n_modes: int = param(1, "palm modes kept by clustering the leaves (II.4.3), each "
                          "regressor's; in hybrid mode on a frame with a tracked pose only "
                          "(acquire_modes on one without)", lo=1, hi=16)

@@ -381,10 +381,11 @@ class HybridTracker:
         # its E_c)
         self._deferred: tuple | None = None
         self._carry: np.ndarray | None = None  # a deferred regression's candidate (27,)
+        self._centroid: np.ndarray | None = None  # the last frame's segment centroid (3,) [m]
 
     # ------------------------------------------------------------------------------ frame
     _STATE = ("prev", "delta", "last_good", "frame_count", "_since_regression", "_prev_cost",
-              "_deferred", "_carry", "_stub_free", "_arm_free")
+              "_deferred", "_carry", "_stub_free", "_arm_free", "_centroid")
 
     def process(self, depth: np.ndarray, intr: Intrinsics) -> TrackResult:
         """Track one depth frame (uint16 mm or float m).
@@ -500,6 +501,8 @@ class HybridTracker:
         self._arm_free = cfg.cost_arm_optional and cut
         timing["preprocess"] = time.perf_counter() - t0
         self.frame_count += 1
+        last_centroid = self._centroid
+        self._centroid = obs.points.mean(axis=0) if obs.found else None
         if not obs.found:
             self.delta = False
             pose = self.prev if self.prev is not None else np.zeros(N_DOF)
@@ -548,13 +551,24 @@ class HybridTracker:
         if mode in ("hybrid", "icp"):  # step 3: the previous pose
             prev = self.prev if self.prev is not None else palm_init_pca(obs.points,
                                                                          self.frames)
+        # an addition to step 3 (shift_previous): the previous pose moved by the shift of
+        # the segment's centroid since the last frame, one more start for a moving wrist.
+        # The previous pose lags a frame behind such a hand, and so does the smoothness
+        # reference of eq. II.24 (constant velocity at best): the shifted start is refined
+        # towards itself instead (a departure from II.24 for this candidate)
+        shifted: list[np.ndarray] = []
+        if cfg.shift_previous and tracking and last_centroid is not None:
+            qs = self.prev.copy()
+            qs[0:3] += self._centroid - last_centroid
+            shifted.append(qs)
         if mode == "hybrid" and cfg.palm_iterations:
-            # steps 1 and 3: palm-only iterations of the palm modes and the previous pose,
-            # all in one batch
+            # steps 1 and 3: palm-only iterations of the palm modes and the previous pose
+            # (and its shifted copy), all in one batch
             t = time.perf_counter()
-            out = self.icp.refine_batch(palms + [prev], obs, cfg.palm_iterations,
+            out = self.icp.refine_batch(palms + shifted + [prev], obs, cfg.palm_iterations,
                                         palm_only=True, points=pts)
-            palms, prev = list(out[:-1]), out[-1]
+            n_p = len(palms)
+            palms, shifted, prev = list(out[:n_p]), list(out[n_p:-1]), out[-1]
             timing["icp"] += time.perf_counter() - t
         if regress:  # step 2: finger regression on every palm
             t = time.perf_counter()
@@ -571,6 +585,9 @@ class HybridTracker:
             self._carry = None
         if prev is not None:
             pool.append((prev, prev.copy()))
+        # the shifted starts' rows of the pool: each is its own smoothness reference
+        own_ref = range(len(pool), len(pool) + len(shifted))
+        pool += [(qs, qs.copy()) for qs in shifted]
         if not pool:  # regressor mode without a regressor
             q = palm_init_pca(obs.points, self.frames)
             pool.append((q, q.copy()))
@@ -588,7 +605,7 @@ class HybridTracker:
             t = time.perf_counter()
             track = self.delta and self.prev is not None and not acquire
             ref = self._smooth_ref() if track else None
-            refs = [ref if track else pool[i][1] for i in order]
+            refs = [ref if track and i not in own_ref else pool[i][1] for i in order]
             refined = list(self.icp.refine_batch([pool[i][0] for i in order], obs, its,
                                                  q_refs=refs, points=pts))
             timing["icp"] += time.perf_counter() - t
