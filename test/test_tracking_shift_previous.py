@@ -61,3 +61,17 @@ def test_no_shifted_start_without_a_tracked_previous_frame(frames) -> None:
     tr.process(depths[0], default_intrinsics())
     tr.delta = False          # as after a frame that failed eq. II.19
     assert tr.process(depths[1], default_intrinsics()).n_candidates == 1
+
+
+def test_no_shifted_start_for_a_hand_that_holds_still(frames) -> None:
+    """A centroid that moved less than ``shift_min_mm`` (the same frame again) adds nothing:
+    a finger closing moves it a few millimetres too."""
+    m, q1, _, depths = frames
+    tr = HybridTracker(m, TrackerConfig(), None)
+    tr.reset(q1)
+    tr.process(depths[0], default_intrinsics())
+    assert tr.process(depths[0], default_intrinsics()).n_candidates == 1
+    tr = HybridTracker(m, TrackerConfig(shift_min_mm=0.0), None)
+    tr.reset(q1)
+    tr.process(depths[0], default_intrinsics())
+    assert tr.process(depths[0], default_intrinsics()).n_candidates == 2

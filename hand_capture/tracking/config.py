@@ -244,6 +244,8 @@ class TrackerConfig:
                                  "frame (one more candidate while tracking, its own "
                                  "smoothness reference): a wrist that moves several mm a "
                                  "frame")
+    shift_min_mm: float = param(3.0, "shift_previous only when the centroid moved at least "
+                                "this far [mm] (a finger closing moves it a few mm)", lo=0.0)
     n_modes: int = param(1, "palm modes kept by clustering the leaves (II.4.3), each "
                          "regressor's; in hybrid mode on a frame with a tracked pose only "
                          "(acquire_modes on one without)", lo=1, hi=16)

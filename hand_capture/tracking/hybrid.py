@@ -558,9 +558,11 @@ class HybridTracker:
         # towards itself instead (a departure from II.24 for this candidate)
         shifted: list[np.ndarray] = []
         if cfg.shift_previous and tracking and last_centroid is not None:
-            qs = self.prev.copy()
-            qs[0:3] += self._centroid - last_centroid
-            shifted.append(qs)
+            shift = self._centroid - last_centroid                       # (3,) [m]
+            if float(np.linalg.norm(shift)) * 1e3 >= cfg.shift_min_mm:
+                qs = self.prev.copy()
+                qs[0:3] += shift
+                shifted.append(qs)
         if mode == "hybrid" and cfg.palm_iterations:
             # steps 1 and 3: palm-only iterations of the palm modes and the previous pose
             # (and its shifted copy), all in one batch
