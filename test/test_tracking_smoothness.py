@@ -33,11 +33,14 @@ def sweep() -> tuple[HandModel, HandRegressor, list]:
     return cam.model, HandRegressor.load(path), [cam.render(t) for t in FRAMES_S]
 
 
-def _mean_err_mm(sweep, predict: str, keep_unrefined: bool = False) -> float:
-    """The product's hybrid tracker over the sweep: mean keypoint error [mm]."""
+def _mean_err_mm(sweep, predict: str, keep_unrefined: bool = False,
+                 shift_previous: bool = False) -> float:
+    """The product's hybrid tracker over the sweep: mean keypoint error [mm] (without the
+    shifted previous pose unless asked: it too keeps up with the hand)."""
     m, reg, frames = sweep
     cfg = dataclasses.replace(TrackerConfig(), smooth_predict=predict,
-                              keep_unrefined=keep_unrefined, acquire_above_tau=0.0)
+                              keep_unrefined=keep_unrefined, acquire_above_tau=0.0,
+                              shift_previous=shift_previous)
     tr = HybridTracker(m, cfg, reg)
     errs = [np.linalg.norm(m.joint_positions(tr.process(f.depth, f.depth_intrinsics).pose)
                            - m.joint_positions(f.pose), axis=1).mean() for f in frames]
@@ -49,6 +52,15 @@ def test_a_fast_moving_hand_is_not_held_back(sweep) -> None:
     err_off, err_on = _mean_err_mm(sweep, "off"), _mean_err_mm(sweep, "translation")
     assert err_off > 5.0, err_off                    # the previous pose holds it back
     assert err_on < 0.75 * err_off, (err_on, err_off)
+
+
+def test_the_shifted_previous_pose_keeps_up_with_a_fast_hand(sweep) -> None:
+    """``shift_previous``: the previous pose moved by the segment centroid's shift, refined
+    towards itself, is not held back by the previous pose either."""
+    assert TrackerConfig().shift_previous
+    err_off = _mean_err_mm(sweep, "off")
+    err_shift = _mean_err_mm(sweep, "off", shift_previous=True)
+    assert err_shift < 0.75 * err_off, (err_shift, err_off)
 
 
 def test_unrefined_candidates_are_not_held_back_by_the_previous_pose(sweep) -> None:

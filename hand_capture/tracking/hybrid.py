@@ -555,7 +555,8 @@ class HybridTracker:
         # the segment's centroid since the last frame, one more start for a moving wrist.
         # The previous pose lags a frame behind such a hand, and so does the smoothness
         # reference of eq. II.24 (constant velocity at best): the shifted start is refined
-        # towards itself instead (a departure from II.24 for this candidate)
+        # towards itself instead (a departure from II.24 for this candidate). Only for a
+        # shift of shift_min_mm or more: a finger closing moves the centroid a few mm.
         shifted: list[np.ndarray] = []
         if cfg.shift_previous and tracking and last_centroid is not None:
             shift = self._centroid - last_centroid                       # (3,) [m]
