@@ -26,8 +26,8 @@ pool, ``--oracle``, takes ``tube`` without the artifacts from 7.8 mm / 0.76 to 5
 held-out 8.4 / 0.66 -> 4.8 / 0.89). Caveat: half of the second regressor's training hands
 are tubes (other draws of the same generator), so these families are not independent of
 the regressor's training: they choose tracker settings, never report the product. A
-third, ``tube_moving``, is ``tube`` with the wrist moving: every other family takes the
-suite's clips, which hold the wrist still, where a real hand (and the held-out family)
+third, ``tube_moving``, is ``tube`` with the wrist moving: every other family takes four
+of the suite's clips, which hold the wrist still, where a real hand (and the held-out family)
 moves it several millimetres a frame
 (:func:`~hand_capture.bench._tracking_heldout.moving_wrist_path`).
 

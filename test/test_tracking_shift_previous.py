@@ -1,6 +1,6 @@
 """Step 3 also starts from the previous pose moved by the shift of the hand segment's
-centroid (``shift_previous``, issue 13): the suite's motion clips hold the wrist still, a
-real hand (and the held-out family) moves it several millimetres a frame, and the previous
+centroid (``shift_previous``, issue 13): the validation families' clips hold the wrist
+still, a real hand (and the held-out family) moves it several millimetres a frame, and the previous
 pose then starts a frame behind."""
 
 from __future__ import annotations

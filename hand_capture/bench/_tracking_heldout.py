@@ -539,8 +539,8 @@ def spread_fingers(pose: np.ndarray, spread_deg: float) -> np.ndarray:
 def moving_wrist_path(rng: np.random.Generator, n: int, step: int) -> np.ndarray:
     """A smooth path (n, 3) [m] for the wrist of a suite clip, frames ``step`` apart at 30
     fps: along each camera axis two sinusoids of 0.25-0.8 Hz with random phases, 10-25 mm
-    each across the image and 5-15 mm in depth, moved to start at zero. The suite's clips
-    hold the wrist still; this moves it about 3.7 mm a 30 fps frame on average (the
+    each across the image and 5-15 mm in depth, moved to start at zero. The validation
+    plan's clips hold the wrist still; this moves it about 3.7 mm a 30 fps frame on average (the
     held-out family: 2.4-7 mm, by its own generator)."""
     t = np.arange(n) * step / 30.0
     p = np.zeros((n, 3))
