@@ -29,7 +29,8 @@ the regressor's training: they choose tracker settings, never report the product
 third, ``tube_moving``, is ``tube`` with the wrist moving: every other family takes four
 of the suite's clips, which hold the wrist still, where a real hand (and the held-out family)
 moves it several millimetres a frame
-(:func:`~hand_capture.bench._tracking_heldout.moving_wrist_path`).
+(:func:`~hand_capture.bench._tracking_heldout.moving_wrist_path`); ``tube_moving_forearm``
+is ``tube_forearm`` with the wrist (and the forearm with it) on such a path.
 
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --out base.json
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --config acquire_modes=0 \\
@@ -61,9 +62,9 @@ from hand_capture.tracking.tubes import TubeSurface, tube_mesh
 #: the sections, by name: each returns the bench's figures for the product settings
 SECTIONS = ("surface", "capsule", "stereo", "forearm", "table", "capsule_forearm",
             "far_forearm", "near_forearm", "distractor", "stereo_forearm", "spread", "tube",
-            "tube_forearm", "tube_moving")
+            "tube_forearm", "tube_moving", "tube_moving_forearm")
 #: the bench's sections (run when ``--sections`` is not given)
-BENCH_SECTIONS = SECTIONS[:-5]
+BENCH_SECTIONS = SECTIONS[:-6]
 
 
 class TubeHand:
@@ -84,9 +85,10 @@ def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm
     validation's plan with its own tube hand (drawn from ``770000 + 31 seed + len(clip)``),
     the stereo artifacts of the ``stereo_forearm`` section (without them under ``oracle``),
     calibrated per sequence, tracked through. ``oracle``: the true pose joins every frame's
-    pool (as ``scripts/tracking_oracle.py`` does; hand only). ``moving`` (hand only): the
-    wrist follows :func:`~hand_capture.bench._tracking_heldout.moving_wrist_path` (drawn
-    from ``880000 + 37 seed + len(clip)``) instead of holding still."""
+    pool (as ``scripts/tracking_oracle.py`` does; hand only). ``moving``: the wrist (and
+    the forearm with it) follows :func:`~hand_capture.bench._tracking_heldout.
+    moving_wrist_path` (drawn from ``880000 + 37 seed + len(clip)``) instead of holding
+    still."""
     from hand_capture.model import HandModel
     from hand_capture.tracking.hybrid import HybridTracker
 
@@ -97,13 +99,13 @@ def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm
         for clip in clips:
             hand = TubeHand(TubeSurface.sample(np.random.default_rng(
                 770000 + 31 * seed + len(clip))))
+            path = th.moving_wrist_path(np.random.default_rng(
+                880000 + 37 * seed + len(clip)), n, step) if moving else None
             if forearm:
-                true, intr, frames, kps, _ = th.suite_forearm_sequence(seed, clip, n, step,
-                                                                       surface=hand)
+                true, intr, frames, kps, _ = th.suite_forearm_sequence(
+                    seed, clip, n, step, surface=hand, wrist_path=path)
                 cal = th._suite_calibration(true, intr, seed, base, hand)
             else:
-                path = th.moving_wrist_path(np.random.default_rng(
-                    880000 + 37 * seed + len(clip)), n, step) if moving else None
                 _, _, frames, kps, poses, calf = th.suite_surface_sequence(
                     seed, clip, n, step, hand, wrist_path=path)
                 cal = th.bench_calibrate(calf, model=base, config=cfg)
@@ -117,8 +119,8 @@ def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm
             else:
                 errs.append(th._score(tr, frames, kps)["errs"])
     e = np.concatenate(errs)
-    fam = ("val_tube_forearm" if forearm else "val_tube_oracle" if oracle else
-           "val_tube_moving" if moving else "val_tube")
+    fam = ("val_tube_oracle" if oracle else "val_tube"
+           + ("_moving" if moving else "") + ("_forearm" if forearm else ""))
     fig = {f"{fam}_mean_mm": float(e.mean()),
            f"{fam}_success_20mm": float((e.max(axis=1) < 20.0).mean())}
     print(f"{fam} ({len(errs)} sequences): {fig[f'{fam}_mean_mm']:.3f} mm, success@20 "
@@ -157,9 +159,9 @@ def _run(section: str, reg: HandRegressor | RegressorSet, cfg: TrackerConfig,
          oracle: bool = False) -> dict:
     if section == "spread":
         return _spread_section(reg, cfg)
-    if section in ("tube", "tube_forearm", "tube_moving"):
-        return _tube_section(reg, cfg, section == "tube_forearm", oracle,
-                             section == "tube_moving")
+    if section.startswith("tube"):
+        return _tube_section(reg, cfg, section.endswith("forearm"), oracle,
+                             section.startswith("tube_moving"))
     if section == "surface":
         return th.surface_validation_section(reg, cfg, False, variants={"product": ("", cfg)})
     if section == "capsule":

@@ -166,3 +166,35 @@ def test_the_moving_tube_family_moves_the_wrist(tv, monkeypatch):
             tv._tube_section(None, None, forearm=False, moving=moving)
     assert paths[0] is None and paths[1].shape == (20, 3)
     assert np.abs(paths[1]).max() > 0.01                  # the wrist leaves its start
+
+
+def test_the_moving_forearm_family_moves_the_hand_and_its_forearm(tv, monkeypatch):
+    """``tube_moving_forearm`` passes the section's wrist path to the forearm sequence, and
+    that sequence moves the hand's keypoints by the path with the forearm following (the
+    arm's pixels move too), frame by frame."""
+    import numpy as np
+
+    from hand_capture.bench import _tracking_heldout as th
+
+    assert "tube_moving_forearm" in tv.SECTIONS
+    assert "tube_moving_forearm" not in tv.BENCH_SECTIONS
+    path = np.array([[0.0, 0.0, 0.0], [0.03, 0.0, 0.0], [0.0, 0.025, 0.01]])
+    _, _, _, still, still_lab = th.suite_forearm_sequence(25, "fist", 3, 2)
+    _, _, _, moved, moved_lab = th.suite_forearm_sequence(25, "fist", 3, 2, wrist_path=path)
+    for k in range(3):
+        np.testing.assert_allclose(moved[k] - still[k], np.broadcast_to(path[k], (21, 3)),
+                                   atol=1e-9)
+    assert np.array_equal(still_lab[0], moved_lab[0])      # the path starts at zero
+    cols = [np.nonzero(lab == 2)[1].mean() for lab in (still_lab[1], moved_lab[1])]
+    assert cols[1] - cols[0] > 5.0                          # the arm moved right with it [px]
+    paths = []
+
+    def fake_forearm(seed, clip, n, step, wrist_path=None, **kw):
+        paths.append(wrist_path)
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(th, "suite_forearm_sequence", fake_forearm)
+    for section in ("tube_forearm", "tube_moving_forearm"):
+        with pytest.raises(RuntimeError, match="stop"):
+            tv._run(section, None, None)
+    assert paths[0] is None and paths[1].shape == (20, 3)

@@ -330,7 +330,8 @@ def heldout_section(reg, config, quick: bool, cases: tuple | None = None,
 def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bool = False,
                            clutter: bool = False, sleeve: bool = False, table: bool = False,
                            surface: SurfaceVariant | CapsuleSurface | None = None,
-                           camera: dict | None = None, distractor: bool = False
+                           camera: dict | None = None, distractor: bool = False,
+                           wrist_path: np.ndarray | None = None
                            ) -> tuple[HandModel, Intrinsics, list, list, list]:
     """A sequence of the suite's own generator with a forearm in view: the synthetic
     camera's shape ``seed`` and motion ``clip`` (its mesh, rasteriser and noise model,
@@ -353,7 +354,9 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
     nearest thing in view). ``surface`` replaces the hand's surface
     (:class:`SurfaceVariant`, :class:`CapsuleSurface`; None: the template mesh); ``camera``
     overrides fields of the synthetic camera's config (e.g. ``width``, ``height``,
-    ``hfov_deg``, ``camera_position``; after ``close``'s).
+    ``hfov_deg``, ``camera_position``; after ``close``'s). ``wrist_path`` (n, 3) [m] is
+    added to the root translation frame by frame, the forearm following the hand
+    (:func:`moving_wrist_path`).
 
     Returns:
         ``(model, intrinsics, frames, keypoints, labels)``: the true model, the pinhole,
@@ -404,6 +407,9 @@ def suite_forearm_sequence(seed: int, clip: str, n: int, step: int, *, close: bo
     for k, i in enumerate(idx):
         t = i / 30.0
         pose = cam.truth_pose(t)
+        if wrist_path is not None:
+            pose = pose.copy()
+            pose[0:3] += wrist_path[k]
         meshes, _ = cam.scene_meshes(t, pose)
         if distractor:
             kp = cam.model.joint_positions(pose)
