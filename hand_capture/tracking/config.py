@@ -92,6 +92,12 @@ class TrackerConfig:
                                     "keypoint (a shorter cut leaves model without data, "
                                     "which shrinks the fit) [m, at template size]", lo=0.0,
                                     hi=0.2)
+    cut_hand_end_mm: float = param(20.0, "while tracking: the forearm cut's wrist moves "
+                                   "along the forearm by as far as the segment's fingertip "
+                                   "end lies beyond the previous pose's, when that is at most "
+                                   "this [mm]; 0 = the previous wrist (a moving hand's cut "
+                                   "then lags and keeps more forearm)",
+                                   lo=0.0, hi=100.0)
     forearm_reach_m: float = param(0.25, "a cloud longer than this along its axis holds a "
                                    "forearm (a hand alone cannot be) [m, at template size]",
                                    lo=0.05, hi=0.6)

@@ -353,6 +353,23 @@ class HybridTracker:
             return None
         return self._wrist_of(self.prev)
 
+    def _plane_at_hand_end(self, plane: tuple[np.ndarray, np.ndarray], obs: HandObservation,
+                           limit_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """The forearm cut's ``plane`` (wrist [m], unit forearm direction) moved along the
+        forearm by as far as the segment's hand end (its 99.5th percentile towards the
+        fingers) lies beyond the previous pose's mesh's, when that is at most ``limit_m``
+        [m] either way (``cut_hand_end_mm``; an addition to the cut). At the previous wrist
+        the cut keeps a frame's motion more forearm beside a hand moving towards its
+        fingers; those points hold the fit back, the next cut keeps more, and the lag builds
+        up (docs/experiments/depth_tracking.md, the fifty-third session). The hand end is
+        where the data, not a past estimate, puts the hand."""
+        w, d = plane
+        mesh = np.asarray(self.model.vertices(self.prev))                # (V, 3) [m]
+        model_end = float(np.percentile((mesh - w) @ -d, 99.5))
+        data_end = float(np.percentile((obs.points - w) @ -d, 99.5))
+        shift = data_end - model_end                  # [m], positive towards the fingers
+        return plane if abs(shift) > limit_m else (w - shift * d, d)
+
     def _wrist_of(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Pose ``q``'s wrist keypoint [m] and forearm direction (unit, middle MCP to
         wrist); None for a degenerate pose."""
@@ -491,6 +508,8 @@ class HybridTracker:
             plane = self._wrist_plane()
             if plane is None:
                 whole = obs
+            elif cfg.cut_hand_end_mm > 0.0:
+                plane = self._plane_at_hand_end(plane, obs, cfg.cut_hand_end_mm * 1e-3)
             obs, cut_g = cut_forearm(obs, cfg, scale, plane, flip)
             cut = cut or cut_g
             cloud = cut_g and plane is None
