@@ -22,5 +22,3 @@ def test_a_hand_moving_along_its_axis_is_followed_without_a_forearm(capsys) -> N
     assert abs(figures["lag_hand_mm"]) < 3.0
     assert fl.main(["--frames", "1"]) == 2
     assert fl.main(["--config", "no_such_field=1"]) == 2
-
-
