@@ -3,10 +3,12 @@
 A publisher process sends ``n`` 16UC1 images (640x480 by default) at ``rate_hz`` with the
 camera nodes' QoS (SensorDataQoS); a subscriber process takes them with the tracker's image
 QoS (:func:`hand_capture.nodes.tracker.depth_image_qos`) and counts the distinct frames
-that arrive. The subscriber's callback only counts, so it always keeps up: a loss is the
-transport's. Both processes get the environment the graph runner and the launch files give
-nodes (:func:`hand_capture.dds.dds_environment`: the shipped Fast DDS profile), or the bare
-environment for comparison.
+it takes. A frame it does not take was either lost in transport (it never reached the
+reader: the rmw's message-lost event counts it) or overwritten in the reader's depth-1 queue
+by the next one before the subscriber's process ran (a loaded CPU: by design, the tracker
+wants the latest frame). Both processes get the environment the graph runner and the
+launch files give nodes (:func:`hand_capture.dds.dds_environment`: the shipped Fast DDS
+profile), or the bare environment for comparison.
 
 Protocol: the publisher waits until it sees the subscriber, then sends warm-up frames until
 the subscriber acknowledges one on a reliable topic (both ends matched), then the ``n``
@@ -44,8 +46,10 @@ def measure_delivery(n: int = 90, rate_hz: float = 30.0, width: int = 640, heigh
         timeout_s: overall limit [s].
 
     Returns:
-        ``{"sent", "received", "delivery", "warmup_s", "bytes"}``; ``delivery`` is NaN when
-        the two ends never matched.
+        ``{"sent", "received", "delivery", "lost", "warmup_s", "bytes"}``: ``received`` the
+        measured frames the subscription took, ``delivery`` their share (NaN when the two
+        ends never matched), ``lost`` the samples the transport lost over the whole run,
+        warm-up frames included (the message-lost event's total count).
     """
     from hand_capture.dds import dds_environment
 
@@ -137,6 +141,7 @@ def _pub(a: argparse.Namespace) -> int:
 
 def _sub(a: argparse.Namespace) -> int:
     import rclpy
+    from rclpy.event_handler import SubscriptionEventCallbacks
     from sensor_msgs.msg import Image
     from std_msgs.msg import String
 
@@ -156,7 +161,14 @@ def _sub(a: argparse.Namespace) -> int:
         elif fid.startswith("m") and len(m.data) == 2 * a.width * a.height:
             got.add(fid)
 
-    node.create_subscription(Image, f"{a.tag}/{_TOPIC}", on_image, depth_image_qos())
+    lost = {"n": 0}
+
+    def on_lost(info) -> None:  # samples that never reached the reader (sequence gaps)
+        lost["n"] = max(lost["n"], int(info.total_count))
+
+    events = SubscriptionEventCallbacks(message_lost=on_lost)
+    node.create_subscription(Image, f"{a.tag}/{_TOPIC}", on_image, depth_image_qos(),
+                             event_callbacks=events)
     node.create_subscription(String, f"{a.tag}/done",
                              lambda m: state.update(done=(int(m.data), time.monotonic())),
                              _ack_qos())
@@ -172,7 +184,7 @@ def _sub(a: argparse.Namespace) -> int:
     while time.monotonic() < t_ack and ack.get_subscription_count():
         rclpy.spin_once(node, timeout_sec=0.05)
     print(json.dumps({"sent": sent, "received": len(got),
-                      "delivery": len(got) / sent if sent else float("nan"),
+                      "delivery": len(got) / sent if sent else float("nan"), "lost": lost["n"],
                       "warmup_s": state["warm"], "bytes": 2 * a.width * a.height}),
           flush=True)
     node.destroy_node()
