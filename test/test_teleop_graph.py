@@ -168,16 +168,19 @@ def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
     """The whole graph with the tracker in the loop (grasp_phase and the controller see only
     the tracked hand/pose, never the camera's ground truth) and the operator's performance made
     from human keyframes, not from the grasp plan: every topic is recorded and the box is
-    lifted and held. The performance lifts it 100 mm; on the loaded 2-core host (load 5-7)
-    four runs held it 93-95 mm for 1 s, the wrist 6-7 deg off its command over the approach
-    (the servos' lag). Before the wrist armature was sized from its servo damping, the clamped
-    wrist servos chattered: 32-93 deg off in five of five runs, and three of four missed.
-    The wrist is judged by the 90th percentile over its states of the offset from the nearest
-    of the commands received in the 150 ms before the state (_root_swing_deg): the offset from
-    the last command alone measures the machine's load as much as the servos (largest
-    5.8-22.6 deg, 90th percentile 4.6-15.2 deg, the highest with the suite's other tests and a
-    CPU burner beside it, the box held 95 mm; over 150 ms, 0.3-0.7 deg in three runs beside
-    two burners, where the last command gave 5.6-8.5)."""
+    lifted and held (the performance lifts it 100 mm; 90-96 mm held for 1 s in the runs
+    below), with the simulated wrist on its commanded path over the approach and the grasp.
+
+    The wrist is judged by how far it leaves the range of its recent commands
+    (:func:`_root_swing_deg`, 300 ms of sim time): lagging them (the servos' 83 ms, the 50 Hz
+    control, a loaded CPU) stays inside. Measured on the final graph: 0.01 deg idle (four
+    runs), 0.01-0.38 beside two busy loops on two cores (six runs). Failures it caught: before
+    the wrist armature was sized from its servo damping, the clamped wrist servos chattered
+    (32-93 deg off in five of five runs); with a 10-deep command queue in the sim, a loaded
+    CPU made it work through a backlog one command per tick, and the wrist stayed at its
+    start while the approach had turned it 24 deg (19.3-25.4 deg, three of three loaded
+    runs). Against the nearest command received within 150 ms of wall time, the test's
+    earlier measure, correct graphs gave 0.6-9.7 deg and CI 10.7: it measured the load."""
     from hand_control.report.series import load_bag, positions
 
     p = hand_suite("run", "teleop", "-p", f"bag_recorder.output:={tmp_path}/bag")
@@ -194,10 +197,9 @@ def test_teleop_graph_lifts_the_box_from_tracked_input(tmp_path: Path) -> None:
     held = _held_lift_mm(np.asarray(box.t_ns), positions(box.msgs))
     swing = _root_swing_deg(data)
     # the box held clearly off the table for a second (not flung on release), with the wrist
-    # following its command over the approach and the grasp
+    # on its commanded path over the approach and the grasp
     assert held > 50.0, (held, swing, out[-4000:])
-    assert swing < 10.0, (held, swing, _root_swing_deg(data, 100.0),
-                          _root_swing_deg(data, window_ms=0.0))
+    assert swing < 5.0, (held, swing, _root_swing_deg(data, 100.0))
 
 
 def _held_lift_mm(t_ns: np.ndarray, pos: np.ndarray, hold_s: float = 1.0) -> float:
@@ -210,15 +212,16 @@ def _held_lift_mm(t_ns: np.ndarray, pos: np.ndarray, hold_s: float = 1.0) -> flo
                default=0.0)
 
 
-def _root_swing_deg(data, percentile: float = 90.0, window_ms: float = 150.0) -> float:
+def _root_swing_deg(data, percentile: float = 90.0, window_s: float = 0.3) -> float:
     """Percentile over the states (90th by default; 100 = the largest) of the angle [deg] by
-    which the simulated wrist's root hinges were off the nearest of the joint commands
-    received in the ``window_ms`` before each state (and the last one before it; 0: that one
-    alone), over the approach and the grasp (1.5 s before to 0.1 s after the first reported
-    manipulation; bag receive times). The window holds the servos' lag (kd / kp = 83 ms with
-    Table 1's wrist gains, 5-7 deg off the last command as the approach turns the wrist), the
-    50 Hz control period and the delivery; a wrist that chatters or does not follow is off
-    every command in it."""
+    which the simulated wrist's root hinges lay outside the range spanned by the joint
+    commands in force over the ``window_s`` of simulated time before each state, worst
+    hinge, over the approach and the grasp (1.5 s before to 0.1 s after the first reported
+    manipulation). A command's receive time is put on the sim's clock by the states' stamps
+    against their receive times, so a sim slowed by a loaded CPU (which then steps up to
+    0.2 s on one command) is judged by its own time. A wrist that lags its commands stays
+    between the old and the new ones; one that chatters, overshoots or is held off them
+    does not."""
     cmd, js = data.topics["control/joint_command"], data.topics["sim/joint_states"]
     ph = data.topics["control/grasp_phase"]
     t_grasp = next((t for t, m in zip(ph.t_ns, ph.msgs, strict=True)
@@ -226,13 +229,16 @@ def _root_swing_deg(data, percentile: float = 90.0, window_ms: float = 150.0) ->
     if t_grasp is None:
         return 0.0
     c = np.array([m.positions[3:6] for m in cmd.msgs])  # (m, 3)
-    t_cmd = np.asarray(cmd.t_ns)
     t_js = np.asarray(js.t_ns)
+    sim = np.array([m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in js.msgs])
+    sim_cmd = np.interp(np.asarray(cmd.t_ns), t_js, sim)  # receive times on the sim clock [s]
     near = (t_js > t_grasp - 1_500_000_000) & (t_js < t_grasp + 100_000_000)
     q = np.array([m.position[3:6] for m in js.msgs])[near]  # (n, 3)
-    last = np.searchsorted(t_cmd, t_js[near], side="right") - 1
-    first = np.minimum(np.searchsorted(t_cmd, t_js[near] - int(window_ms * 1e6)), last)
-    off = [np.degrees(np.abs(qi - c[a:b + 1])).max(axis=1).min()  # worst hinge, best command
+    last = np.searchsorted(sim_cmd, sim[near], side="right") - 1
+    # from the command in force at the window's start
+    first = np.clip(np.searchsorted(sim_cmd, sim[near] - window_s, side="right") - 1, 0, last)
+    off = [np.degrees(np.maximum(c[a:b + 1].min(axis=0) - qi,
+                                 qi - c[a:b + 1].max(axis=0))).clip(0.0).max()
            for qi, a, b in zip(q, first, last, strict=True) if b >= 0]
     return float(np.percentile(off, percentile)) if off else 0.0
 

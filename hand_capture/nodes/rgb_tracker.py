@@ -38,7 +38,7 @@ from geometry_msgs.msg import Point
 from hand_msgs.msg import HandKeypoints, HandPose
 from hand_msgs.msg import HandShape as HandShapeMsg
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
 from hand_capture.cameras.threads import limit_blas_threads
@@ -48,6 +48,7 @@ from hand_capture.model import HandShape
 from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.images import image_to_array
 from hand_capture.nodes.params import declare_config
+from hand_capture.nodes.qos import newest_sensor_qos
 from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import fill_keypoints_msg, fill_pose_msg
 from hand_capture.rgbtrack import (
@@ -62,13 +63,6 @@ from hand_capture.validate import validate_camera_info, validate_image_size
 _IMAGE = "camera/color/image_raw"
 _INFO = "camera/color/camera_info"
 _DEPTH = "camera/depth/image_raw"
-
-
-def _latest_only() -> QoSProfile:
-    """SensorDataQoS with depth 1: a busy tracker sees the newest frame, never a backlog."""
-    s = qos_profile_sensor_data
-    return QoSProfile(depth=1, reliability=s.reliability, durability=s.durability,
-                      history=s.history)
 
 
 @dataclass(frozen=True)
@@ -104,10 +98,10 @@ class RgbTrackerNode(Node):
         self.tracker = RgbTracker(self.cfg, fit_config=fit_cfg, detector_config=det_cfg)
         self.gate = InputGate(self)
         sensor = qos_profile_sensor_data
-        self.create_subscription(Image, _IMAGE, self._on_image, _latest_only())
+        self.create_subscription(Image, _IMAGE, self._on_image, newest_sensor_qos())
         self.create_subscription(CameraInfo, _INFO, self._on_info, sensor)
         if self.node_cfg.use_depth_topic:
-            self.create_subscription(Image, _DEPTH, self._on_depth, _latest_only())
+            self.create_subscription(Image, _DEPTH, self._on_depth, newest_sensor_qos())
         self.create_subscription(HandShapeMsg, "hand/shape", self._on_shape, 10)
         self.pub_pose = self.create_publisher(HandPose, "hand/pose", 10)
         self.pub_kp = self.create_publisher(HandKeypoints, "hand/keypoints", 10)

@@ -59,6 +59,7 @@ from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.images import image_to_array, intrinsics_from_msg, rgb_image_msg
 from hand_capture.nodes.markers import SerializedMarkers
 from hand_capture.nodes.params import declare_config
+from hand_capture.nodes.qos import newest_sensor_qos
 from hand_capture.nodes.shell import run_node
 from hand_capture.posemsg import fill_pose_msg
 from hand_capture.tracking.calibration import (
@@ -90,9 +91,7 @@ def depth_image_qos() -> QoSProfile:
     Depth 1, keep-last: the executor takes one queued message per subscription per cycle,
     so a deeper queue would hand the tracker stale frames after every slow frame.
     """
-    sensor = qos_profile_sensor_data
-    return QoSProfile(depth=1, reliability=sensor.reliability, durability=sensor.durability,
-                      history=sensor.history)
+    return newest_sensor_qos()
 
 
 @dataclass(frozen=True)

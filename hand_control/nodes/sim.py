@@ -29,12 +29,13 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from hand_msgs.msg import ContactArray, JointCommand
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
 from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.params import declare_config
+from hand_capture.nodes.qos import newest_command_qos
 from hand_capture.nodes.shell import run_node
 from hand_capture.validate import validate_joint_command
 from hand_control.control import CompositeControlConfig
@@ -77,9 +78,11 @@ class SimNode(Node):
         self.pub_clock = (self.create_publisher(Clock, "/clock", 10)
                           if self.cfg.publish_clock else None)
         self.pub_diag = self.create_publisher(DiagnosticArray, "diagnostics", 10)
-        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        # the newest command only: a tick that steps the world for longer than the command
+        # period (a loaded CPU) would otherwise leave a backlog that the executor takes one
+        # message per wake-up, and the hand would follow commands ever further behind
         self.create_subscription(JointCommand, "control/joint_command", self._on_command,
-                                 reliable)
+                                 newest_command_qos())
         dt = self.world.model.opt.timestep * self.cfg.steps_per_tick
         period = dt / self.sim_cfg.real_time_factor if self.sim_cfg.real_time else 1e-4
         self._wall0 = time.perf_counter()
