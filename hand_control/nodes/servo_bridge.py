@@ -47,12 +47,12 @@ from hand_msgs.msg import HandPose, JointCommand
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from hand_capture.nodes.gate import InputGate
 from hand_capture.nodes.params import declare_config
+from hand_capture.nodes.qos import newest_command_qos, newest_sensor_qos
 from hand_capture.nodes.shell import run_node
 from hand_capture.validate import (
     validate_hand_pose_msg,
@@ -128,19 +128,21 @@ class ServoBridgeNode(LifecycleNode):
             return _FAILURE
         self._state_pub = self.create_lifecycle_publisher(JointState, "servo/joint_states", 10)
         self._goal_pub = self.create_lifecycle_publisher(JointCommand, "servo/goal", 10)
+        # every source the newest input only: a goal from a backlog is stale when it reaches
+        # the motors (the executor takes one queued message per wake-up)
         if self.config.source == "tracked":
             self._sub = self.create_subscription(HandPose, "hand/pose", self._on_pose,
-                                                 qos_profile_sensor_data)
+                                                 newest_sensor_qos())
         elif self.config.source == "commanded":
             self._sub = self.create_subscription(JointCommand, "control/joint_command",
-                                                 self._on_command, 10)
+                                                 self._on_command, newest_command_qos())
         elif self.config.source == "robot":
             self._sub = self.create_subscription(
                 JointCommand, "robot/joint_command",
-                lambda m: self._on_command(m, "robot/joint_command"), 10)
+                lambda m: self._on_command(m, "robot/joint_command"), newest_command_qos())
         else:
             self._sub = self.create_subscription(JointState, "sim/joint_states",
-                                                 self._on_joint_state, qos_profile_sensor_data)
+                                                 self._on_joint_state, newest_sensor_qos())
         self._srv = self.create_service(Trigger, "~/reboot", self._on_reboot)
         return super().on_configure(state)
 
