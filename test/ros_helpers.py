@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
 import random
 import signal
 import subprocess
 import sys
+import tempfile
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,3 +75,16 @@ def spin_nodes(nodes: list, seconds: float, until: Callable[[], bool] | None = N
         ex.spin_once(timeout_sec=0.01)
     for n in nodes:
         ex.remove_node(n)
+
+
+@contextmanager
+def machine_lock(name: str) -> Iterator[None]:
+    """Hold the lock ``name``, shared by every process of this machine (pytest-xdist workers
+    included): tests that must not run at the same time as each other wait here for the
+    other's end, whichever worker runs them."""
+    with open(Path(tempfile.gettempdir()) / f"hand_suite_test_{name}.lock", "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
