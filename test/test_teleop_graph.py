@@ -35,8 +35,9 @@ TELEOP_TOPICS = (
 def realtime_chain() -> Iterator[None]:
     """The teleop and replay graphs run their chain (the tracker included) under SCHED_FIFO
     (config/teleop.yaml) and the sim at normal scheduling: two of them at once on a 2-core
-    machine (the two test workers) starved both sims (real-time factor 0.06-0.29, the box
-    not lifted: one of two runs). Their tests take turns."""
+    machine (the two test workers) starved both sims (real-time factor 0.06-0.29; the box
+    not lifted or the wrist off its commands in four of five runs side by side). Their tests
+    take turns."""
     with machine_lock("realtime_chain"):
         yield
 

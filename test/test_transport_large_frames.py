@@ -41,11 +41,11 @@ def test_profile_gives_a_shared_memory_segment_larger_than_a_frame() -> None:
 
 def test_640x480_frames_at_30hz_reach_the_tracker_subscription() -> None:
     """The transport loses no frame (fails on the old transport: with Fast DDS defaults the
-    message-lost event counts 10-20 of 60 frames, 40-80 % arrive). Frames the subscriber
-    did not take because its process was not scheduled within a frame period (a loaded CPU
-    overwrites the depth-1 queue: 52-58 of 60 taken beside three busy loops on two cores)
-    are the tracker's design, not a loss; ``hand-suite bench tracking`` measures delivery on
-    an idle machine (99 % target)."""
+    message-lost event counted 10 and 21 of 60 frames in two runs, 68-85 % taken). Frames
+    the subscriber did not take because its process was not scheduled within a frame period
+    (a loaded CPU overwrites the depth-1 queue: 52-58 of 60 taken beside three busy loops on
+    two cores) are the tracker's design, not a loss; ``hand-suite bench tracking`` measures
+    delivery on an idle machine (99 % target)."""
     from hand_capture.bench._delivery import measure_delivery
 
     r = measure_delivery(60, 30.0, 640, 480, profile=True, timeout_s=90.0)
