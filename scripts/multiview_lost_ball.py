@@ -50,47 +50,64 @@ def main(argv: list[str] | None = None) -> int:
     model = seq.model()
     frames = list(render_sequence(seq, rig, surface=a.surface, circles=a.circles,
                                   seed=a.seed))
-    tr = MultiviewTracker(model, rig, LOConfig(seed=a.lo_seed),
-                          config)
+    tr = MultiviewTracker(model, rig, LOConfig(seed=a.lo_seed), config)
     tr.reset(seq.truth(model, 0))
-    ball = model.n_hands          # the sequence's object
-    sl = model.slices[model.part_names[ball]]
-    hands = list(range(model.n_hands))
     print(f"{a.sequence}, render seed {a.seed}, {a.surface} mesh, {a.circles} circles, "
           f"tracker overrides {a.tracker or 'none'}")
     print(f"{'t':>2} {'moved mm':>8} {'err mm':>7} {'status':>10} {'support':>7} "
           f"{'region':>6} | truth: {'support':>7} {'region':>6}  s  hands mm")
-    errs, lost, secs, hand_errs = [], 0, [], []
-    for t, fr in enumerate(frames):
-        res = tr.step(fr.images, fr.detections)
-        truth = seq.truth(model, t)
-        err = float(np.linalg.norm(res.params[sl][:3] - truth[sl][:3]) * 1e3)
-        moved = 0.0 if t == 0 else float(
-            np.linalg.norm(truth[sl][:3] - seq.truth(model, t - 1)[sl][:3]) * 1e3)
-        pe = res.parts[ball]
-        kt = model.pose(truth).keypoints
-        hand = float(np.mean([np.linalg.norm(res.state.keypoints[h] - kt[h], axis=1).mean()
-                              for h in hands]) * 1e3)
-        # evidence at the truth: the hands at the truth too
-        ts, _ = tr.lo.support(truth, tr.lo.prepare(fr.images), [ball, *hands])
-        maps = tr.regions.maps(fr.images)
-        tr_region = tr.regions.score(truth, maps, ball)[0] if ball in maps else float("nan")
-        print(f"{t:2d} {moved:8.1f} {err:7.1f} {pe.status:>10} {pe.support:7.2f} "
-              f"{pe.region:6.2f} | truth: {ts[ball]:7.2f} {tr_region:6.2f}  "
-              f"{res.seconds:.1f}  {hand:.1f}")
-        if t:
-            errs.append(err)
-            hand_errs.append(hand)
-            secs.append(res.seconds)
-            lost += pe.status == "lost"
+    rows = track_rows(tr, seq, frames)
+    for r in rows:
+        print(f"{r['t']:2d} {r['moved_mm']:8.1f} {r['err_mm']:7.1f} {r['status']:>10} "
+              f"{r['support']:7.2f} {r['region']:6.2f} | truth: {r['truth_support']:7.2f} "
+              f"{r['truth_region']:6.2f}  {r['s']:.1f}  {r['hands_mm']:.1f}")
+    later = rows[1:]
+    errs = [r["err_mm"] for r in later]
     out = {"script": "multiview_lost_ball", "sequence": a.sequence, "seed": a.seed,
            "circles": a.circles, "surface": a.surface, "overrides": a.tracker,
            "object_err_mm": [round(e, 1) for e in errs],
            "object_mean_mm": float(np.mean(errs)),
-           "hands_mean_mm": float(np.mean(hand_errs)), "frames_lost": lost,
-           "s_per_frame": float(np.mean(secs))}
+           "hands_mean_mm": float(np.mean([r["hands_mm"] for r in later])),
+           "frames_lost": sum(r["status"] == "lost" for r in later),
+           "s_per_frame": float(np.mean([r["s"] for r in later]))}
     print(json.dumps(out))
     return 0
+
+
+def track_rows(tr: object, seq: object, frames: list) -> list[dict]:
+    """Track ``frames`` with ``tr`` (the caller resets it at the first frame's truth); per frame
+    the estimate (``params``), the object's true motion and position error [mm], status,
+    support and region score,
+    the support and region score at the TRUE configuration, the seconds and the hands' mean
+    keypoint error [mm]. The evidence at the truth is evaluated with the local optimiser's
+    random draws put back (``MultiviewTracker._draws_kept``): it takes edge subsamples, and
+    without that the tracking of the frames after it would differ from the tracker's own."""
+    model = tr.model
+    obj = model.n_hands          # the sequence's object
+    sl = model.slices[model.part_names[obj]]
+    hands = list(range(model.n_hands))
+    rows = []
+    for t, fr in enumerate(frames):
+        res = tr.step(fr.images, fr.detections)
+        truth = seq.truth(model, t)
+        kt = model.pose(truth).keypoints
+        pe = res.parts[obj]
+        with tr._draws_kept():   # the evidence at the truth (the hands at the truth too)
+            ts, _ = tr.lo.support(truth, tr.lo.prepare(fr.images), [obj, *hands])
+            maps = tr.regions.maps(fr.images)
+            tr_region = (tr.regions.score(truth, maps, obj)[0] if obj in maps
+                         else float("nan"))
+        rows.append({
+            "t": t, "params": res.params.copy(),
+            "moved_mm": 0.0 if t == 0 else float(
+                np.linalg.norm(truth[sl][:3] - seq.truth(model, t - 1)[sl][:3]) * 1e3),
+            "err_mm": float(np.linalg.norm(res.params[sl][:3] - truth[sl][:3]) * 1e3),
+            "status": pe.status, "support": pe.support, "region": pe.region,
+            "truth_support": float(ts[obj]), "truth_region": float(tr_region),
+            "s": res.seconds,
+            "hands_mm": float(np.mean([np.linalg.norm(res.state.keypoints[h] - kt[h],
+                                                      axis=1).mean() for h in hands]) * 1e3)})
+    return rows
 
 
 if __name__ == "__main__":

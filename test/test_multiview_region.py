@@ -123,3 +123,34 @@ def test_a_colour_model_that_separates_nothing_is_not_kept(jump):
     black = {c: np.zeros_like(v) for c, v in frames[0].images.items()}
     assert reg.learn(black, seq.truth(model, 0), [model.part_index("ball")]) == []
     assert not reg.colours
+
+
+def test_the_lost_ball_script_reports_the_trackers_own_estimates(jump):
+    """``scripts/multiview_lost_ball.py`` also scores the evidence at the true configuration
+    each frame, which takes edge subsamples from the local optimiser's random draws; its rows
+    must still be the estimates of the tracker run alone (the draws put back), or a script
+    meant to show the tracker's behaviour shows another one."""
+    from script_helpers import load_script
+
+    rig, seq, frames = jump
+    model = seq.model()
+    lost_ball = load_script("multiview_lost_ball")
+
+    def tracker() -> MultiviewTracker:
+        tr = MultiviewTracker(model, rig, LOConfig(iterations=3))
+        tr.reset(seq.truth(model, 0))
+        return tr
+
+    alone = tracker()
+    plain = [alone.step(f.images, f.detections).params for f in frames]
+    # the evidence at the truth does draw from the optimiser's generator
+    probe = tracker()
+    before = probe.lo._rng.bit_generator.state
+    probe.lo.support(seq.truth(model, 0), probe.lo.prepare(frames[0].images),
+                     list(range(len(model.part_names))))
+    assert probe.lo._rng.bit_generator.state != before
+    rows = lost_ball.track_rows(tracker(), seq, frames)
+    assert [r["t"] for r in rows] == [0, 1]
+    for r, p in zip(rows, plain, strict=True):
+        np.testing.assert_array_equal(r["params"], p)
+    assert rows[1]["moved_mm"] > 100.0 and rows[1]["truth_region"] > 0.8
