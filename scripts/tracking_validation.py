@@ -30,7 +30,12 @@ third, ``tube_moving``, is ``tube`` with the wrist moving: every other family ta
 of the suite's clips, which hold the wrist still, where a real hand (and the held-out family)
 moves it several millimetres a frame
 (:func:`~hand_capture.bench._tracking_heldout.moving_wrist_path`); ``tube_moving_forearm``
-is ``tube_forearm`` with the wrist (and the forearm with it) on such a path.
+is ``tube_forearm`` with the wrist (and the forearm with it) on such a path, and
+``tube_moving_sleeve`` the same with the suite's sleeve over the forearm (10-25 mm wider than
+the arm from 40-80 mm past the wrist, :func:`~hand_capture.bench._tracking_heldout.
+suite_forearm_sequence` ``sleeve``): a forearm draws the tracked wrist towards the camera
+(docs/experiments/depth_tracking.md, fifty-fifth session), and on the held-out sleeves that
+is what fails the frames.
 
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --out base.json
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --config acquire_modes=0 \\
@@ -62,9 +67,9 @@ from hand_capture.tracking.tubes import TubeSurface, tube_mesh
 #: the sections, by name: each returns the bench's figures for the product settings
 SECTIONS = ("surface", "capsule", "stereo", "forearm", "table", "capsule_forearm",
             "far_forearm", "near_forearm", "distractor", "stereo_forearm", "spread", "tube",
-            "tube_forearm", "tube_moving", "tube_moving_forearm")
+            "tube_forearm", "tube_moving", "tube_moving_forearm", "tube_moving_sleeve")
 #: the bench's sections (run when ``--sections`` is not given)
-BENCH_SECTIONS = SECTIONS[:-6]
+BENCH_SECTIONS = SECTIONS[:-7]
 
 
 class TubeHand:
@@ -80,7 +85,7 @@ class TubeHand:
 
 
 def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm: bool,
-                  oracle: bool = False, moving: bool = False) -> dict:
+                  oracle: bool = False, moving: bool = False, sleeve: bool = False) -> dict:
     """The tube validation family (module docstring): each shape and motion of the surface
     validation's plan with its own tube hand (drawn from ``770000 + 31 seed + len(clip)``),
     the stereo artifacts of the ``stereo_forearm`` section (without them under ``oracle``),
@@ -88,7 +93,7 @@ def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm
     pool (as ``scripts/tracking_oracle.py`` does; hand only). ``moving``: the wrist (and
     the forearm with it) follows :func:`~hand_capture.bench._tracking_heldout.
     moving_wrist_path` (drawn from ``880000 + 37 seed + len(clip)``) instead of holding
-    still."""
+    still. ``sleeve`` (with ``forearm``): a sleeve over the forearm."""
     from hand_capture.model import HandModel
     from hand_capture.tracking.hybrid import HybridTracker
 
@@ -103,7 +108,7 @@ def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm
                 880000 + 37 * seed + len(clip)), n, step) if moving else None
             if forearm:
                 true, intr, frames, kps, _ = th.suite_forearm_sequence(
-                    seed, clip, n, step, surface=hand, wrist_path=path)
+                    seed, clip, n, step, surface=hand, wrist_path=path, sleeve=sleeve)
                 cal = th._suite_calibration(true, intr, seed, base, hand)
             else:
                 _, _, frames, kps, poses, calf = th.suite_surface_sequence(
@@ -120,7 +125,8 @@ def _tube_section(reg: HandRegressor | RegressorSet, cfg: TrackerConfig, forearm
                 errs.append(th._score(tr, frames, kps)["errs"])
     e = np.concatenate(errs)
     fam = ("val_tube_oracle" if oracle else "val_tube"
-           + ("_moving" if moving else "") + ("_forearm" if forearm else ""))
+           + ("_moving" if moving else "")
+           + ("_sleeve" if sleeve else "_forearm" if forearm else ""))
     fig = {f"{fam}_mean_mm": float(e.mean()),
            f"{fam}_success_20mm": float((e.max(axis=1) < 20.0).mean())}
     print(f"{fam} ({len(errs)} sequences): {fig[f'{fam}_mean_mm']:.3f} mm, success@20 "
@@ -160,8 +166,9 @@ def _run(section: str, reg: HandRegressor | RegressorSet, cfg: TrackerConfig,
     if section == "spread":
         return _spread_section(reg, cfg)
     if section.startswith("tube"):
-        return _tube_section(reg, cfg, section.endswith("forearm"), oracle,
-                             section.startswith("tube_moving"))
+        sleeve = section.endswith("sleeve")
+        return _tube_section(reg, cfg, section.endswith("forearm") or sleeve, oracle,
+                             section.startswith("tube_moving"), sleeve)
     if section == "surface":
         return th.surface_validation_section(reg, cfg, False, variants={"product": ("", cfg)})
     if section == "capsule":

@@ -198,3 +198,31 @@ def test_the_moving_forearm_family_moves_the_hand_and_its_forearm(tv, monkeypatc
         with pytest.raises(RuntimeError, match="stop"):
             tv._run(section, None, None)
     assert paths[0] is None and paths[1].shape == (20, 3)
+
+
+def test_the_moving_sleeve_family_puts_a_sleeve_on_the_moving_forearm(tv, monkeypatch):
+    """``tube_moving_sleeve`` is ``tube_moving_forearm`` with the suite's sleeve: the section
+    asks the forearm sequence for the wrist path and the sleeve, and a sleeved arm shows
+    more arm pixels (the sleeve is wider than the arm) where the hand is the same."""
+    import numpy as np
+
+    from hand_capture.bench import _tracking_heldout as th
+
+    assert "tube_moving_sleeve" in tv.SECTIONS
+    assert "tube_moving_sleeve" not in tv.BENCH_SECTIONS
+    _, _, _, bare_kp, bare = th.suite_forearm_sequence(25, "fist", 1, 2)
+    _, _, _, sleeve_kp, sleeved = th.suite_forearm_sequence(25, "fist", 1, 2, sleeve=True)
+    np.testing.assert_array_equal(bare_kp[0], sleeve_kp[0])
+    assert np.count_nonzero(sleeved[0] == 2) > np.count_nonzero(bare[0] == 2)
+    calls = []
+
+    def fake_forearm(seed, clip, n, step, wrist_path=None, sleeve=False, **kw):
+        calls.append((wrist_path, sleeve))
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(th, "suite_forearm_sequence", fake_forearm)
+    for section in ("tube_moving_forearm", "tube_moving_sleeve"):
+        with pytest.raises(RuntimeError, match="stop"):
+            tv._run(section, None, None)
+    assert [s for _, s in calls] == [False, True]
+    assert all(p is not None and p.shape == (20, 3) for p, _ in calls)
