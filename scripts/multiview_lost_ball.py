@@ -15,6 +15,7 @@ object: a false LOST flag's check).
 
     PYTHONPATH=. python scripts/multiview_lost_ball.py [--seed 7] [--circles 100]
         [--surface own] [--frames 10] [--sequence ball] [--tracker KEY=VALUE ...]
+        [--lo KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -43,17 +44,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sequence", default="ball", help="ball or box (its object's rows)")
     ap.add_argument("--lo-seed", type=int, default=0)
     ap.add_argument("--tracker", nargs="*", default=[], help="overrides KEY=VALUE")
+    ap.add_argument("--lo", nargs="*", default=[], help="LOConfig overrides KEY=VALUE")
     a = ap.parse_args(argv)
     config = from_overrides(MultiviewTrackerConfig, a.tracker)
+    lo = from_overrides(LOConfig, [*a.lo, f"seed={a.lo_seed}"])
     rig = load_rig("studio6")
     seq = make_sequence(a.sequence, a.frames)
     model = seq.model()
     frames = list(render_sequence(seq, rig, surface=a.surface, circles=a.circles,
                                   seed=a.seed))
-    tr = MultiviewTracker(model, rig, LOConfig(seed=a.lo_seed), config)
+    tr = MultiviewTracker(model, rig, lo, config)
     tr.reset(seq.truth(model, 0))
     print(f"{a.sequence}, render seed {a.seed}, {a.surface} mesh, {a.circles} circles, "
-          f"tracker overrides {a.tracker or 'none'}")
+          f"tracker overrides {a.tracker or 'none'}, LO overrides {a.lo or 'none'}")
     print(f"{'t':>2} {'moved mm':>8} {'err mm':>7} {'status':>10} {'support':>7} "
           f"{'region':>6} | truth: {'support':>7} {'region':>6}  s  hands mm")
     rows = track_rows(tr, seq, frames)
@@ -64,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     later = rows[1:]
     errs = [r["err_mm"] for r in later]
     out = {"script": "multiview_lost_ball", "sequence": a.sequence, "seed": a.seed,
-           "circles": a.circles, "surface": a.surface, "overrides": a.tracker,
+           "circles": a.circles, "surface": a.surface, "overrides": a.tracker, "lo": a.lo,
            "object_err_mm": [round(e, 1) for e in errs],
            "object_mean_mm": float(np.mean(errs)),
            "hands_mean_mm": float(np.mean([r["hands_mm"] for r in later])),

@@ -191,9 +191,11 @@ def test_edge_gate_narrows_to_a_third_after_its_share_of_the_iterations(scene, s
     assert np.allclose(gates[reach:], 10.0)
 
 
-def _frame_starts(scene, p0: np.ndarray, step: np.ndarray, config=None) -> list:
+def _frame_starts(scene, p0: np.ndarray, step: np.ndarray, config=None,
+                  priors: list | None = None) -> list:
     """The start of each of 3 frames' solves of a tracker whose every solve moves the
-    parameters by ``step`` (no images involved: black frames, so no object colour model)."""
+    parameters by ``step`` (no images involved: black frames, so no object colour model);
+    ``priors`` receives the smoothness reference each solve was given."""
     from hand_capture.multiview.lo import LOResult
     from hand_capture.multiview.tracker import MultiviewTrackerConfig
 
@@ -202,8 +204,10 @@ def _frame_starts(scene, p0: np.ndarray, step: np.ndarray, config=None) -> list:
     tr = MultiviewTracker(scene, rig, LOConfig(iterations=1), config)
     starts = []
 
-    def solve(params0, frame, parts=None, iterations=None):
+    def solve(params0, frame, parts=None, iterations=None, prior=None):
         starts.append(np.array(params0))
+        if priors is not None:
+            priors.append(None if prior is None else np.array(prior))
         n = len(scene.part_names)
         return LOResult(params0 + step, 0.0, np.ones(n), np.full(n, 100.0))
 
@@ -232,6 +236,66 @@ def test_objects_start_from_their_constant_velocity_prediction(scene):
     expect[54:60] += r1[54:60] - r0[54:60]            # the ball's last motion, not the hand's
     np.testing.assert_allclose(starts[2], expect, atol=1e-12)
     assert starts[2][54] - r1[54] > 0.05 and starts[2][0] == r1[0]
+
+
+def test_the_smoothness_reference_is_the_last_estimate_moved_on_by_its_last_motion(scene):
+    """Seed 000 sec. 4.3's term penalises ``q_t - 2 q_{t-1} + q_{t-2}``: each solve gets
+    ``2 q_{t-1} - q_{t-2}`` as its reference (after a reset, with no motion yet: the last
+    estimate), whatever the start (hands start where they were)."""
+    step = np.zeros(scene.n_params)
+    step[0] = 0.004
+    step[10] = 0.05
+    priors: list = []
+    starts = _frame_starts(scene, _params(scene), step, priors=priors)
+    np.testing.assert_array_equal(priors[0], starts[0])
+    for t in (1, 2):
+        last = starts[t - 1] + step                       # the previous frame's estimate
+        np.testing.assert_allclose(priors[t], last + step, atol=1e-12)
+        assert starts[t][0] == last[0]                    # the hand starts where it was
+
+
+def test_smoothness_rows_weigh_metres_and_radians_and_match_finite_differences(scene):
+    """The rows ``w (x - prior)`` over every optimised column (a hand's and an object's):
+    1000 px per m for positions and 50 per rad for angles, per px-per-mm of weight; the
+    Jacobian matches central differences."""
+    lo = LocalOptimizer(scene, load_rig("studio6"), LOConfig(smooth_px_per_mm=2.0))
+    cols = np.concatenate([np.arange(0, 27), np.arange(54, 60)])    # right hand + ball
+    prior = _params(scene)
+    pos, w = lo.smoothness_rows(prior, cols)
+    np.testing.assert_array_equal(pos, np.arange(33))
+    np.testing.assert_array_equal(w, [2000.0] * 3 + [100.0] * 24 + [2000.0] * 3 + [100.0] * 3)
+    assert lo.smoothness_rows(None, cols) is None
+    assert LocalOptimizer(scene, load_rig("studio6")).smoothness_rows(prior, cols) is None
+    x = prior + np.random.default_rng(0).normal(0.0, 0.01, scene.n_params)
+    empty = (np.zeros(0), np.zeros((0, len(cols))))
+    r, J = lo._with_smoothness(empty, x, cols, (prior, pos, w))
+    assert r.shape == (33,) and J.shape == (33, len(cols))
+    h = 1e-6
+    for k in range(len(cols)):
+        dx = np.zeros(scene.n_params)
+        dx[cols[k]] = h
+        rp, _ = lo._with_smoothness(empty, x + dx, cols, (prior, pos, w))
+        rm, _ = lo._with_smoothness(empty, x - dx, cols, (prior, pos, w))
+        np.testing.assert_allclose(J[:, k], (rp - rm) / (2 * h), rtol=1e-6, atol=1e-6)
+
+
+def test_the_smoothness_term_holds_the_parts_at_their_reference(scene):
+    """With only the collision term pushing (a ball sunk 3 cm into the palm, no images),
+    the hand yields with the ball; with the smoothness term on, both stay near their
+    reference (the term's weight against eq. 4's)."""
+    p0 = _params(scene)
+    palm = scene.pose(p0).keypoints[0][[0, 5, 9, 13, 17]].mean(axis=0)
+    p = _params(scene, ball_at=palm - np.array([0.0, 0.0, 0.03]))
+    moved, ball = {}, {}
+    for k in (0.0, 5.0):
+        lo = LocalOptimizer(scene, load_rig("studio6"),
+                            LOConfig(iterations=8, smooth_px_per_mm=k))
+        res = lo.solve(p, FrameData({}, {}, _empty_flow()), parts=[0, 2], prior=p)
+        kp = scene.pose(res.params).keypoints[0]
+        moved[k] = float(np.linalg.norm(kp - scene.pose(p).keypoints[0], axis=1).mean())
+        ball[k] = float(np.linalg.norm(res.params[54:57] - p[54:57]))
+    assert moved[0.0] > 0.002 and ball[0.0] > 0.005, (moved, ball)   # both yield
+    assert moved[5.0] < 0.3 * moved[0.0] and ball[5.0] < 0.3 * ball[0.0], (moved, ball)
 
 
 def test_a_held_object_is_not_predicted(scene):
@@ -483,3 +547,26 @@ def test_saturation_edges_lie_on_the_rendered_hand_outline_at_the_default_blur(
         box[sat] = np.sort(np.concatenate(d_all[1]))
     assert meds[2.0] < 0.6 < meds[0.0], meds
     assert np.array_equal(box[0.0], box[2.0])
+
+
+def test_the_multiview_bench_sets_its_lo_overrides_on_every_row(monkeypatch):
+    """``hand_capture.bench.multiview.run(lo=...)`` (an option's bench figures beside the
+    defaults'): every local-optimiser row gets the fields, the variants keep their own
+    switches, and the seed stays ``lo_seed``."""
+    from hand_capture.bench import multiview as bench
+
+    seen = []
+
+    def fake_track(seq, model, rig, frames, lo_cfg, *a, **k):
+        seen.append(lo_cfg)
+        if len(seen) == 2:
+            raise RuntimeError("stop")
+        return {}
+
+    monkeypatch.setattr(bench, "_track", fake_track)
+    monkeypatch.setattr(bench, "_row", lambda *a, **k: [])
+    with pytest.raises(RuntimeError, match="stop"):
+        bench.run(smoke=True, lo_seed=3, lo={"smooth_px_per_mm": 1.5})
+    assert [c.smooth_px_per_mm for c in seen] == [1.5, 1.5]
+    assert all(c.seed == 3 and c.iterations == 4 for c in seen)
+    assert seen[0] != seen[1]                        # two variants (E+C, E+C+O ...)

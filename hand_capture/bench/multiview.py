@@ -40,7 +40,7 @@ JSON keys: ``lo_full_mean_mm`` (held-out surfaces, worst sequence in ``lo_full_m
 hands + ball; ``cpu_s_per_frame`` its CPU time), ``isa128_s_per_frame``, ``render_ms``
 (one 640x480 model render, the cost ISA's particles pay), ``recover_frames``,
 ``lost_flagged_share``, ``flow_ignore_circles`` (whether the circles' flow features were left
-out).
+out), ``lo_overrides`` (the ``LOConfig`` fields :func:`run` set, ``{}`` for the defaults).
 """
 
 from __future__ import annotations
@@ -188,10 +188,12 @@ def _leave(rig: Any, lo_cfg: Any, flow_ignore: bool = True) -> dict[str, float]:
 
 
 def run(quick: bool = False, smoke: bool = False, lo_seed: int = 0,
-        flow_ignore: bool = True) -> dict[str, Any]:
+        flow_ignore: bool = True, lo: dict[str, Any] | None = None) -> dict[str, Any]:
     """The bench (module docstring); ``lo_seed``: the local optimiser's subsampling seed
     (``LOConfig.seed``; the run-to-run spread of its random draws); ``flow_ignore``: seed
-    002's protocol, the circles' flow features left out (False: kept, the harsher one)."""
+    002's protocol, the circles' flow features left out (False: kept, the harsher one);
+    ``lo``: ``LOConfig`` fields set for every local-optimiser row (e.g.
+    ``{"smooth_px_per_mm": 1.0}``; an option's figures beside the defaults')."""
     from hand_capture.multiview.lo import LOConfig
     from hand_capture.multiview.rig import Rig, load_rig
     from hand_capture.multiview.sequences import make_sequence, render_sequence
@@ -201,7 +203,8 @@ def run(quick: bool = False, smoke: bool = False, lo_seed: int = 0,
         rig = Rig(rig.name, rig.cameras[:3], rig.world_frame)
     n = 2 if smoke else 4 if quick else 10
     seqs = ["box"] if smoke else ["box", "ball"] if quick else ["fingers", "ball", "box"]
-    base = LOConfig(iterations=4 if smoke else 10 if quick else 15, seed=lo_seed)
+    base = LOConfig(**{"iterations": 4 if smoke else 10 if quick else 15, **(lo or {}),
+                       "seed": lo_seed})
     rows, results = [], {}
     held_frames: dict[str, tuple[Any, Any, list]] = {}
     render_ms = float("nan")
@@ -292,6 +295,7 @@ def run(quick: bool = False, smoke: bool = False, lo_seed: int = 0,
         "frames": n,
         "cameras": len(rig),
         "flow_ignore_circles": flow_ignore,
+        "lo_overrides": dict(lo or {}),
         **{f"lo_full_{s}_mm": v for s, v in full_seq.items()},
     }
     if not quick:

@@ -15,6 +15,20 @@ whose gradient pushes outwards are held for the step. Outliers (sec. 4.3): per b
 camera, the image displacements ``p - Pi_c(v_k)`` of its correspondences get a mean and a
 standard deviation; those farther than ``outlier_sigma`` standard deviations from the mean
 are left out of the iteration.
+
+Seed 000 sec. 4.3's smoothness term, added to eq. (2) (seed 002 names motion priors as the
+extension its failure cases call for): every parameter optimised gets the residual
+``smooth_px_per_mm * L * (q_t - 2 q_{t-1} + q_{t-2})``, with ``L`` 1000 mm per metre for a
+wrist's or an object's position and 50 mm per radian (the arc of a finger-long lever) for the
+angles, so that an acceleration moving a part by 1 mm costs about ``smooth_px_per_mm``
+pixels of residual. The objects take it too: with the hands alone held by it, the collision
+term (eq. 4) pushed a grasped box out of the still hand instead of both yielding
+(docs/experiments/multiview.md).
+The tracker passes ``2 q_{t-1} - q_{t-2}`` (its last estimate moved on by its last motion) as
+the ``prior`` of :meth:`LocalOptimizer.solve`. Structural noise and detector errors differ
+from frame to frame, so a frame's optimum wanders around the true motion (the own-mesh error
+with seed 002's circles correlates 0.4-0.56 between consecutive frames); the term keeps the
+part of that wander that the motion does not explain out of the estimate.
 """
 
 from __future__ import annotations
@@ -26,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hand_capture.config import param, validate
+from hand_capture.model.joints import N_DOF
 from hand_capture.multiview.collision import (
     CollisionPairs,
     detect_collisions,
@@ -40,11 +55,13 @@ from hand_capture.multiview.correspondences import (
     model_edges,
 )
 from hand_capture.multiview.rig import Rig
-from hand_capture.multiview.scene_model import SceneModel, SceneState
+from hand_capture.multiview.scene_model import OBJECT_DOF, SceneModel, SceneState
 
 __all__ = ["Correspondences", "FrameData", "LOConfig", "LOResult", "LocalOptimizer"]
 
 EDGE, FLOW, SALIENT = 0, 1, 2
+#: the smoothness term's lever for angles [mm per rad] (module docstring)
+SMOOTH_LEVER_MM = 50.0
 KIND_NAMES = ("edge", "flow", "salient")
 
 
@@ -110,6 +127,11 @@ class LOConfig:
                                    "level's gradient and this times the HSV saturation's "
                                    "(correspondences.image_features; 0: grey level only); "
                                    "the objects' edges stay the grey level's", lo=0.0, hi=8.0)
+    smooth_px_per_mm: float = param(0.0, "weight of seed 000 sec. 4.3's smoothness term on "
+                                    "every part: residual [px] per mm of acceleration "
+                                    "(angles at a 50 mm lever); 0 = none (seed 002's eq. 2 "
+                                    "alone)",
+                                    lo=0.0, hi=1000.0)
     seed: int = param(0, "subsampling seed", lo=0)
 
     def __post_init__(self) -> None:
@@ -544,11 +566,44 @@ class LocalOptimizer:
                             "ij,ijk->ik", nrm[loc], Jc[:, :, src])
         return res, jac
 
+    def smoothness_rows(self, prior: np.ndarray, cols: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The smoothness term's rows (module docstring) for the optimised parameters
+        ``cols``: ``(pos, w)``, the positions in ``cols`` the rows act on (all of them) and
+        their weights [px per m or per rad]; None when the term is off."""
+        k = self.cfg.smooth_px_per_mm
+        if k <= 0 or prior is None:
+            return None
+        if not len(cols):
+            return None
+        nh = self.model.n_hands * N_DOF
+        # positions [m]: a hand's wrist (its first 3), an object's origin (its first 3 of 6)
+        metres = np.where(cols < nh, cols % N_DOF < 3, (cols - nh) % OBJECT_DOF < 3)
+        return np.arange(len(cols)), np.where(metres, k * 1000.0, k * SMOOTH_LEVER_MM)
+
+    @staticmethod
+    def _with_smoothness(res: tuple[np.ndarray, np.ndarray | None], x: np.ndarray,
+                         cols: np.ndarray, smooth: tuple | None
+                         ) -> tuple[np.ndarray, np.ndarray | None]:
+        """``res`` (residuals, Jacobian over ``cols`` or None) with the smoothness rows
+        ``smooth`` = ``(prior, pos, w)`` appended: ``w (x - prior)`` and ``diag(w)``."""
+        r, J = res
+        if smooth is None:
+            return r, J
+        prior, pos, w = smooth
+        r = np.concatenate([r, w * (x[cols[pos]] - prior[cols[pos]])])
+        if J is not None:
+            Js = np.zeros((len(pos), J.shape[1]))
+            Js[np.arange(len(pos)), pos] = w
+            J = np.vstack([J, Js])
+        return r, J
+
     def _lm_steps(self, params: np.ndarray, corr: Correspondences, coll: CollisionPairs,
-                  cols: np.ndarray, steps: int, mu: float) -> tuple[np.ndarray, float, float]:
+                  cols: np.ndarray, steps: int, mu: float, smooth: tuple | None = None
+                  ) -> tuple[np.ndarray, float, float]:
         lo, hi = self.model.lo, self.model.hi
         x = params.copy()
-        r, J = self._residuals(x, corr, coll, cols)
+        r, J = self._with_smoothness(self._residuals(x, corr, coll, cols), x, cols, smooth)
         cost = float(r @ r)
         for _ in range(steps):
             g = J.T @ r
@@ -569,12 +624,14 @@ class LocalOptimizer:
                 xn = x.copy()
                 xn[cols[free]] += delta
                 xn = np.clip(xn, lo, hi)
-                rn, _ = self._residuals(xn, corr, coll, None)
+                rn, _ = self._with_smoothness(self._residuals(xn, corr, coll, None), xn,
+                                              cols, smooth)
                 cn = float(rn @ rn)
                 if cn < cost:
                     x, cost = xn, cn
                     mu = max(mu / 3.0, 1e-7)
-                    r, J = self._residuals(x, corr, coll, cols)
+                    r, J = self._with_smoothness(self._residuals(x, corr, coll, cols), x,
+                                                 cols, smooth)
                     break
                 mu *= 4.0
             else:
@@ -582,17 +639,19 @@ class LocalOptimizer:
         return x, cost, mu
 
     def solve(self, params0: np.ndarray, frame: FrameData, parts: Sequence[int] | None = None,
-              iterations: int | None = None) -> LOResult:
+              iterations: int | None = None, prior: np.ndarray | None = None) -> LOResult:
         """Algorithm 1 from ``params0``, optimising the parameters of ``parts`` (default:
-        every part; the others are held and not rendered)."""
+        every part; the others are held and not rendered). ``prior`` (n_params,): the
+        smoothness term's reference ``2 q_{t-1} - q_{t-2}`` (module docstring; None: no
+        term)."""
         from threadpoolctl import threadpool_limits
 
         # small dense products: BLAS threads only spin against each other on a busy machine
         with threadpool_limits(1):
-            return self._solve(params0, frame, parts, iterations)
+            return self._solve(params0, frame, parts, iterations, prior)
 
     def _solve(self, params0: np.ndarray, frame: FrameData, parts: Sequence[int] | None,
-               iterations: int | None) -> LOResult:
+               iterations: int | None, prior: np.ndarray | None) -> LOResult:
         t0 = time.perf_counter()
         m, cfg = self.model, self.cfg
         parts = list(range(len(m.part_names))) if parts is None else list(parts)
@@ -600,6 +659,8 @@ class LocalOptimizer:
                                          m.slices[m.part_names[p]].stop) for p in parts]) \
             if parts else np.zeros(0, np.int64)
         x = m.clip(m.check(params0))
+        rows = self.smoothness_rows(prior, cols)
+        smooth = None if rows is None else (m.check(prior), *rows)
         coll = CollisionPairs.empty()
         coll_parts = [(a, b) for a, b in self.collision_parts if a in parts and b in parts]
         counts = {k: 0 for k in KIND_NAMES}
@@ -624,7 +685,7 @@ class LocalOptimizer:
                                                     cfg.collision_depth_m))
             if not len(corr) and not len(coll) or not len(cols):
                 break
-            x, cost, mu = self._lm_steps(x, corr, coll, cols, cfg.inner_steps, mu)
+            x, cost, mu = self._lm_steps(x, corr, coll, cols, cfg.inner_steps, mu, smooth)
             trace.append(x.copy())
             costs.append(cost)
         for k, name in enumerate(KIND_NAMES):

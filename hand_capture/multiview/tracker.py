@@ -294,7 +294,10 @@ class MultiviewTracker:
             gain = self._predict_gain(active)
             if self._velocity is not None and np.any(gain > 0):
                 start = self.model.clip(self.params + gain * self._velocity)
-            res = self.lo.solve(start, frame, active)
+            # seed 000 sec. 4.3's smoothness reference 2 q_{t-1} - q_{t-2} (zero motion
+            # after a reset, and for a part lost or re-found in the last frame)
+            prior = self.params if self._velocity is None else self.params + self._velocity
+            res = self.lo.solve(start, frame, active, prior=prior)
             self._velocity = res.params - self.params
             self.params = res.params
         support = np.zeros(len(m.part_names))
