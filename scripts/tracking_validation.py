@@ -34,8 +34,8 @@ is ``tube_forearm`` with the wrist (and the forearm with it) on such a path, and
 ``tube_moving_sleeve`` the same with the suite's sleeve over the forearm (10-25 mm wider than
 the arm from 40-80 mm past the wrist, :func:`~hand_capture.bench._tracking_heldout.
 suite_forearm_sequence` ``sleeve``): a forearm draws the tracked wrist towards the camera
-(docs/experiments/depth_tracking.md, fifty-fifth session), and on the held-out sleeves that
-is what fails the frames.
+(docs/experiments/depth_tracking.md, fifty-fifth session), and on a sleeved held-out
+sequence that is what fails the frames.
 
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --out base.json
     PYTHONPATH=. .venv/bin/python scripts/tracking_validation.py --config acquire_modes=0 \\
