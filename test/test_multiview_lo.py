@@ -261,21 +261,20 @@ def test_smoothness_rows_weigh_metres_and_radians_and_match_finite_differences(s
     lo = LocalOptimizer(scene, load_rig("studio6"), LOConfig(smooth_px_per_mm=2.0))
     cols = np.concatenate([np.arange(0, 27), np.arange(54, 60)])    # right hand + ball
     prior = _params(scene)
-    pos, w = lo.smoothness_rows(prior, cols)
-    np.testing.assert_array_equal(pos, np.arange(33))
+    w = lo.smoothness_weights(prior, cols)
     np.testing.assert_array_equal(w, [2000.0] * 3 + [100.0] * 24 + [2000.0] * 3 + [100.0] * 3)
-    assert lo.smoothness_rows(None, cols) is None
-    assert LocalOptimizer(scene, load_rig("studio6")).smoothness_rows(prior, cols) is None
+    assert lo.smoothness_weights(None, cols) is None
+    assert LocalOptimizer(scene, load_rig("studio6")).smoothness_weights(prior, cols) is None
     x = prior + np.random.default_rng(0).normal(0.0, 0.01, scene.n_params)
     empty = (np.zeros(0), np.zeros((0, len(cols))))
-    r, J = lo._with_smoothness(empty, x, cols, (prior, pos, w))
+    r, J = lo._with_smoothness(empty, x, cols, (prior, w))
     assert r.shape == (33,) and J.shape == (33, len(cols))
     h = 1e-6
     for k in range(len(cols)):
         dx = np.zeros(scene.n_params)
         dx[cols[k]] = h
-        rp, _ = lo._with_smoothness(empty, x + dx, cols, (prior, pos, w))
-        rm, _ = lo._with_smoothness(empty, x - dx, cols, (prior, pos, w))
+        rp, _ = lo._with_smoothness(empty, x + dx, cols, (prior, w))
+        rm, _ = lo._with_smoothness(empty, x - dx, cols, (prior, w))
         np.testing.assert_allclose(J[:, k], (rp - rm) / (2 * h), rtol=1e-6, atol=1e-6)
 
 

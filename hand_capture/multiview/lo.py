@@ -566,37 +566,31 @@ class LocalOptimizer:
                             "ij,ijk->ik", nrm[loc], Jc[:, :, src])
         return res, jac
 
-    def smoothness_rows(self, prior: np.ndarray, cols: np.ndarray
-                        ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The smoothness term's rows (module docstring) for the optimised parameters
-        ``cols``: ``(pos, w)``, the positions in ``cols`` the rows act on (all of them) and
-        their weights [px per m or per rad]; None when the term is off."""
+    def smoothness_weights(self, prior: np.ndarray | None, cols: np.ndarray
+                           ) -> np.ndarray | None:
+        """The smoothness term's weight (module docstring) of each optimised parameter
+        ``cols`` [px per m or per rad], one row each; None when the term is off."""
         k = self.cfg.smooth_px_per_mm
-        if k <= 0 or prior is None:
-            return None
-        if not len(cols):
+        if k <= 0 or prior is None or not len(cols):
             return None
         nh = self.model.n_hands * N_DOF
         # positions [m]: a hand's wrist (its first 3), an object's origin (its first 3 of 6)
         metres = np.where(cols < nh, cols % N_DOF < 3, (cols - nh) % OBJECT_DOF < 3)
-        return np.arange(len(cols)), np.where(metres, k * 1000.0, k * SMOOTH_LEVER_MM)
+        return np.where(metres, k * 1000.0, k * SMOOTH_LEVER_MM)
 
     @staticmethod
     def _with_smoothness(res: tuple[np.ndarray, np.ndarray | None], x: np.ndarray,
                          cols: np.ndarray, smooth: tuple | None
                          ) -> tuple[np.ndarray, np.ndarray | None]:
         """``res`` (residuals, Jacobian over ``cols`` or None) with the smoothness rows
-        ``smooth`` = ``(prior, pos, w)`` appended: ``w (x - prior)`` and ``diag(w)``."""
+        ``smooth`` = ``(prior, w)`` appended: ``w (x - prior)`` over ``cols`` and
+        ``diag(w)``."""
         r, J = res
         if smooth is None:
             return r, J
-        prior, pos, w = smooth
-        r = np.concatenate([r, w * (x[cols[pos]] - prior[cols[pos]])])
-        if J is not None:
-            Js = np.zeros((len(pos), J.shape[1]))
-            Js[np.arange(len(pos)), pos] = w
-            J = np.vstack([J, Js])
-        return r, J
+        prior, w = smooth
+        r = np.concatenate([r, w * (x[cols] - prior[cols])])
+        return r, None if J is None else np.vstack([J, np.diag(w)])
 
     def _lm_steps(self, params: np.ndarray, corr: Correspondences, coll: CollisionPairs,
                   cols: np.ndarray, steps: int, mu: float, smooth: tuple | None = None
@@ -659,8 +653,8 @@ class LocalOptimizer:
                                          m.slices[m.part_names[p]].stop) for p in parts]) \
             if parts else np.zeros(0, np.int64)
         x = m.clip(m.check(params0))
-        rows = self.smoothness_rows(prior, cols)
-        smooth = None if rows is None else (m.check(prior), *rows)
+        w = self.smoothness_weights(prior, cols)
+        smooth = None if w is None else (m.check(prior), w)
         coll = CollisionPairs.empty()
         coll_parts = [(a, b) for a, b in self.collision_parts if a in parts and b in parts]
         counts = {k: 0 for k in KIND_NAMES}
