@@ -79,6 +79,41 @@ def test_a_camera_that_stops_is_named_and_the_rig_goes_on_degraded():
     assert len(groups) >= 100 - int(cfg.camera_timeout_s * FPS) - 3
 
 
+def test_a_stalled_host_takes_its_backlog_without_declaring_live_cameras_missing():
+    """The process gets no CPU for 0.8 s (longer than the timeout), then takes the frames that
+    waited in the middleware one per camera in turn, all at the same receive time: every
+    camera is alive, so no group may lack one; a camera that truly stopped is still named."""
+    cfg = SyncConfig(tolerance_s=0.01, camera_timeout_s=0.3)
+    frames = _streams(3, 60, offsets_s=[0, 0, 0], jitter_s=0.001)
+    stall = (1.0, 1.8)  # receive times [s] during which nothing is taken
+    taken, backlog = [], []
+    for arrival, cam, stamp, k in frames:
+        if stall[0] <= arrival < stall[1]:
+            backlog.append((cam, stamp, k))
+        else:
+            taken.append((arrival, cam, stamp, k))
+    sync = FrameSynchronizer(["cam0", "cam1", "cam2"], cfg)
+    groups = []
+    for arrival, cam, stamp, k in taken:
+        if arrival >= stall[1] and backlog:
+            groups += sync.poll(now=stall[1])            # the timer runs first after a stall
+            per_cam = {c: [b for b in backlog if b[0] == c] for c in sync.cameras}
+            while any(per_cam.values()):                  # one message per camera in turn
+                for c in sync.cameras:
+                    if per_cam[c]:
+                        cam_, stamp_, k_ = per_cam[c].pop(0)
+                        groups += sync.push(cam_, stamp_, k_, now=stall[1])
+            backlog = []
+        groups += sync.push(cam, stamp, k, now=arrival)
+    assert len(groups) >= 58 and all(g.complete for g in groups)
+    assert sync.stats.incomplete == 0 and sync.stats.dropped == 0
+    # the same stall with cam1 stopped before it: named, and the rig goes on without it
+    sync = FrameSynchronizer(["cam0", "cam1", "cam2"], cfg)
+    groups = _run(sync, [f for f in frames if not (f[1] == "cam1" and f[0] > 0.5)])
+    assert sync.missing(now=3.0) == ("cam1",)
+    assert [g.missing for g in groups if not g.complete][-1] == ("cam1",)
+
+
 def test_late_frames_are_counted_and_never_grouped():
     sync = FrameSynchronizer(["a", "b"], SyncConfig(tolerance_s=0.005))
     assert sync.push("a", 1.000, "a1", now=1.01) == []

@@ -12,6 +12,12 @@ belongs together, and the receive time ``now`` (the host's time) decides when a 
 declared missing. A missing camera is named; groups go on over the cameras that are alive
 (``complete`` is False on those), and the camera rejoins when its frames come back.
 
+Silence alone does not make a camera missing: the rest of the rig must have gone on without
+it (another camera delivered ``missing_after_frames`` frames since its last one). A process
+starved of CPU takes its backlog late, one message per subscription in turn, so on a loaded
+host every camera looks silent at once after a stall; judged by time alone, the first camera
+taken would be grouped without the others, whose frames were waiting in the middleware.
+
 Counters (for ``diagnostics``):
     groups: groups emitted; incomplete: of those, groups missing a camera;
     dropped: frames discarded because no partner frame was within the tolerance;
@@ -45,6 +51,9 @@ class SyncConfig:
         lo=1e-3, hi=60.0)
     max_queue: int = param(30, "frames kept per camera while waiting for partners", lo=2,
                            hi=10000)
+    missing_after_frames: int = param(
+        2, "a silent camera is missing only once another camera delivered this many frames "
+        "since its last one (a starved host takes its backlog late)", lo=1, hi=1000)
     min_cameras: int = param(
         1, "fewest live cameras a group may hold (degraded rig) before nothing is emitted",
         lo=1, hi=64)
@@ -108,18 +117,26 @@ class FrameSynchronizer:
         self.cameras = tuple(names)
         self._queues: dict[str, deque[tuple[float, Any]]] = {n: deque() for n in names}
         self._last_rx: dict[str, float | None] = dict.fromkeys(names)
+        # _since[a][b]: frames camera b delivered since camera a's last one (or the start)
+        self._since: dict[str, dict[str, int]] = {a: dict.fromkeys(names, 0) for a in names}
         self._last_group = -math.inf
         self._start: float | None = None  # receive time of the first frame
         self.stats = SyncStats(received=dict.fromkeys(names, 0))
 
     def missing(self, now: float) -> tuple[str, ...]:
         """Cameras with no frame for longer than ``camera_timeout_s`` before ``now`` [s] (a
-        camera never heard from counts from the first frame of any camera)."""
+        camera never heard from counts from the first frame of any camera) while another
+        camera delivered at least ``missing_after_frames`` frames since their last one; every
+        camera when all of them are that long silent (the whole rig stopped)."""
         t = self.config.camera_timeout_s
         if self._start is None:
             return ()
-        return tuple(n for n in self.cameras
-                     if now - (self._start if self._last_rx[n] is None else self._last_rx[n]) > t)
+        silent = [n for n in self.cameras
+                  if now - (self._start if self._last_rx[n] is None else self._last_rx[n]) > t]
+        if len(silent) == len(self.cameras):
+            return tuple(silent)
+        k = self.config.missing_after_frames
+        return tuple(n for n in silent if max(self._since[n].values()) >= k)
 
     def push(self, camera: str, stamp: float, payload: Any, now: float) -> list[FrameGroup]:
         """Add one frame and return the groups it completes (oldest first).
@@ -140,6 +157,9 @@ class FrameSynchronizer:
             raise InputError(f"camera {camera!r}: stamp must be finite, got {stamp}")
         self.stats.received[camera] += 1
         self._last_rx[camera] = now
+        for since in self._since.values():
+            since[camera] += 1
+        self._since[camera] = dict.fromkeys(self.cameras, 0)
         if self._start is None:
             self._start = now
         if stamp <= self._last_group:
