@@ -264,7 +264,12 @@ def test_smoothness_rows_weigh_metres_and_radians_and_match_finite_differences(s
     w = lo.smoothness_weights(prior, cols)
     np.testing.assert_array_equal(w, [2000.0] * 3 + [100.0] * 24 + [2000.0] * 3 + [100.0] * 3)
     assert lo.smoothness_weights(None, cols) is None
-    assert LocalOptimizer(scene, load_rig("studio6")).smoothness_weights(prior, cols) is None
+    off = LocalOptimizer(scene, load_rig("studio6"), LOConfig(smooth_px_per_mm=0.0))
+    assert off.smoothness_weights(prior, cols) is None
+    # at and above smooth_ref_hz (20) as it is; at 10 fps a quarter (the same motion's
+    # acceleration per frame is 4 times larger)
+    for dt, scale in ((1 / 30, 1.0), (0.05, 1.0), (0.1, 0.25), (float("nan"), 1.0)):
+        np.testing.assert_allclose(lo.smoothness_weights(prior, cols, dt), scale * w)
     x = prior + np.random.default_rng(0).normal(0.0, 0.01, scene.n_params)
     empty = (np.zeros(0), np.zeros((0, len(cols))))
     r, J = lo._with_smoothness(empty, x, cols, (prior, w))
@@ -371,6 +376,29 @@ def test_edge_matches_lie_on_the_rendered_hand_outline_at_the_true_pose(clean_bo
                                  for c, v in zip(corr.cam[sel], corr.vert[sel], strict=True)])
             d = np.abs(np.sum((uv - corr.target[sel]) * corr.normal[sel], axis=1))
             assert len(sel) > 100 and np.median(d) < limit, (t, part, np.median(d))
+
+
+def test_the_group_runner_passes_the_interval_between_tracked_groups(clean_box_frames):
+    """The node and ``track-multiview`` give the tracker the time since the last group it
+    tracked (a rejected group is skipped; none for the first group)."""
+    rig, _, frames = clean_box_frames
+
+    class Recorder:
+        def __init__(self) -> None:
+            self.rig, self.dts = rig, []
+
+        def step(self, images, dt=None):
+            self.dts.append(dt)
+            return dt
+
+    rec = Recorder()
+    runner = GroupRunner(rec)  # type: ignore[arg-type]
+    for stamp in (10.0, 10.1):
+        runner.process(frames[0].images, stamp=stamp)
+    assert runner.process({c: None for c in rig.names}, stamp=10.2) is None
+    runner.process(frames[0].images, stamp=10.3)
+    assert rec.dts[0] is None
+    np.testing.assert_allclose(rec.dts[1:], [0.1, 0.2])
 
 
 def test_bad_groups_are_counted_logged_and_lower_confidence(clean_box_frames, caplog):

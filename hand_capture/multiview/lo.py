@@ -33,6 +33,7 @@ part of that wander that the motion does not explain out of the estimate.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -132,6 +133,11 @@ class LOConfig:
                                     "(angles at a 50 mm lever); 0 = none (seed 002's eq. 2 "
                                     "alone)",
                                     lo=0.0, hi=1000.0)
+    smooth_ref_hz: float = param(20.0, "frame rate at and above which smooth_px_per_mm "
+                                 "applies as it is [Hz]; at a lower rate r it is scaled by "
+                                 "(r / this)^2, so an acceleration [m/s^2] costs what it "
+                                 "does at this rate (seed 000 sec. 4.1 films at 20 fps)",
+                                 lo=1.0, hi=1000.0)
     seed: int = param(0, "subsampling seed", lo=0)
 
     def __post_init__(self) -> None:
@@ -566,13 +572,18 @@ class LocalOptimizer:
                             "ij,ijk->ik", nrm[loc], Jc[:, :, src])
         return res, jac
 
-    def smoothness_weights(self, prior: np.ndarray | None, cols: np.ndarray
-                           ) -> np.ndarray | None:
+    def smoothness_weights(self, prior: np.ndarray | None, cols: np.ndarray,
+                           dt: float | None = None) -> np.ndarray | None:
         """The smoothness term's weight (module docstring) of each optimised parameter
-        ``cols`` [px per m or per rad], one row each; None when the term is off."""
+        ``cols`` [px per m or per rad], one row each; None when the term is off. ``dt``: the
+        time since the previous frame [s] (None: ``smooth_ref_hz``'s); at intervals longer
+        than ``1 / smooth_ref_hz`` the weight falls with their square (the same motion
+        accelerates by (dt / dt_ref)^2 more per frame)."""
         k = self.cfg.smooth_px_per_mm
         if k <= 0 or prior is None or not len(cols):
             return None
+        if dt is not None and math.isfinite(dt) and dt > 0.0:
+            k *= min(1.0, 1.0 / (dt * self.cfg.smooth_ref_hz) ** 2)
         nh = self.model.n_hands * N_DOF
         # positions [m]: a hand's wrist (its first 3), an object's origin (its first 3 of 6)
         metres = np.where(cols < nh, cols % N_DOF < 3, (cols - nh) % OBJECT_DOF < 3)
@@ -633,19 +644,21 @@ class LocalOptimizer:
         return x, cost, mu
 
     def solve(self, params0: np.ndarray, frame: FrameData, parts: Sequence[int] | None = None,
-              iterations: int | None = None, prior: np.ndarray | None = None) -> LOResult:
+              iterations: int | None = None, prior: np.ndarray | None = None,
+              dt: float | None = None) -> LOResult:
         """Algorithm 1 from ``params0``, optimising the parameters of ``parts`` (default:
         every part; the others are held and not rendered). ``prior`` (n_params,): the
         smoothness term's reference ``2 q_{t-1} - q_{t-2}`` (module docstring; None: no
-        term)."""
+        term); ``dt``: the time since the previous frame [s] (:meth:`smoothness_weights`)."""
         from threadpoolctl import threadpool_limits
 
         # small dense products: BLAS threads only spin against each other on a busy machine
         with threadpool_limits(1):
-            return self._solve(params0, frame, parts, iterations, prior)
+            return self._solve(params0, frame, parts, iterations, prior, dt)
 
     def _solve(self, params0: np.ndarray, frame: FrameData, parts: Sequence[int] | None,
-               iterations: int | None, prior: np.ndarray | None) -> LOResult:
+               iterations: int | None, prior: np.ndarray | None,
+               dt: float | None = None) -> LOResult:
         t0 = time.perf_counter()
         m, cfg = self.model, self.cfg
         parts = list(range(len(m.part_names))) if parts is None else list(parts)
@@ -653,7 +666,7 @@ class LocalOptimizer:
                                          m.slices[m.part_names[p]].stop) for p in parts]) \
             if parts else np.zeros(0, np.int64)
         x = m.clip(m.check(params0))
-        w = self.smoothness_weights(prior, cols)
+        w = self.smoothness_weights(prior, cols, dt)
         smooth = None if w is None else (m.check(prior), w)
         coll = CollisionPairs.empty()
         coll_parts = [(a, b) for a, b in self.collision_parts if a in parts and b in parts]

@@ -257,8 +257,13 @@ class MultiviewTracker:
 
     def step(self, images: Mapping[str, np.ndarray | None],
              detections: Mapping[str, np.ndarray] | None = None,
-             flow_ignore: Mapping[str, np.ndarray] | None = None) -> TrackResult:
+             flow_ignore: Mapping[str, np.ndarray] | None = None,
+             dt: float | None = None) -> TrackResult:
         """Track one synchronised group (camera name -> RGB image, None = missing).
+
+        ``dt``: the time since the previous group [s] (the smoothness term's weight falls
+        below its frame rate, :meth:`LocalOptimizer.smoothness_weights`; None: the
+        reference rate's).
 
         ``flow_ignore``: camera -> (H, W) bool mask of this group's pixels whose optical
         flow is not to be considered, kept with the images for the next group's flow too
@@ -297,7 +302,7 @@ class MultiviewTracker:
             # seed 000 sec. 4.3's smoothness reference 2 q_{t-1} - q_{t-2} (zero motion
             # after a reset, and for a part lost or re-found in the last frame)
             prior = self.params if self._velocity is None else self.params + self._velocity
-            res = self.lo.solve(start, frame, active, prior=prior)
+            res = self.lo.solve(start, frame, active, prior=prior, dt=dt)
             self._velocity = res.params - self.params
             self.params = res.params
         support = np.zeros(len(m.part_names))
@@ -528,10 +533,12 @@ class GroupRunner:
         self.groups = 0
         self.tracked = 0
         self._log = log or logging.getLogger(__name__).warning
+        self._last_stamp: float | None = None   # of the last group tracked [s]
 
     def process(self, images: Mapping[str, object], infos: Mapping[str, object] | None = None,
                 stamp: float = 0.0) -> TrackResult | None:
-        """Track one group; None when the whole group was rejected."""
+        """Track one group (``stamp``: its time [s]; the interval since the last group
+        tracked is the tracker's ``dt``); None when the whole group was rejected."""
         self.groups += 1
         chk = check_group(self.tracker.rig, images, infos)
         for cam, why in chk.rejected.items():
@@ -544,6 +551,8 @@ class GroupRunner:
             self._log(f"group at {stamp:.3f} s rejected: no usable view; "
                       f"group = {self.rejected['group']}")
             return None
-        res = self.tracker.step(chk.images)
+        last, self._last_stamp = self._last_stamp, stamp
+        dt = None if last is None or not stamp > last else stamp - last
+        res = self.tracker.step(chk.images, dt=dt)
         self.tracked += 1
         return res
