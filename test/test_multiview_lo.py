@@ -204,7 +204,7 @@ def _frame_starts(scene, p0: np.ndarray, step: np.ndarray, config=None,
     tr = MultiviewTracker(scene, rig, LOConfig(iterations=1), config)
     starts = []
 
-    def solve(params0, frame, parts=None, iterations=None, prior=None):
+    def solve(params0, frame, parts=None, iterations=None, prior=None, dt=None):
         starts.append(np.array(params0))
         if priors is not None:
             priors.append(None if prior is None else np.array(prior))
