@@ -117,8 +117,8 @@ class FrameSynchronizer:
         self.cameras = tuple(names)
         self._queues: dict[str, deque[tuple[float, Any]]] = {n: deque() for n in names}
         self._last_rx: dict[str, float | None] = dict.fromkeys(names)
-        # _since[a][b]: frames camera b delivered since camera a's last one (or the start)
-        self._since: dict[str, dict[str, int]] = {a: dict.fromkeys(names, 0) for a in names}
+        # _seen_at[a]: every camera's ``stats.received`` when camera a's last frame came
+        self._seen_at: dict[str, dict[str, int]] = {a: dict.fromkeys(names, 0) for a in names}
         self._last_group = -math.inf
         self._start: float | None = None  # receive time of the first frame
         self.stats = SyncStats(received=dict.fromkeys(names, 0))
@@ -135,8 +135,9 @@ class FrameSynchronizer:
                   if now - (self._start if self._last_rx[n] is None else self._last_rx[n]) > t]
         if len(silent) == len(self.cameras):
             return tuple(silent)
-        k = self.config.missing_after_frames
-        return tuple(n for n in silent if max(self._since[n].values()) >= k)
+        k, rx = self.config.missing_after_frames, self.stats.received
+        return tuple(n for n in silent
+                     if max(rx[b] - seen for b, seen in self._seen_at[n].items()) >= k)
 
     def push(self, camera: str, stamp: float, payload: Any, now: float) -> list[FrameGroup]:
         """Add one frame and return the groups it completes (oldest first).
@@ -157,9 +158,7 @@ class FrameSynchronizer:
             raise InputError(f"camera {camera!r}: stamp must be finite, got {stamp}")
         self.stats.received[camera] += 1
         self._last_rx[camera] = now
-        for since in self._since.values():
-            since[camera] += 1
-        self._since[camera] = dict.fromkeys(self.cameras, 0)
+        self._seen_at[camera] = dict(self.stats.received)
         if self._start is None:
             self._start = now
         if stamp <= self._last_group:
