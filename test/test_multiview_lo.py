@@ -597,3 +597,67 @@ def test_the_multiview_bench_sets_its_lo_overrides_on_every_row(monkeypatch):
     assert [c.smooth_px_per_mm for c in seen] == [1.5, 1.5]
     assert all(c.seed == 3 and c.iterations == 4 for c in seen)
     assert seen[0] != seen[1]                        # two variants (E+C, E+C+O ...)
+
+
+def _lost_ball_run(scene, p0: np.ndarray, step: np.ndarray, carry_m: float,
+                   frames: int = 3) -> tuple[list[np.ndarray], list[str]]:
+    """A tracker whose every solve moves the parameters by ``step`` and gives the ball no
+    edge support (so it is flagged LOST on the first frame and never re-found): the ball's
+    parameters and status after each frame."""
+    from hand_capture.multiview.lo import LOResult
+    from hand_capture.multiview.tracker import MultiviewTrackerConfig
+
+    rig = load_rig("studio6")
+    tr = MultiviewTracker(scene, rig, LOConfig(iterations=1),
+                          MultiviewTrackerConfig(object_colours=False, carry_lost_m=carry_m))
+    n = len(scene.part_names)
+    support = np.array([1.0, 1.0, 0.0])
+
+    def solve(params0, frame, parts=None, iterations=None, prior=None, dt=None):
+        return LOResult(params0 + step, 0.0, support, np.full(n, 100.0))
+
+    tr.lo.solve = solve
+    tr.lo.prepare = lambda *a, **k: FrameData({}, {}, _empty_flow())
+    tr.lo.support = lambda params, frame, parts: (np.zeros(n), np.zeros(n))
+    tr.reset(p0)
+    images = {c: np.zeros((480, 640, 3), np.uint8) for c in rig.names}
+    balls, status = [], []
+    for _ in range(frames):
+        r = tr.step(images)
+        balls.append(r.params[54:60].copy())
+        status.append(r.parts[2].status)
+    return balls, status
+
+
+def test_a_lost_object_in_a_hand_is_carried_by_its_palm(scene):
+    """``carry_lost_m``: a ball flagged LOST while it touches the right hand keeps its pose
+    in the hand's palm frame while the hand moves and turns (the search for it looks there);
+    off, or with the ball out of reach, it stays where it was lost."""
+    from hand_capture.multiview.tracker import LOST
+
+    p0 = _params(scene)
+    st = scene.pose(p0)
+    r = float(np.linalg.norm(st.vertices[2] - st.object_poses[0][:3, 3], axis=1).max())
+    v = st.vertices[0][np.argmax(st.vertices[0][:, 0])]    # the hand's far end
+    p0[54:57] = v + np.array([r + 0.003, 0.0, 0.0])          # the ball touching it
+    step = np.zeros(scene.n_params)
+    step[2] = 0.007            # the right wrist rises 7 mm a frame
+    step[5] = 0.05             # and turns 0.05 rad a frame
+
+    def in_palm(params: np.ndarray) -> np.ndarray:
+        palm = scene.hands[0].forward(scene.part_params(params, 0)).joint_frames[0]
+        return np.linalg.inv(palm) @ scene.object_transform(scene.part_params(params, 2))
+
+    balls, status = _lost_ball_run(scene, p0, step, 0.03)
+    assert status == [LOST] * 3
+    p3 = p0 + 3 * step
+    p3[54:60] = balls[-1]
+    np.testing.assert_allclose(in_palm(p3), in_palm(p0), atol=1e-9)
+    assert balls[-1][2] - p0[56] > 0.015       # it rose with the hand
+    for carry, ball_at in ((0.0, None), (0.03, (0.6, 0.3, 0.2))):   # off; out of reach
+        p = p0.copy()
+        if ball_at is not None:
+            p[54:57] = ball_at
+        balls, status = _lost_ball_run(scene, p, step, carry)
+        assert status == [LOST] * 3
+        np.testing.assert_allclose(balls[-1], p[54:60], atol=1e-12)

@@ -52,6 +52,7 @@ import numpy as np
 
 from hand_capture.config import param, validate
 from hand_capture.errors import InputError
+from hand_capture.model.joints import root_angles_from_matrix
 from hand_capture.multiview.lo import LocalOptimizer, LOConfig, LOResult
 from hand_capture.multiview.region import ObjectRegions
 from hand_capture.multiview.rig import Rig
@@ -104,6 +105,15 @@ class MultiviewTrackerConfig:
                                 "placement of its colour hull is tried against the estimate "
                                 "(the better by support x region, refined, is kept)",
                                 lo=0.0, hi=1.0)
+    carry_lost_m: float = param(0.0, "an object flagged LOST within this distance of a "
+                                "hand (at its last good pose) is carried by that hand's palm "
+                                "motion while lost: its reported pose and the search around "
+                                "it follow the hand [m] (0: held where it was lost)", lo=0.0,
+                                hi=0.2)
+    check_margin: float = param(0.0, "a check replaces the estimate only when the colour "
+                                "hull's refined placement scores above the estimate's "
+                                "support x region times (1 + this) (0: any gain)", lo=0.0,
+                                hi=10.0)
     check_agree_m: float = param(0.015, "a check keeps the estimate without evaluating the "
                                  "colour hull's placement when it lies this near [m]",
                                  lo=0.0, hi=1.0)
@@ -239,6 +249,8 @@ class MultiviewTracker:
         #: the previous group's flow-ignore masks (see :meth:`step`)
         self._prev_ignore: dict[str, np.ndarray] | None = None
         self._velocity: np.ndarray | None = None
+        #: the hand carrying each lost object (``carry_lost_m``)
+        self._holder: dict[int, int] = {}
         self.frames = 0
 
     def reset(self, params: np.ndarray) -> None:
@@ -251,6 +263,7 @@ class MultiviewTracker:
         self._prev = None
         self._prev_ignore = None
         self._velocity = None
+        self._holder = {}
 
     def _slice(self, p: int) -> slice:
         return self.model.slices[self.model.part_names[p]]
@@ -320,9 +333,15 @@ class MultiviewTracker:
                 if self._bad[p] >= self.cfg.lost_frames:
                     self.status[p] = LOST
                     self.params[sl] = self._last_good[sl]
+                    if p >= m.n_hands and self.cfg.carry_lost_m > 0:
+                        self._holder.pop(p, None)
+                        h = self._nearest_hand(m.pose(self.params), p, self.cfg.carry_lost_m)
+                        if h is not None:
+                            self._holder[p] = h
             else:
                 self._bad[p] = 0
                 self._last_good[sl] = self.params[sl]
+        self._carry_lost(before)
         if self.cfg.object_colours:
             # each object's colours, learned on its first frame with a supported outline
             good = [p for p in active if p >= m.n_hands and self.status[p] != LOST
@@ -401,6 +420,40 @@ class MultiviewTracker:
             elif state is not None and not self._held(state, p):
                 g[self._slice(p)] = self.cfg.predict_objects
         return g
+
+    def _nearest_hand(self, state: SceneState, part: int, within_m: float) -> int | None:
+        """The hand with a vertex nearest to object ``part``'s at ``state``, if within
+        ``within_m`` [m]; else None."""
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(state.vertices[part])
+        best, best_d = None, within_m
+        for h in range(self.model.n_hands):
+            if self.status[h] == LOST:
+                continue
+            d, _ = tree.query(state.vertices[h], distance_upper_bound=within_m)
+            if np.isfinite(d).any() and float(d.min()) <= best_d:
+                best, best_d = h, float(d.min())
+        return best
+
+    def _carry_lost(self, before: np.ndarray) -> None:
+        """Each lost object with a holder (``carry_lost_m``) moved by its hand's palm
+        motion from ``before`` to the current estimate (its last good pose and the
+        estimate, which a lost part keeps at the last good pose)."""
+        m = self.model
+        for p, h in list(self._holder.items()):
+            if self.status[p] != LOST or self.status[h] == LOST:
+                del self._holder[p]      # re-found, or the hand is gone too
+                continue
+            hand = m.hands[h]
+            a = hand.forward(m.part_params(before, h)).joint_frames[0]
+            b = hand.forward(m.part_params(self.params, h)).joint_frames[0]
+            T = b @ np.linalg.inv(a) @ m.object_transform(self._last_good[self._slice(p)])
+            x = self.params.copy()
+            x[self._slice(p)] = [*T[:3, 3], *root_angles_from_matrix(T[:3, :3])]
+            x = m.clip(x)
+            self._last_good[self._slice(p)] = x[self._slice(p)]
+            self.params[self._slice(p)] = x[self._slice(p)]
 
     def _held(self, state: SceneState, part: int) -> bool:
         """Whether object ``part`` is within ``held_m`` of a hand at ``state``."""
@@ -498,7 +551,8 @@ class MultiviewTracker:
         if res.model_edges[p] < cfg.min_edges or res.support[p] < cfg.recover_support or \
                 r < cfg.recover_region:
             return None
-        if current is not None and res.support[p] * r <= current[0] * current[1]:
+        if current is not None and \
+                res.support[p] * r <= current[0] * current[1] * (1.0 + cfg.check_margin):
             return None
         self.params[sl] = res.params[sl]
         self._last_good[sl] = res.params[sl]
