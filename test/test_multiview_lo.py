@@ -661,3 +661,30 @@ def test_a_lost_object_in_a_hand_is_carried_by_its_palm(scene):
         balls, status = _lost_ball_run(scene, p, step, carry)
         assert status == [LOST] * 3
         np.testing.assert_allclose(balls[-1], p[54:60], atol=1e-12)
+
+
+@pytest.mark.parametrize("margin, replaced", [(0.0, True), (0.5, True), (1.0, False)])
+def test_a_check_replaces_the_estimate_only_by_its_margin(scene, monkeypatch, margin,
+                                                          replaced):
+    """``check_margin``: a doubtful object's colour-hull placement (support 0.8 x region
+    0.5 = 0.4 after refinement) replaces the estimate (0.5 x 0.5 = 0.25, a ratio of 1.6)
+    only when it scores above the estimate's times (1 + margin)."""
+    from hand_capture.multiview import hull
+    from hand_capture.multiview.lo import LOResult
+    from hand_capture.multiview.tracker import MultiviewTrackerConfig
+
+    tr = MultiviewTracker(scene, load_rig("studio6"), LOConfig(iterations=1),
+                          MultiviewTrackerConfig(check_margin=margin))
+    p0 = _params(scene)
+    tr.reset(p0)
+    far = p0[54:60] + np.array([0.07, 0.0, 0.0, 0.0, 0.0, 0.0])
+    n = len(scene.part_names)
+    monkeypatch.setattr(hull, "place_object", lambda *a, **k: (far.copy(), None))
+    tr.regions.blob_masks = lambda maps, p: None
+    tr.regions.score = lambda x, maps, p, tracked: (0.5,)
+    tr.lo.support = lambda x, frame, parts: (np.full(n, 0.8), np.full(n, 100.0))
+    tr.lo.solve = lambda x, frame, parts=None, iterations=None, prior=None, dt=None: \
+        LOResult(np.array(x), 0.0, np.full(n, 0.8), np.full(n, 100.0))
+    got = tr._recover(2, {}, None, {2: {}}, current=(0.5, 0.5))
+    assert (got is not None) == replaced
+    np.testing.assert_allclose(tr.params[54:60], far if replaced else p0[54:60])
