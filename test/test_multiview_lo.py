@@ -302,14 +302,20 @@ def test_the_smoothness_term_holds_the_parts_at_their_reference(scene):
     assert moved[5.0] < 0.3 * moved[0.0] and ball[5.0] < 0.3 * ball[0.0], (moved, ball)
 
 
-def test_a_held_object_is_not_predicted(scene):
-    """An object within ``held_m`` of a hand moves with the hand (not predicted): starting
-    it ahead of the fingers holding it would push it into them."""
+def _ball_touching_the_hand(scene) -> np.ndarray:
+    """:func:`_params` with the ball 3 mm beyond the right hand's far end (held_m: 1 cm)."""
     p0 = _params(scene)
     st = scene.pose(p0)
     r = float(np.linalg.norm(st.vertices[2] - st.object_poses[0][:3, 3], axis=1).max())
     v = st.vertices[0][np.argmax(st.vertices[0][:, 0])]    # the hand's far end
     p0[54:57] = v + np.array([r + 0.003, 0.0, 0.0])          # the ball touching it
+    return p0
+
+
+def test_a_held_object_is_not_predicted(scene):
+    """An object within ``held_m`` of a hand moves with the hand (not predicted): starting
+    it ahead of the fingers holding it would push it into them."""
+    p0 = _ball_touching_the_hand(scene)
     step = np.zeros(scene.n_params)
     step[54] = 0.001
     starts = _frame_starts(scene, p0, step)
@@ -635,11 +641,7 @@ def test_a_lost_object_in_a_hand_is_carried_by_its_palm(scene):
     off, or with the ball out of reach, it stays where it was lost."""
     from hand_capture.multiview.tracker import LOST
 
-    p0 = _params(scene)
-    st = scene.pose(p0)
-    r = float(np.linalg.norm(st.vertices[2] - st.object_poses[0][:3, 3], axis=1).max())
-    v = st.vertices[0][np.argmax(st.vertices[0][:, 0])]    # the hand's far end
-    p0[54:57] = v + np.array([r + 0.003, 0.0, 0.0])          # the ball touching it
+    p0 = _ball_touching_the_hand(scene)
     step = np.zeros(scene.n_params)
     step[2] = 0.007            # the right wrist rises 7 mm a frame
     step[5] = 0.05             # and turns 0.05 rad a frame

@@ -43,6 +43,7 @@ with no usable view is rejected as a whole.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
@@ -421,18 +422,19 @@ class MultiviewTracker:
                 g[self._slice(p)] = self.cfg.predict_objects
         return g
 
-    def _nearest_hand(self, state: SceneState, part: int, within_m: float) -> int | None:
+    def _nearest_hand(self, state: SceneState, part: int, within_m: float,
+                      skip_lost: bool = True) -> int | None:
         """The hand with a vertex nearest to object ``part``'s at ``state``, if within
-        ``within_m`` [m]; else None."""
+        ``within_m`` [m] (lost hands left out when ``skip_lost``); else None."""
         from scipy.spatial import cKDTree
 
         tree = cKDTree(state.vertices[part])
-        best, best_d = None, within_m
+        best, best_d = None, math.inf
         for h in range(self.model.n_hands):
-            if self.status[h] == LOST:
+            if skip_lost and self.status[h] == LOST:
                 continue
             d, _ = tree.query(state.vertices[h], distance_upper_bound=within_m)
-            if np.isfinite(d).any() and float(d.min()) <= best_d:
+            if np.isfinite(d).any() and float(d.min()) < best_d:
                 best, best_d = h, float(d.min())
         return best
 
@@ -445,26 +447,18 @@ class MultiviewTracker:
             if self.status[p] != LOST or self.status[h] == LOST:
                 del self._holder[p]      # re-found, or the hand is gone too
                 continue
-            hand = m.hands[h]
+            sl, hand = self._slice(p), m.hands[h]
             a = hand.forward(m.part_params(before, h)).joint_frames[0]
             b = hand.forward(m.part_params(self.params, h)).joint_frames[0]
-            T = b @ np.linalg.inv(a) @ m.object_transform(self._last_good[self._slice(p)])
+            T = b @ np.linalg.inv(a) @ m.object_transform(self._last_good[sl])
             x = self.params.copy()
-            x[self._slice(p)] = [*T[:3, 3], *root_angles_from_matrix(T[:3, :3])]
-            x = m.clip(x)
-            self._last_good[self._slice(p)] = x[self._slice(p)]
-            self.params[self._slice(p)] = x[self._slice(p)]
+            x[sl] = [*T[:3, 3], *root_angles_from_matrix(T[:3, :3])]
+            self.params[sl] = self._last_good[sl] = m.clip(x)[sl]
 
     def _held(self, state: SceneState, part: int) -> bool:
         """Whether object ``part`` is within ``held_m`` of a hand at ``state``."""
-        from scipy.spatial import cKDTree
+        return self._nearest_hand(state, part, self.cfg.held_m, skip_lost=False) is not None
 
-        tree = cKDTree(state.vertices[part])
-        for h in range(self.model.n_hands):
-            d, _ = tree.query(state.vertices[h], distance_upper_bound=self.cfg.held_m)
-            if np.isfinite(d).any():
-                return True
-        return False
 
     def _hands_in_place(self, frame: object, active: list[int]) -> bool:
         """Every tracked hand's outline at the current estimate is supported by the images
